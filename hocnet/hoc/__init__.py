@@ -1,0 +1,58 @@
+"""Modified high-order correlation (HOC) multi-target detection, [LA98].
+
+R.-J. Liou, M. R. Azimi-Sadjadi, "Multiple target detection using modified high order
+correlations", IEEE Trans. AES 34(2), 1998.
+"""
+
+from hocnet.hoc.functional import (
+    chain_support,
+    hard_limiter,
+    hoc_layer,
+    hoc_levels,
+    hoc_mark,
+    modified_hoc,
+    original_hoc,
+    support_from_levels,
+)
+from hocnet.hoc.identify import HOCResult, Track, detect, identify_tracks
+from hocnet.hoc.kernels import (
+    allowed_moves,
+    get_direction_mask_kernels,
+    get_shift_kernels,
+    move_offsets,
+    turn_angles,
+)
+from hocnet.hoc.layers import HOCLayer, HOCNet, ModifiedHOCLayer, relaxed_limiter, ste_limiter
+from hocnet.hoc.scoring import DEFAULT_THRESHOLD, curvature_score, movement_score, point_score
+from hocnet.hoc.stream import StreamingDetector, StreamResult
+
+__all__ = [
+    "DEFAULT_THRESHOLD",
+    "HOCLayer",
+    "HOCNet",
+    "HOCResult",
+    "ModifiedHOCLayer",
+    "StreamResult",
+    "StreamingDetector",
+    "Track",
+    "allowed_moves",
+    "chain_support",
+    "curvature_score",
+    "detect",
+    "get_direction_mask_kernels",
+    "get_shift_kernels",
+    "hard_limiter",
+    "hoc_layer",
+    "hoc_levels",
+    "hoc_mark",
+    "identify_tracks",
+    "modified_hoc",
+    "move_offsets",
+    "movement_score",
+    "original_hoc",
+    "point_score",
+    "relaxed_limiter",
+    "ste_limiter",
+    "support_from_levels",
+    "turn_angles",
+]

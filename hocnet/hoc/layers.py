@@ -1,0 +1,218 @@
+"""Thin ``nn.Module`` wrappers of the HOC network of [LA98].
+
+Each layer registers its direction-masked and shift kernels as buffers (fixed network) or, with
+``learnable=True``, as parameters initialised from the fixed kernels (or at random); its
+``forward`` calls :func:`hocnet.hoc.functional.hoc_layer`. ``HOCNet`` stacks ``order`` layers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import torch
+from torch import nn
+
+from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
+from hocnet.hoc.functional import Direction, hard_limiter, hoc_layer
+from hocnet.hoc.kernels import get_direction_mask_kernels, get_shift_kernels
+
+__all__ = ["HOCLayer", "HOCNet", "ModifiedHOCLayer", "relaxed_limiter", "ste_limiter"]
+
+
+def relaxed_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
+    """Smooth surrogate of the hard limiter: ``sigmoid(steepness * (c - 0.5))``.
+
+    Counts of the fixed network are integers, so ``c > 0`` means ``c >= 1``; the surrogate
+    switches half-way between 0 and 1 and tends to :func:`~hocnet.hoc.functional.hard_limiter`
+    on integer inputs as ``steepness`` grows.
+
+    Examples:
+        >>> relaxed_limiter(torch.tensor([0.0, 1.0]), 20.0).round().tolist()
+        [0.0, 1.0]
+    """
+    return torch.sigmoid(steepness * (c - 0.5))
+
+
+def ste_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
+    """Straight-through hard limiter: hard forward, gradient of :func:`relaxed_limiter`.
+
+    Examples:
+        >>> ste_limiter(torch.tensor([0.2, 0.7])).tolist()
+        [1.0, 1.0]
+    """
+    soft = relaxed_limiter(c, steepness)
+    return soft + (hard_limiter(c) - soft).detach()
+
+
+_RELAX = {"sigmoid": relaxed_limiter, "ste": ste_limiter}
+
+
+class ModifiedHOCLayer(nn.Module):
+    """One modified-HOC layer (eq. 5-6 of [LA98]) as fixed-weight convolutions.
+
+    Args:
+        v: velocity window half-width (pixels per scan).
+        delta: curvature limit in radians, ``(0, pi]``; ``None`` gives the original HOC (eq. 4).
+        direction: ``"forward"`` or ``"backward"``.
+        learnable: register the kernels as ``nn.Parameter`` instead of buffers.
+        init: ``"fixed"`` (start from the paper's masks) or ``"random"`` (uniform in [0, 1)),
+            only with ``learnable=True``.
+        relax: limiter used in training mode when learnable: ``"sigmoid"`` or ``"ste"``
+            (straight-through). Evaluation always uses the hard limiter.
+        steepness: slope of the relaxed limiter.
+        seed: seed of the random initialisation.
+
+    Shape:
+        - Input: ``(B, T, H, W)`` float 0/1 cube ``Y^(k-1)``.
+        - Output: ``(B, T, H, W)`` cube ``Y^(k)``.
+
+    Examples:
+        >>> layer = ModifiedHOCLayer(v=1)
+        >>> sorted(name for name, _ in layer.named_buffers())
+        ['mask_kernels', 'shift_kernels']
+        >>> f = torch.zeros(1, 3, 5, 5)
+        >>> f[0, 0, 2, 0] = f[0, 1, 2, 1] = f[0, 2, 1, 2] = 1.0  # a 45-degree turn
+        >>> layer(f)[0, 0, 2, 0].item()
+        1.0
+    """
+
+    def __init__(
+        self,
+        v: int = 4,
+        delta: float | None = math.pi / 4,
+        direction: Direction = "forward",
+        *,
+        learnable: bool = False,
+        init: str = "fixed",
+        relax: str = "sigmoid",
+        steepness: float = 8.0,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.v = check_int("v", v, minimum=1)
+        self.delta = (
+            None
+            if delta is None
+            else check_number("delta", delta, low=0.0, high=math.pi, low_inclusive=False)
+        )
+        self.direction = check_choice("direction", direction, ("forward", "backward"))
+        self.learnable = bool(learnable)
+        check_choice("init", init, ("fixed", "random"))
+        self.relax = check_choice("relax", relax, tuple(_RELAX))
+        self.steepness = check_number("steepness", steepness, low=0.0, low_inclusive=False)
+        masks = get_direction_mask_kernels(self.v, self.delta)
+        shifts = get_shift_kernels(self.v)
+        if self.learnable:
+            if init == "random":
+                gen = torch.Generator().manual_seed(0 if seed is None else int(seed))
+                masks = torch.rand(masks.shape, generator=gen)
+                shifts = torch.rand(shifts.shape, generator=gen)
+            self.mask_kernels = nn.Parameter(masks)
+            self.shift_kernels = nn.Parameter(shifts)
+        else:
+            if init != "fixed":
+                raise ValueError("`init`: expected 'fixed' for a fixed layer, got 'random'")
+            self.register_buffer("mask_kernels", masks)
+            self.register_buffer("shift_kernels", shifts)
+
+    def activation(self) -> Callable[[torch.Tensor], torch.Tensor]:
+        """The limiter in use: relaxed while training a learnable layer, hard otherwise."""
+        if self.learnable and self.training:
+            relax = _RELAX[self.relax]
+            return lambda c: relax(c, self.steepness)
+        return hard_limiter
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        """Apply the layer to a ``(B, T, H, W)`` float cube."""
+        return hoc_layer(
+            y,
+            self.mask_kernels,
+            self.shift_kernels,
+            direction=self.direction,
+            activation=self.activation(),
+        )
+
+    def extra_repr(self) -> str:
+        """Settings shown by ``repr``."""
+        return (
+            f"v={self.v}, delta={self.delta}, direction={self.direction!r}, "
+            f"learnable={self.learnable}"
+        )
+
+
+class HOCLayer(ModifiedHOCLayer):
+    """One original-HOC layer (eq. 4 of [LA98]): the second move must equal the first.
+
+    Same arguments as :class:`ModifiedHOCLayer` without ``delta``.
+
+    Examples:
+        >>> HOCLayer(v=2).mask_kernels.shape
+        torch.Size([25, 1, 5, 5])
+    """
+
+    def __init__(self, v: int = 4, direction: Direction = "forward", **kwargs) -> None:
+        super().__init__(v, None, direction, **kwargs)
+
+
+class HOCNet(nn.Module):
+    """The HOC network of [LA98]: ``order`` stacked layers, forward or backward in time.
+
+    Args:
+        order: number of layers ``k >= 1``; a surviving point starts (forward) or ends
+            (backward) a ``(2k + 1)``-scan chain.
+        v: velocity window half-width.
+        delta: curvature limit in ``(0, pi]``, or ``None`` for the original HOC.
+        direction: ``"forward"`` or ``"backward"``.
+        learnable: learnable kernels (see :class:`ModifiedHOCLayer`).
+        **kwargs: passed to each layer (``init``, ``relax``, ``steepness``, ``seed``).
+
+    Shape:
+        - Input: ``(B, T, H, W)`` or ``(T, H, W)``, bool or 0/1 float.
+        - Output: float cube of the same shape, ``Y^(order)``.
+
+    Examples:
+        >>> net = HOCNet(order=2, v=1)
+        >>> f = torch.zeros(5, 9, 9)
+        >>> for t in range(5):
+        ...     f[t, 4, 2 + t] = 1.0
+        >>> net(f).nonzero().tolist()
+        [[0, 4, 2]]
+    """
+
+    def __init__(
+        self,
+        order: int = 2,
+        v: int = 4,
+        delta: float | None = math.pi / 4,
+        direction: Direction = "forward",
+        *,
+        learnable: bool = False,
+        **kwargs,
+    ) -> None:
+        super().__init__()
+        self.order = check_int("order", order, minimum=1)
+        seed = kwargs.pop("seed", None)
+        self.layers = nn.ModuleList(
+            ModifiedHOCLayer(
+                v,
+                delta,
+                direction,
+                learnable=learnable,
+                seed=None if seed is None else seed + i,
+                **kwargs,
+            )
+            for i in range(self.order)
+        )
+
+    def forward(self, frames: torch.Tensor, *, return_levels: bool = False):
+        """Run the stack; with ``return_levels`` also return ``[F, Y^(1), ..., Y^(k)]``."""
+        binary = not any(layer.learnable for layer in self.layers)
+        cube, batched = as_cube("frames", frames, binary=binary, dtype=torch.float32)
+        levels = [cube]
+        for layer in self.layers:
+            levels.append(layer(levels[-1]))
+        out = restore_batch(levels[-1], batched)
+        if return_levels:
+            return out, [restore_batch(level, batched) for level in levels]
+        return out
