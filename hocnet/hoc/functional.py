@@ -24,6 +24,7 @@ the cube count as empty, as do out-of-image neighbours (zero padding, nothing wr
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from typing import Literal
@@ -261,10 +262,12 @@ def _sparse_triples(
     counts = torch.bincount(row2, minlength=n_mid)
     starts = torch.cumsum(counts, 0) - counts
     fan = counts[inv]  # second moves available after each first move
-    first = torch.repeat_interleave(torch.arange(mid.numel(), device=dev), fan)
-    within = torch.arange(first.numel(), device=dev) - torch.repeat_interleave(
-        torch.cumsum(fan, 0) - fan, fan
-    )
+    # expand every first move into its candidate second moves (searchsorted, not
+    # repeat_interleave, which is pathologically slow on small inputs with several threads)
+    ends = torch.cumsum(fan, 0)
+    slots = torch.arange(int(ends[-1]), device=dev)
+    first = torch.searchsorted(ends, slots, right=True)
+    within = slots - (ends - fan)[first]
     second = starts[inv[first]] + within
     ok = allowed[move1[first], move2[second]]
     first, second = first[ok], second[ok]
@@ -305,6 +308,12 @@ def _conv_marks(
 
 
 # ----------------------------------------------------------------------------- public functions
+
+
+@functools.lru_cache(maxsize=64)
+def _allowed_cached(v: int, delta: float | None, device: str) -> torch.Tensor:
+    """Read-only cached :func:`allowed_moves` table (built once per setting)."""
+    return allowed_moves(v, delta, device=device)
 
 
 def _resolve_method(method: str, cube: torch.Tensor) -> str:
@@ -348,7 +357,7 @@ def hoc_levels(
     order, v, delta = _check_common(order, v, delta)
     s = _step(direction)
     if _resolve_method(method, frames) == "sparse":
-        allowed = allowed_moves(v, delta, device=frames.device)
+        allowed = _allowed_cached(v, delta, str(frames.device))
         levels = [frames]
         for _ in range(order):
             levels.append(_sparse_layer(levels[-1], allowed, v, s))
@@ -472,7 +481,7 @@ def support_from_levels(
     """
     s = _step(direction)
     if _resolve_method(method, levels[0]) == "sparse":
-        return _sparse_marks(levels, allowed_moves(v, delta, device=levels[0].device), v, s)
+        return _sparse_marks(levels, _allowed_cached(v, delta, str(levels[0].device)), v, s)
     return _conv_marks(levels, v, delta, direction)
 
 

@@ -25,8 +25,7 @@ from dataclasses import dataclass, field
 import torch
 
 from hocnet._check import as_cube, check_int, check_number, restore_batch
-from hocnet.hoc.functional import Method, _sparse_triples, chain_support
-from hocnet.hoc.kernels import allowed_moves
+from hocnet.hoc.functional import Method, _allowed_cached, _sparse_triples, chain_support
 from hocnet.hoc.scoring import DEFAULT_THRESHOLD, point_score
 
 __all__ = ["HOCResult", "Track", "detect", "identify_tracks"]
@@ -94,7 +93,7 @@ def _identify_one(
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor]:
     """Identify tracks in one ``(T, H, W)`` support cube."""
     n_t, h, w = support.shape
-    allowed = allowed_moves(v, delta)
+    allowed = _allowed_cached(v, delta, "cpu")
     flat, p0, p1, p2 = _sparse_triples(support[None], allowed, v, 1)
     coords = torch.stack([flat // (h * w), (flat // w) % h, flat % w], dim=1)  # (N, 3) t, y, x
     scores_cube = torch.full((n_t * h * w,), math.nan, dtype=torch.float64)

@@ -22,7 +22,14 @@ from dataclasses import dataclass
 import torch
 
 from hocnet._check import as_cube, check_int, check_number
-from hocnet.hoc.functional import Method, _resolve_method, hoc_levels, support_from_levels
+from hocnet.hoc.functional import (
+    Method,
+    _allowed_cached,
+    _resolve_method,
+    _sparse_triples,
+    hoc_levels,
+    support_from_levels,
+)
 from hocnet.hoc.identify import HOCResult, Track, identify_tracks
 from hocnet.hoc.scoring import DEFAULT_THRESHOLD
 
@@ -68,7 +75,9 @@ class StreamingDetector:
         delta: curvature limit in ``(0, pi]``.
         threshold: track acceptance threshold (see :func:`~hocnet.hoc.identify.detect`).
         min_points: smallest accepted track length, default ``2 * order + 1``.
-        method: HOC implementation for the per-scan updates (``"auto"``, ``"conv"``, ``"sparse"``).
+        method: HOC implementation: ``"conv"`` runs the connectionist layers for the per-scan
+            updates and the marking pass; ``"auto"`` and ``"sparse"`` use the sparse path for the
+            updates (three scans at a time) and choose by density for the marking pass.
 
     Examples:
         >>> det = StreamingDetector(window=6, stride=2, order=2, v=2)
@@ -104,6 +113,7 @@ class StreamingDetector:
         )
         self.method = method
         _resolve_method(method, torch.zeros(1))  # validate the name now
+        self._allowed = _allowed_cached(self.v, self.delta, "cpu")
         self.reset()
 
     def reset(self) -> None:
@@ -118,9 +128,21 @@ class StreamingDetector:
 
     def _layer(self, scans: list[torch.Tensor], direction: str) -> torch.Tensor:
         """One layer evaluated at the first (forward) or last (backward) of three scans."""
+        at = 0 if direction == "forward" else 2
+        if not scans[at].any():
+            return torch.zeros_like(scans[at])
         cube = torch.stack(scans)[None]
-        out = hoc_levels(cube, 1, self.v, self.delta, direction=direction, method=self.method)[1][0]
-        return out[0] if direction == "forward" else out[-1]
+        if self.method == "conv":
+            return hoc_levels(cube, 1, self.v, self.delta, direction=direction, method="conv")[1][
+                0, at
+            ]
+        roots = torch.zeros_like(cube)
+        roots[0, at] = cube[0, at]
+        s = 1 if direction == "forward" else -1
+        flat, p0, _, _ = _sparse_triples(cube, self._allowed, self.v, s, roots=roots)
+        out = torch.zeros(cube.numel(), dtype=torch.bool)
+        out[flat[p0]] = True
+        return out.reshape(cube.shape)[0, at]
 
     def push(self, scan: torch.Tensor) -> StreamResult | None:
         """Add one ``(H, W)`` binary scan; return the window result when one is due.

@@ -1,0 +1,145 @@
+import math
+
+import pytest
+import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hocnet.data.binary import paper_scene
+from hocnet.hoc import chain_support, detect, identify_tracks
+from hocnet.hoc.kernels import allowed_moves, move_offsets
+
+
+@st.composite
+def gentle_track_scene(draw):
+    """A straight or gently turning track of >= 2k + 1 points plus arbitrary clutter."""
+    order = draw(st.integers(1, 3))
+    v = draw(st.integers(1, 4))
+    delta = draw(st.sampled_from([math.pi / 4, math.pi / 3, math.pi / 2]))
+    n_t = draw(st.integers(2 * order + 1, 10))
+    length = draw(st.integers(2 * order + 1, n_t))
+    first = draw(st.integers(0, n_t - length))
+    moves = move_offsets(v).tolist()
+    allowed = allowed_moves(v, delta)
+    m = draw(st.integers(0, len(moves) - 1))
+    path = [m]
+    for _ in range(length - 2):
+        options = allowed[path[-1]].nonzero().squeeze(1).tolist()
+        path.append(options[draw(st.integers(0, len(options) - 1))])
+    xs, ys = [0], [0]
+    for idx in path:
+        xs.append(xs[-1] + moves[idx][0])
+        ys.append(ys[-1] + moves[idx][1])
+    h = max(ys) - min(ys) + 1 + 2 * draw(st.integers(0, 4))
+    w = max(xs) - min(xs) + 1 + 2 * draw(st.integers(0, 4))
+    density = draw(st.sampled_from([0.0, 0.05, 0.2, 0.35]))
+    seed = draw(st.integers(0, 2**31 - 1))
+    cube = torch.rand(n_t, h, w, generator=torch.Generator().manual_seed(seed)) < density
+    truth = torch.zeros_like(cube)
+    for k, (x, y) in enumerate(zip(xs, ys)):
+        truth[first + k, y - min(ys), x - min(xs)] = True
+    return cube | truth, truth, order, v, delta
+
+
+class TestProposition1:
+    @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(gentle_track_scene())
+    def test_track_survives_any_clutter(self, scene):
+        cube, truth, order, v, delta = scene
+        methods = ("conv", "sparse") if cube.numel() <= 1500 else ("sparse",)
+        for method in methods:
+            support = chain_support(cube, order, v, delta, method=method)
+            assert not (truth & ~support).any(), method
+        result = detect(cube, order=order, v=v, delta=delta)
+        assert not (truth & ~result.support).any()
+
+
+class TestDetect:
+    def test_clean_paper_scene_recovers_every_track(self):
+        scene = paper_scene("table3", 0.0, seed=0)
+        result = detect(scene.cube, order=2)
+        assert torch.equal(result.cleaned, scene.cube)
+        assert len(result.tracks) == len(scene.tracks)
+        found = {tuple(map(tuple, tr.points[-6:].tolist())) for tr in result.tracks}
+        for true in scene.tracks:
+            assert tuple(map(tuple, true[-6:].tolist())) in found
+
+    def test_crossing_tracks_share_a_point(self):
+        cube = torch.zeros(9, 20, 20, dtype=torch.bool)
+        for t in range(9):
+            cube[t, 10, 2 + 2 * t] = True  # moving +x
+            cube[t, 2 + 2 * t, 10] = True  # moving +y, both at (10, 10) at t = 4
+        result = detect(cube, order=2, v=3)
+        assert len(result.tracks) == 2
+        assert all(len(tr) == 9 for tr in result.tracks)
+
+    @pytest.mark.parametrize("seed", range(3))
+    def test_paper_scene_with_clutter_loses_no_target_point(self, seed):
+        scene = paper_scene("table3", 0.014, seed=seed)
+        result = detect(scene.cube, order=2)
+        assert not (scene.target_mask & ~result.support).any()
+        assert result.cleaned.sum() < result.support.sum()
+
+    def test_batched_tracks_carry_batch_index(self):
+        scene = paper_scene("table3", 0.01, seed=1, batch=2)
+        result = detect(scene.cube, order=2)
+        assert result.support.shape == scene.cube.shape
+        assert {tr.batch for tr in result.tracks} == {0, 1}
+        assert [tr.id for tr in result.tracks] == list(range(1, len(result.tracks) + 1))
+        single = detect(scene.cube[1], order=2)
+        assert [tr.points.tolist() for tr in result.tracks if tr.batch == 1] == [
+            tr.points.tolist() for tr in single.tracks
+        ]
+
+    def test_scores_cube(self):
+        scene = paper_scene("table3", 0.0, seed=0)
+        result = detect(scene.cube, order=2)
+        assert result.scores.dtype == torch.float64
+        assert torch.isnan(result.scores[~scene.cube]).all()
+        on = result.scores[scene.cube]
+        assert (on > 2.5).all()
+        for tr in result.tracks:
+            assert tr.score == pytest.approx(float(tr.point_scores.mean()))
+
+    def test_threshold_rejects(self):
+        scene = paper_scene("table3", 0.0, seed=0)
+        assert detect(scene.cube, order=2, threshold=10.0).tracks == []
+
+    def test_empty(self):
+        result = detect(torch.zeros(6, 8, 8), order=2)
+        assert result.tracks == [] and not result.support.any() and not result.cleaned.any()
+
+
+class TestIdentifyTracks:
+    def test_turning_track_scores_lower(self):
+        s = torch.zeros(7, 20, 20, dtype=torch.bool)
+        straight = [(t, 2, 2 + 2 * t) for t in range(7)]
+        turning = [
+            (0, 12, 2),
+            (1, 12, 4),
+            (2, 12, 6),
+            (3, 13, 8),
+            (4, 15, 9),
+            (5, 17, 10),
+            (6, 19, 11),
+        ]
+        for p in straight + turning:
+            s[p] = True
+        tracks, _, cleaned = identify_tracks(s, v=3)
+        assert len(tracks) == 2 and torch.equal(cleaned, s)
+        by_row = {int(tr.points[0, 1]): tr.score for tr in tracks}
+        assert by_row[2] > by_row[12] > 2.5
+
+    def test_min_points(self):
+        s = torch.zeros(4, 8, 8, dtype=torch.bool)
+        for t in range(4):
+            s[t, 3, t] = True
+        assert identify_tracks(s, min_points=5)[0] == []
+        assert len(identify_tracks(s, min_points=4)[0]) == 1
+
+    @pytest.mark.parametrize(
+        ("kw", "match"), [({"v": 0}, "`v`"), ({"min_points": 0}, "`min_points`")]
+    )
+    def test_bad_arguments(self, kw, match):
+        with pytest.raises(ValueError, match=match):
+            identify_tracks(torch.zeros(3, 4, 4, dtype=torch.bool), **kw)

@@ -1,0 +1,108 @@
+import math
+
+import pytest
+import torch
+
+from hocnet.hoc import HOCLayer, HOCNet, ModifiedHOCLayer, modified_hoc, original_hoc
+from hocnet.hoc.layers import relaxed_limiter, ste_limiter
+
+
+def random_cube(seed, shape, density):
+    return torch.rand(shape, generator=torch.Generator().manual_seed(seed)) < density
+
+
+class TestModifiedHOCLayer:
+    def test_buffers_not_parameters(self):
+        layer = ModifiedHOCLayer(v=2)
+        assert list(layer.parameters()) == []
+        assert layer.mask_kernels.shape == (25, 1, 5, 5)
+        assert layer.shift_kernels.shape == (1, 25, 5, 5)
+        assert "mask_kernels" in layer.state_dict()
+
+    def test_learnable_parameters(self):
+        layer = ModifiedHOCLayer(v=1, learnable=True)
+        names = sorted(n for n, _ in layer.named_parameters())
+        assert names == ["mask_kernels", "shift_kernels"]
+        fixed = ModifiedHOCLayer(v=1)
+        assert torch.equal(layer.mask_kernels.data, fixed.mask_kernels)
+
+    def test_random_init_is_seeded(self):
+        a = ModifiedHOCLayer(v=1, learnable=True, init="random", seed=3)
+        b = ModifiedHOCLayer(v=1, learnable=True, init="random", seed=3)
+        assert torch.equal(a.mask_kernels, b.mask_kernels)
+
+    def test_random_init_requires_learnable(self):
+        with pytest.raises(ValueError, match="`init`"):
+            ModifiedHOCLayer(v=1, init="random")
+
+    def test_gradient_flows_when_training(self):
+        layer = ModifiedHOCLayer(v=1, learnable=True).train()
+        cube = random_cube(0, (1, 5, 6, 6), 0.4).float()
+        layer(cube).sum().backward()
+        assert layer.mask_kernels.grad is not None
+        assert layer.mask_kernels.grad.abs().sum() > 0
+
+    def test_eval_uses_hard_limiter(self):
+        layer = ModifiedHOCLayer(v=1, learnable=True).eval()
+        cube = random_cube(1, (1, 6, 7, 7), 0.4)
+        out = layer(cube.float())
+        assert torch.equal(out > 0, modified_hoc(cube, 1, 1)[..., :, :])
+        assert set(out.unique().tolist()) <= {0.0, 1.0}
+
+    @pytest.mark.parametrize(
+        ("name", "value", "match"), [("v", 0, "`v`"), ("delta", 5.0, "`delta`")]
+    )
+    def test_bad_arguments(self, name, value, match):
+        with pytest.raises(ValueError, match=match):
+            ModifiedHOCLayer(**{name: value})
+
+
+class TestHOCLayer:
+    def test_is_original_hoc(self):
+        cube = random_cube(2, (1, 7, 9, 9), 0.35)
+        out = HOCLayer(v=2)(cube.float())
+        assert torch.equal(out > 0, original_hoc(cube, 1, 2))
+
+
+class TestHOCNet:
+    @pytest.mark.parametrize("direction", ["forward", "backward"])
+    @pytest.mark.parametrize("delta", [math.pi / 4, math.pi / 2, None])
+    def test_module_equals_function(self, direction, delta):
+        cube = random_cube(4, (2, 9, 10, 11), 0.25)
+        net = HOCNet(order=3, v=2, delta=delta, direction=direction)
+        if delta is None:
+            expected = original_hoc(cube, 3, 2, direction)
+        else:
+            expected = modified_hoc(cube, 3, 2, delta, direction)
+        assert torch.equal(net(cube) > 0, expected)
+
+    def test_unbatched_and_levels(self):
+        cube = random_cube(5, (8, 9, 9), 0.3)
+        out, levels = HOCNet(order=2, v=2)(cube, return_levels=True)
+        assert out.shape == (8, 9, 9) and len(levels) == 3
+        assert torch.equal(levels[0], cube.float())
+
+    def test_layers_stacked(self):
+        net = HOCNet(order=4, v=1)
+        assert len(net.layers) == 4
+
+    def test_rejects_non_binary_when_fixed(self):
+        with pytest.raises(ValueError, match="`frames`"):
+            HOCNet(order=1, v=1)(torch.full((3, 4, 4), 0.3))
+
+    def test_bad_order(self):
+        with pytest.raises(ValueError, match="`order`"):
+            HOCNet(order=0)
+
+
+class TestLimiters:
+    def test_relaxed_tends_to_hard(self):
+        c = torch.tensor([0.0, 1.0, 2.0, 5.0])
+        assert torch.equal(relaxed_limiter(c, 50.0).round(), (c > 0).float())
+
+    def test_ste_forward_hard_backward_soft(self):
+        c = torch.tensor([0.0, 2.0], requires_grad=True)
+        out = ste_limiter(c)
+        assert out.tolist() == [0.0, 1.0]
+        out.sum().backward()
+        assert (c.grad > 0).all()

@@ -1,0 +1,474 @@
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import hocnet.cli as cli
+from hocnet.cli import main
+from hocnet.data.binary import TargetSpec, paper_scene, simulate_binary
+from hocnet.data.io import load_tracks_json, save_cube
+from hocnet.hoc import HOCResult, detect
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def assert_png(path: Path) -> None:
+    assert path.is_file() and path.stat().st_size > 1000
+    assert path.read_bytes()[:8] == PNG_MAGIC
+
+
+def assert_one_line_error(capsys, code: int, match: str | None = None) -> str:
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("hocnet: error: "), err
+    assert "Traceback" not in err
+    if match is not None:
+        assert re.search(match, lines[0]), lines[0]
+    return lines[0]
+
+
+def no_leftovers(folder: Path) -> list[str]:
+    """Names of temporary output folders left behind (must be none)."""
+    return [p.name for p in folder.rglob(".*.tmp-*")]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return paper_scene("table3", 0.012, seed=5)
+
+
+@pytest.fixture
+def cube_file(tmp_path, scene):
+    path = tmp_path / "scene.npy"
+    save_cube(path, scene.cube)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# demo
+# --------------------------------------------------------------------------------------------
+
+
+class TestDemo:
+    def test_writes_pictures_and_prints_table(self, tmp_path, capsys):
+        out = tmp_path / "demo"
+        assert main(["demo", "--out", str(out)]) == 0
+        stdout = capsys.readouterr().out
+        assert sorted(p.name for p in out.iterdir()) == ["demo_3d.png", "demo_before_after.png"]
+        for name in ("demo_3d.png", "demo_before_after.png"):
+            assert_png(out / name)
+        assert no_leftovers(tmp_path) == []
+
+        # the table agrees with detect() on the same scene
+        scene = paper_scene("table3", 0.014, seed=0)
+        result = detect(scene.cube, order=2)
+        assert "True tracks" in stdout and "Found tracks" in stdout
+        rows = re.findall(
+            r"^\s+(\d+)(?: \(branch of \d+\))?\s+(\d+)\s+(\d+-\d+)\s+(\S+)\s", stdout, re.M
+        )
+        true_rows = rows[: len(scene.tracks)]
+        assert [int(r[0]) for r in true_rows] == list(scene.track_labels)
+        assert [int(r[1]) for r in true_rows] == [len(t) for t in scene.tracks]
+        assert "5 (branch of 3)" in stdout
+        assert f"Found tracks: {len(result.tracks)} (" in stdout
+        clutter = scene.clutter_mask
+        left = int((clutter & result.support).sum())
+        assert f"({left} of {int(clutter.sum())} clutter points left)" in stdout
+        assert f"Target points lost: 0 of {int(scene.target_mask.sum())}" in stdout
+        assert re.search(r"Runtime: \d+\.\d\d s", stdout)
+        assert f"wrote {out / 'demo_before_after.png'}" in stdout
+
+    def test_options(self, tmp_path, capsys):
+        out = tmp_path / "nested" / "demo"
+        args = ["demo", "--out", str(out), "--seed", "3", "--density", "0", "--order", "1"]
+        assert main([*args, "--no-plot"]) == 0
+        stdout = capsys.readouterr().out
+        assert "clutter density 0, seed 3" in stdout
+        assert "HOC, order 1" in stdout and "Found tracks: " in stdout
+        assert "100.0 % (0 of 0 clutter points left)" in stdout  # nothing to reject
+        assert not (tmp_path / "nested").exists()  # --no-plot: nothing to write
+
+    @pytest.mark.parametrize(
+        ("args", "match"),
+        [
+            (["--density", "1.5"], r"--density: expected a number in \[0, 1\]"),
+            (["--density", "nan"], "--density: expected a finite number"),
+            (["--seed", "-1"], "--seed: expected an integer >= 0"),
+            (["--order", "0"], "--order: expected an integer >= 1"),
+            (["--order", "two"], "argument --order: invalid int value"),
+        ],
+    )
+    def test_bad_options(self, tmp_path, capsys, args, match):
+        out = tmp_path / "demo"
+        assert_one_line_error(capsys, main(["demo", "--out", str(out), *args]), match)
+        assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------------------------
+# detect
+# --------------------------------------------------------------------------------------------
+
+
+class TestDetect:
+    def test_matches_api(self, tmp_path, cube_file, scene, capsys):
+        out = tmp_path / "out"
+        assert main(["detect", str(cube_file), "--method", "hoc", "--out", str(out)]) == 0
+        stdout = capsys.readouterr().out
+        expected = detect(scene.cube)
+        assert sorted(p.name for p in out.iterdir()) == [
+            "cleaned.npy",
+            "detection.png",
+            "support.npy",
+            "tracks.json",
+        ]
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert [t["id"] for t in tracks] == [t.id for t in expected.tracks]
+        assert [t["score"] for t in tracks] == pytest.approx([t.score for t in expected.tracks])
+        for got, want in zip(tracks, expected.tracks):
+            assert torch.equal(got["points"], want.points)
+        assert meta["method"] == "hoc"
+        assert (meta["order"], meta["v"], meta["delta"], meta["threshold"]) == (2, 4, 45.0, 2.5)
+        assert meta["min_points"] == 5
+        assert meta["input_shape"] == [10, 60, 60]
+        assert meta["points_in"] == int(scene.cube.sum())
+        assert meta["points_out"] == int(expected.cleaned.sum())
+        assert meta["points_support"] == int(expected.support.sum())
+        cleaned = np.load(out / "cleaned.npy")
+        support = np.load(out / "support.npy")
+        assert cleaned.dtype == np.bool_ and support.dtype == np.bool_
+        assert np.array_equal(cleaned, expected.cleaned.numpy())
+        assert np.array_equal(support, expected.support.numpy())
+        assert_png(out / "detection.png")
+        assert f"{len(expected.tracks)} tracks" in stdout
+        assert f"points in: {meta['points_in']}" in stdout
+        assert f"kept on tracks: {meta['points_out']}" in stdout
+
+    def test_options_are_passed(self, tmp_path, cube_file, scene):
+        out = tmp_path / "out"
+        args = ["detect", str(cube_file), "--out", str(out), "--no-plot"]
+        args += [
+            "--order",
+            "1",
+            "--v",
+            "3",
+            "--delta",
+            "30",
+            "--threshold",
+            "2",
+            "--min-points",
+            "4",
+        ]
+        assert main(args) == 0
+        expected = detect(scene.cube, 1, 3, math.radians(30), threshold=2.0, min_points=4)
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert [t["points"].tolist() for t in tracks] == [
+            t.points.tolist() for t in expected.tracks
+        ]
+        assert (meta["order"], meta["v"], meta["delta"], meta["min_points"]) == (1, 3, 30.0, 4)
+        assert not (out / "detection.png").exists()
+
+    def test_batched_npz(self, tmp_path, capsys):
+        targets = [TargetSpec((2, 3), (2, 1)), TargetSpec((20, 18), (-2, -1))]
+        scenes = simulate_binary((8, 24, 24), targets, clutter_density=0.02, batch=2, seed=2)
+        path = tmp_path / "scenes.npz"
+        save_cube(path, scenes.cube.to(torch.uint8), key="scans")
+        out = tmp_path / "out"
+        assert main(["detect", str(path), "--key", "scans", "--out", str(out)]) == 0
+        expected = detect(scenes.cube)
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["input_shape"] == [2, 8, 24, 24] and meta["key"] == "scans"
+        assert meta["track_batch"] == [t.batch for t in expected.tracks]
+        assert set(meta["track_batch"]) == {0, 1}
+        assert [t["id"] for t in tracks] == list(range(1, len(tracks) + 1))
+        assert np.load(out / "cleaned.npy").shape == (2, 8, 24, 24)
+        assert np.array_equal(np.load(out / "support.npy"), expected.support.numpy())
+        for name in ("detection_000.png", "detection_001.png"):
+            assert_png(out / name)
+        assert "2 x 8 x 24 x 24" in capsys.readouterr().out
+
+    def test_large_batch_scene_by_scene(self, tmp_path, capsys):
+        """From 8 scenes on, detection runs scene by scene (progress bar); same result."""
+        targets = [TargetSpec((1, 2), (2, 1)), TargetSpec((14, 12), (-2, 0))]
+        scenes = simulate_binary((6, 16, 16), targets, clutter_density=0.03, batch=8, seed=4)
+        path = tmp_path / "many.npy"
+        save_cube(path, scenes.cube)
+        out = tmp_path / "out"
+        assert main(["detect", str(path), "--out", str(out), "--no-plot"]) == 0
+        expected = detect(scenes.cube)
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert [(t["id"], t["points"].tolist()) for t in tracks] == [
+            (t.id, t.points.tolist()) for t in expected.tracks
+        ]
+        assert meta["track_batch"] == [t.batch for t in expected.tracks]
+        assert np.array_equal(np.load(out / "cleaned.npy"), expected.cleaned.numpy())
+        assert np.array_equal(np.load(out / "support.npy"), expected.support.numpy())
+
+    def test_existing_output_dir(self, tmp_path, cube_file):
+        out = tmp_path / "out"
+        out.mkdir()
+        (out / "notes.txt").write_text("keep me")
+        (out / "tracks.json").write_text("old")
+        assert main(["detect", str(cube_file), "--out", str(out), "--no-plot"]) == 0
+        assert (out / "notes.txt").read_text() == "keep me"
+        assert load_tracks_json(out / "tracks.json")  # replaced by the new result
+        assert no_leftovers(tmp_path) == []
+
+    @pytest.mark.parametrize(
+        ("case", "extra", "match"),
+        [
+            ("rank", [], r"CUBE: .* expected shape \(T, H, W\) or \(B, T, H, W\), got \(60, 60\)"),
+            ("nonbinary", [], r"expected binary values"),
+            ("missing", [], r"CUBE: no such file"),
+            ("garbage", [], r"CUBE: could not read"),
+            ("extension", [], r"CUBE: expected a \.npy or \.npz file"),
+            ("ok", ["--v", "0"], r"^hocnet: error: --v: expected an integer >= 1, got 0$"),
+            ("ok", ["--order", "0"], r"--order: expected an integer >= 1, got 0"),
+            ("ok", ["--delta", "0"], r"--delta: expected a number in \(0, 180\], got 0"),
+            ("ok", ["--delta", "180.5"], r"--delta: expected a number in \(0, 180\]"),
+            ("ok", ["--delta", "-45"], r"--delta: expected a number in \(0, 180\]"),
+            ("ok", ["--delta", "inf"], r"--delta: expected a finite number"),
+            ("ok", ["--min-points", "0"], r"--min-points: expected an integer >= 1"),
+            ("ok", ["--threshold", "nan"], r"--threshold: expected a finite number"),
+            ("ok", ["--v", "2.5"], r"argument --v: invalid int value: '2.5'"),
+            ("ok", ["--method", "nope"], r"argument --method: invalid choice: 'nope'"),
+            ("ok", ["--key", "cube"], r"--key: expected None for the \.npy file"),
+            ("ok", ["--bogus"], r"unrecognized arguments: --bogus"),
+            ("npz", ["--key", "nope"], r"--key: expected one of 'a', 'b'"),
+            ("npz", [], r"--key: expected one of 'a', 'b' .* got None"),
+        ],
+    )
+    def test_bad_input(self, tmp_path, capsys, scene, case, extra, match):
+        inputs = tmp_path / "inputs"
+        inputs.mkdir()
+        files = {
+            "ok": "ok.npy",
+            "rank": "rank.npy",
+            "nonbinary": "nonbinary.npy",
+            "missing": "missing.npy",
+            "garbage": "garbage.npy",
+            "extension": "cube.txt",
+            "npz": "two.npz",
+        }
+        path = inputs / files[case]
+        if case in ("ok", "extension"):
+            np.save(inputs / "ok.npy", scene.cube.numpy())
+            if case == "extension":
+                path.write_bytes((inputs / "ok.npy").read_bytes())
+        elif case == "rank":
+            np.save(path, scene.cube[0].numpy())
+        elif case == "nonbinary":
+            np.save(path, scene.cube.numpy() * 2.0)
+        elif case == "garbage":
+            path.write_bytes(b"this is not numpy")
+        elif case == "npz":
+            np.savez(path, a=scene.cube.numpy(), b=scene.cube.numpy())
+        before = sorted(p.name for p in inputs.iterdir())
+        out = tmp_path / "a" / "b" / "out"
+        code = main(["detect", str(path), "--out", str(out), *extra])
+        assert_one_line_error(capsys, code, match)
+        assert not (tmp_path / "a").exists()  # nothing written, not even parents
+        assert sorted(p.name for p in inputs.iterdir()) == before
+        assert no_leftovers(tmp_path) == []
+
+    def test_out_is_a_file(self, tmp_path, capsys, cube_file):
+        target = tmp_path / "taken"
+        target.write_text("x")
+        code = main(["detect", str(cube_file), "--out", str(target)])
+        assert_one_line_error(capsys, code, r"--out: expected a directory, got the existing file")
+        assert target.read_text() == "x"
+
+    def test_failed_write_leaves_nothing(self, tmp_path, capsys, cube_file, monkeypatch):
+        def broken(path, cube, **kwargs):
+            raise OSError("disk full")
+
+        monkeypatch.setattr("hocnet.data.io.save_cube", broken)
+        out = tmp_path / "new" / "out"
+        code = main(["detect", str(cube_file), "--out", str(out), "--no-plot"])
+        assert_one_line_error(capsys, code, "disk full")
+        assert not (tmp_path / "new").exists()
+        assert no_leftovers(tmp_path) == []
+
+    def test_new_method_plugs_in(self, tmp_path, capsys, cube_file, monkeypatch):
+        """A second method (as DPA will be) only needs a registry entry."""
+
+        def add_options(group):
+            group.add_argument("--gain", type=float, default=None)
+
+        def prepare(args):
+            return {"gain": 1.0 if args.gain is None else args.gain}
+
+        def run(cube, params):
+            empty = torch.zeros_like(cube)
+            result = HOCResult(support=cube, tracks=[], scores=empty.double(), cleaned=empty)
+            return cli.Detection(result=result, params=params)
+
+        fake = cli._Method("fake", "a test method", add_options, ("gain",), prepare, run)
+        monkeypatch.setitem(cli._METHODS, "fake", fake)
+        out = tmp_path / "out"
+        code = main(
+            ["detect", str(cube_file), "--method", "fake", "--gain", "3", "--out", str(out)]
+        )
+        assert code == 0
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["method"] == "fake" and meta["gain"] == 3.0 and meta["points_out"] == 0
+        capsys.readouterr()
+        # an option of another method is rejected, not silently ignored
+        code = main(["detect", str(cube_file), "--method", "fake", "--order", "3"])
+        assert_one_line_error(capsys, code, r"--order: applies to --method hoc, not fake")
+        code = main(["detect", str(cube_file), "--gain", "3", "--out", str(tmp_path / "x")])
+        assert_one_line_error(capsys, code, r"--gain: applies to --method fake, not hoc")
+        assert not (tmp_path / "x").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# reproduce
+# --------------------------------------------------------------------------------------------
+
+EXPERIMENT = '''\
+"""A fake experiment."""
+import json
+from pathlib import Path
+
+from _shared import UNIT
+
+NAME = "{name}"
+DESCRIPTION = "{description}"
+
+
+def run(*, quick=False, seeds=None, out_dir=None, progress=True):
+    out_dir = Path(out_dir) if out_dir is not None else Path(__file__).parent / "results"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    target = out_dir / (NAME + ".md")
+    args = {{"quick": quick, "seeds": seeds, "out_dir": str(out_dir), "progress": progress}}
+    target.write_text(json.dumps(args) + UNIT)
+    return target
+'''
+
+
+@pytest.fixture
+def experiments(tmp_path):
+    folder = tmp_path / "experiments"
+    folder.mkdir()
+    (folder / "_shared.py").write_text('UNIT = "\\n"\n')  # helper: skipped, but importable
+    for stem, name, description in [
+        ("hoc_table2", "hoc-table2", "Table II of [LA98]: two straight tracks"),
+        ("hoc_table3", "hoc-table3", "Table III of [LA98]: crossing, splitting, parallel"),
+    ]:
+        text = EXPERIMENT.format(name=name, description=description)
+        (folder / f"{stem}.py").write_text(text)
+    (folder / "notes.py").write_text("X = 1\n")  # no NAME: not an experiment
+    return folder
+
+
+class TestReproduce:
+    def test_list(self, experiments, capsys):
+        code = main(["reproduce", "--list", "--experiments-dir", str(experiments)])
+        out, err = capsys.readouterr()
+        assert code == 0 and err == ""
+        assert out.splitlines() == [
+            "hoc-table2  Table II of [LA98]: two straight tracks",
+            "hoc-table3  Table III of [LA98]: crossing, splitting, parallel",
+        ]
+
+    def test_list_from_environment_with_broken_script(self, experiments, capsys, monkeypatch):
+        (experiments / "broken.py").write_text("import no_such_module_hocnet\n")
+        monkeypatch.setenv(cli.EXPERIMENTS_ENV, str(experiments))
+        assert main(["reproduce", "--list"]) == 0
+        out, err = capsys.readouterr()
+        assert "hoc-table2" in out and "hoc-table3" in out
+        assert "broken.py: could not import (ModuleNotFoundError" in err
+
+    @pytest.mark.parametrize("name", ["hoc-table3", "hoc_table3"])
+    def test_run(self, experiments, tmp_path, capsys, name):
+        out = tmp_path / "results"
+        args = ["reproduce", name, "--quick", "--seeds", "3", "--out", str(out)]
+        assert main([*args, "--experiments-dir", str(experiments)]) == 0
+        written = out / "hoc-table3.md"
+        assert json.loads(written.read_text()) == {
+            "quick": True,
+            "seeds": 3,
+            "out_dir": str(out),
+            "progress": True,
+        }
+        assert "hoc-table3: done in" in capsys.readouterr().out
+
+    def test_run_defaults(self, experiments, capsys):
+        assert main(["reproduce", "hoc-table2", "--experiments-dir", str(experiments)]) == 0
+        written = experiments / "results" / "hoc-table2.md"
+        args = json.loads(written.read_text())
+        assert (args["quick"], args["seeds"]) == (False, None)
+        assert str(written) in capsys.readouterr().out
+
+    @pytest.mark.parametrize(
+        ("args", "match"),
+        [
+            (["nope"], r"unknown experiment 'nope'; available: hoc-table2, hoc-table3"),
+            ([], r"expected an experiment NAME or --list"),
+            (["hoc-table2", "--list"], r"either NAME or --list"),
+            (["hoc-table2", "--seeds", "0"], r"--seeds: expected an integer >= 1"),
+        ],
+    )
+    def test_bad_input(self, experiments, capsys, args, match):
+        code = main(["reproduce", *args, "--experiments-dir", str(experiments)])
+        assert_one_line_error(capsys, code, match)
+        assert not (experiments / "results").exists()
+
+    def test_missing_folder(self, tmp_path, capsys, monkeypatch):
+        monkeypatch.setenv(cli.EXPERIMENTS_ENV, str(tmp_path / "nowhere"))
+        code = main(["reproduce", "--list"])
+        assert_one_line_error(capsys, code, r"experiments folder '.*nowhere' .* does not exist")
+
+    def test_default_folder_is_the_repository(self, monkeypatch):
+        monkeypatch.delenv(cli.EXPERIMENTS_ENV, raising=False)
+        repo = Path(cli.__file__).resolve().parents[1]
+        if (repo / "experiments").is_dir():
+            assert cli.experiments_dir() == repo / "experiments"
+        else:
+            with pytest.raises(cli.CLIError, match="installed without its repository"):
+                cli.experiments_dir()
+
+
+# --------------------------------------------------------------------------------------------
+# help and the installed script
+# --------------------------------------------------------------------------------------------
+
+
+class TestHelp:
+    @pytest.mark.parametrize(
+        ("command", "words"),
+        [
+            ([], ["demo", "detect", "reproduce"]),
+            (["demo"], ["--out", "--seed", "--density", "--order", "demo-output"]),
+            (["detect"], ["--method", "--delta", "DEGREES", "--min-points", "(B, T, H, W)"]),
+            (["reproduce"], ["--list", "--quick", "--seeds", cli.EXPERIMENTS_ENV]),
+        ],
+    )
+    def test_help(self, capsys, command, words):
+        assert main([*command, "--help"]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith("usage: hocnet")
+        for word in words:
+            assert word in out
+        assert "--experiments-dir" not in out
+
+    def test_no_command(self, capsys):
+        assert_one_line_error(capsys, main([]), "required: COMMAND")
+
+    def test_console_script(self):
+        script = Path(sys.executable).parent / ("hocnet.exe" if os.name == "nt" else "hocnet")
+        assert script.is_file(), "run `pip install -e . --no-deps` to install the console script"
+        done = subprocess.run(
+            [str(script), "--help"], capture_output=True, text=True, timeout=120, check=False
+        )
+        assert done.returncode == 0, done.stderr
+        assert "usage: hocnet" in done.stdout and "reproduce" in done.stdout

@@ -1,0 +1,241 @@
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+import torch
+from matplotlib.figure import Figure
+
+from hocnet.data.binary import TargetSpec, simulate_binary
+from hocnet.data.io import load_tracks_json, save_tracks_json
+from hocnet.hoc import detect
+from hocnet.plot import plot_before_after, plot_cube_3d, plot_map, plot_tracks
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def assert_png(path):
+    assert path.is_file() and path.stat().st_size > 1000
+    assert path.read_bytes()[:8] == PNG_MAGIC
+
+
+def legend_texts(fig):
+    return [t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    targets = [
+        TargetSpec((2, 3), (2, 1)),
+        TargetSpec((20, 4), (-1, 2)),
+        TargetSpec((3, 20), (2, 0)),
+    ]
+    return simulate_binary((8, 24, 24), targets, clutter_density=0.02, seed=0)
+
+
+@pytest.fixture(scope="module")
+def result(scene):
+    return detect(scene.cube)
+
+
+@pytest.fixture(autouse=True)
+def no_pyplot_figures():
+    """The plot functions never register figures with pyplot (no leaks, no windows)."""
+    before = plt.get_fignums()
+    yield
+    assert plt.get_fignums() == before
+
+
+class TestPlotCube3d:
+    def test_labels(self, tmp_path, scene):
+        fig = plot_cube_3d(scene.cube, labels=scene.labels, path=tmp_path / "c.png")
+        assert isinstance(fig, Figure)
+        assert_png(tmp_path / "c.png")
+        ax = fig.axes[0]
+        assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == (
+            "x (pixels)",
+            "y (pixels)",
+            "scan",
+        )
+        texts = legend_texts(fig)
+        assert texts[0] == f"clutter ({int(scene.n_clutter_points)})"
+        assert [t.split(" (")[0] for t in texts[1:]] == ["target 1", "target 2", "target 3"]
+        assert ax.get_ylim()[0] > ax.get_ylim()[1]  # y down, as in the image
+
+    def test_no_labels_colours_by_scan(self, scene):
+        fig = plot_cube_3d(scene.cube[None], title="mine")  # a batch of one is accepted
+        assert fig.axes[0].get_title() == "mine"
+        assert fig.axes[-1].get_ylabel() == "scan"  # the colour bar
+
+    def test_empty_cube(self, tmp_path):
+        fig = plot_cube_3d(torch.zeros(3, 5, 6, dtype=torch.bool), path=tmp_path / "e.png")
+        assert "0 points" in fig.axes[0].get_title()
+        assert_png(tmp_path / "e.png")
+
+    def test_into_given_axes(self):
+        fig = Figure()
+        ax = fig.add_subplot(projection="3d")
+        assert plot_cube_3d(torch.ones(2, 3, 3), ax=ax) is fig
+
+    @pytest.mark.parametrize(
+        ("kwargs", "error", "match"),
+        [
+            ({"cube": torch.zeros(2, 3, 4, 4)}, ValueError, "`cube`: expected one scene"),
+            ({"cube": torch.zeros(4, 4)}, ValueError, r"`cube`: expected shape \(T, H, W\)"),
+            ({"cube": torch.full((2, 3, 3), 0.5)}, ValueError, "`cube`: expected binary"),
+            (
+                {"labels": torch.zeros(2, 3, 4, dtype=torch.long)},
+                ValueError,
+                "`labels`: expected shape",
+            ),
+            ({"labels": torch.zeros(2, 3, 3)}, TypeError, "`labels`: expected an integer tensor"),
+            ({"ax": "axes"}, TypeError, "`ax`"),
+        ],
+    )
+    def test_errors(self, kwargs, error, match):
+        args = {"cube": torch.zeros(2, 3, 3, dtype=torch.bool), **kwargs}
+        cube = args.pop("cube")
+        with pytest.raises(error, match=match):
+            plot_cube_3d(cube, **args)
+
+    def test_2d_axes_rejected(self):
+        ax = Figure().add_subplot()
+        with pytest.raises(ValueError, match="`ax`: expected a 3-D Axes"):
+            plot_cube_3d(torch.zeros(2, 3, 3), ax=ax)
+
+
+class TestPlotBeforeAfter:
+    def test_result(self, tmp_path, scene, result):
+        fig = plot_before_after(
+            scene.cube,
+            result,
+            labels=scene.labels,
+            true_tracks=scene.tracks,
+            title="demo",
+            path=tmp_path / "ba.png",
+        )
+        assert_png(tmp_path / "ba.png")
+        left, right = fig.axes[:2]
+        assert left.get_title().startswith(f"Input: {int(scene.cube.sum())} points in 8 scans")
+        assert right.get_title().startswith(f"Detection: {len(result.tracks)} tracks")
+        for ax in (left, right):
+            assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (pixels)", "y (pixels)")
+        texts = legend_texts(fig)
+        assert "true track" in texts
+        for track in result.tracks:
+            assert any(t.startswith(f"track {track.id}: {len(track)} pts") for t in texts)
+        assert fig._suptitle.get_text() == "demo"
+
+    def test_false_track_marked(self, scene):
+        fake = detect(scene.cube)
+        fake.tracks[0].points = torch.tensor([[0, 20, 20], [1, 21, 21], [2, 22, 22]])
+        fig = plot_before_after(scene.cube, fake, true_tracks=scene.tracks)
+        assert any(
+            t.startswith(f"track {fake.tracks[0].id}:") and t.endswith("(false)")
+            for t in legend_texts(fig)
+        )
+
+    def test_cleaned_cube(self, scene, result):
+        fig = plot_before_after(scene.cube, result.cleaned)
+        kept = int(result.cleaned.sum())
+        assert (
+            fig.axes[1].get_title() == f"Detection: {kept} of {int(scene.cube.sum())} points kept"
+        )
+
+    def test_empty(self, tmp_path):
+        empty = torch.zeros(5, 8, 9, dtype=torch.bool)
+        fig = plot_before_after(empty, detect(empty), path=tmp_path / "e.png")
+        assert fig.axes[1].get_title().startswith("Detection: 0 tracks")
+        assert_png(tmp_path / "e.png")
+
+    def test_shape_mismatch(self, scene):
+        with pytest.raises(
+            ValueError, match="`result_or_cleaned`: expected a cleaned cube of shape"
+        ):
+            plot_before_after(scene.cube, torch.zeros(8, 5, 5, dtype=torch.bool))
+
+    def test_missing_directory(self, tmp_path, scene):
+        with pytest.raises(FileNotFoundError, match="`path`"):
+            plot_before_after(scene.cube, scene.cube, path=tmp_path / "no" / "x.png")
+
+
+class TestPlotTracks:
+    def test_forms_of_tracks(self, tmp_path, scene, result):
+        save_tracks_json(tmp_path / "t.json", result.tracks)
+        loaded = load_tracks_json(tmp_path / "t.json")
+        arrays = [t.points.numpy() for t in result.tracks]
+        for i, tracks in enumerate([result.tracks, loaded, arrays]):
+            path = tmp_path / "t.png" if i == 0 else None
+            fig = plot_tracks(tracks, scene.cube.shape, true_tracks=scene.tracks, path=path)
+            ax = fig.axes[0]
+            assert ax.get_title() == f"{len(result.tracks)} tracks"
+            assert ax.get_xlim() == (-0.5, 23.5) and ax.get_ylim() == (23.5, -0.5)
+        assert_png(tmp_path / "t.png")
+        texts = legend_texts(plot_tracks(loaded, (8, 24, 24)))
+        assert texts[0].startswith("track 1:") and "score" in texts[0]
+
+    def test_no_tracks(self, tmp_path):
+        fig = plot_tracks([], (5, 10, 10), path=tmp_path / "n.png")
+        assert fig.axes[0].get_title() == "0 tracks"
+        assert_png(tmp_path / "n.png")
+
+    def test_many_tracks_one_legend_entry(self):
+        tracks = [np.array([[0, k, 0], [1, k, 1]]) for k in range(20)]
+        assert legend_texts(plot_tracks(tracks, (2, 20, 5))) == ["20 tracks"]
+
+    def test_into_given_axes(self):
+        fig = Figure()
+        ax = fig.add_subplot()
+        assert plot_tracks([[[0, 1, 1], [1, 2, 2]]], (2, 4, 4), ax=ax, title="t") is fig
+        assert ax.get_title() == "t"
+
+    @pytest.mark.parametrize(
+        ("tracks", "shape", "error", "match"),
+        [
+            ([np.zeros((3, 2))], (2, 4, 4), ValueError, r"`tracks\[0\]`: expected \(N, 3\)"),
+            ([[[0, 1, float("nan")]]], (2, 4, 4), ValueError, r"`tracks\[0\]`: expected finite"),
+            (
+                [{"id": 1}],
+                (2, 4, 4),
+                TypeError,
+                r"`tracks\[0\]`: expected a mapping with a 'points'",
+            ),
+            (torch.zeros(2, 3), (2, 4, 4), TypeError, "`tracks`: expected a list of tracks"),
+            ([], (4, 4), TypeError, "`shape`"),
+            ([], (2, 0, 4), ValueError, r"`shape\[1\]`"),
+        ],
+    )
+    def test_errors(self, tracks, shape, error, match):
+        with pytest.raises(error, match=match):
+            plot_tracks(tracks, shape)
+
+
+class TestPlotMap:
+    @pytest.mark.parametrize(
+        "image",
+        [
+            torch.rand(6, 9),
+            np.arange(12).reshape(3, 4),
+            torch.zeros(4, 4, dtype=torch.bool),
+            torch.tensor([[1.0, float("nan")], [0.0, 2.0]]),  # NaN shown blank
+        ],
+    )
+    def test_images(self, tmp_path, image):
+        fig = plot_map(image, title="map", path=tmp_path / "m.png")
+        assert_png(tmp_path / "m.png")
+        assert len(fig.axes) == 2 and fig.axes[0].get_title() == "map"
+        assert fig.axes[0].get_xlabel() == "x (pixels)"
+
+    def test_no_colorbar(self):
+        assert len(plot_map(torch.zeros(3, 3), colorbar=False).axes) == 1
+
+    @pytest.mark.parametrize(
+        ("image", "error", "match"),
+        [
+            (torch.zeros(2, 3, 3), ValueError, r"`image`: expected shape \(H, W\)"),
+            (torch.zeros(0, 3), ValueError, r"`image`: expected shape \(H, W\)"),
+            (torch.zeros(2, 2, dtype=torch.complex64), TypeError, "`image`: expected a real"),
+            ("abc", TypeError, "`image`"),
+        ],
+    )
+    def test_errors(self, image, error, match):
+        with pytest.raises(error, match=match):
+            plot_map(image)
