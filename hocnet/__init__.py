@@ -1,3 +1,40 @@
-"""hocnet: track-before-detect for dim multiple moving targets, as PyTorch modules."""
+"""hocnet: track-before-detect for dim multiple moving targets, as PyTorch modules.
+
+Subpackages: :mod:`hocnet.hoc` (modified high-order correlation, [LA98]), :mod:`hocnet.dpa`
+(dynamic-programming TBD, [NR08]), :mod:`hocnet.data` (simulators, whitening, files),
+:mod:`hocnet.metrics` and :mod:`hocnet.plot`.
+"""
+
+from hocnet import data, hoc
+from hocnet.data import paper_scene, simulate_binary, simulate_ir
+from hocnet.hoc import (
+    HOCLayer,
+    HOCNet,
+    HOCResult,
+    ModifiedHOCLayer,
+    StreamingDetector,
+    Track,
+    chain_support,
+    modified_hoc,
+    original_hoc,
+)
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "HOCLayer",
+    "HOCNet",
+    "HOCResult",
+    "ModifiedHOCLayer",
+    "StreamingDetector",
+    "Track",
+    "__version__",
+    "chain_support",
+    "data",
+    "hoc",
+    "modified_hoc",
+    "original_hoc",
+    "paper_scene",
+    "simulate_binary",
+    "simulate_ir",
+]

@@ -1,0 +1,231 @@
+"""The DPA [NR08] as an ``nn.Module``: a thin wrapper of :func:`~hocnet.dpa.functional.accumulate`.
+
+Parameters are fixed by default (the probability matrices are a buffer). Any of ``b``, ``g``,
+``p`` and ``penalty`` can be made learnable; they are then stored unconstrained and mapped to their
+valid ranges in the property accessors, and the matrices are rebuilt differentiably from ``p`` and
+``penalty_step`` at every forward pass.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from hocnet._check import check_choice, check_number
+from hocnet.dpa.functional import DPAState, _check_weights, accumulate
+from hocnet.dpa.matrices import (
+    IN_PLACE,
+    N_DIRECTIONS,
+    _base_matrix,
+    _combine,
+    _turn_steps,
+    _window,
+    effective_memory,
+    probability_matrices,
+)
+
+__all__ = ["DPA"]
+
+LEARNABLE = ("b", "g", "p", "penalty")
+#: Distance kept from the boundary of a constrained parameter when it is initialised on it.
+_MARGIN = 1e-6
+
+
+def _inverse_softplus(x: float) -> float:
+    """``y`` with ``softplus(y) == x`` for ``x > 0``."""
+    return x + math.log(-math.expm1(-x))
+
+
+class DPA(nn.Module):
+    r"""Dynamic-programming track-before-detect [NR08]: the ASF recursion of eq. (11) as a module.
+
+    ``forward(frames)`` is ``accumulate(frames, self.weights, self.b, self.g, var_table=...,
+    smooth=...)``, see :func:`~hocnet.dpa.functional.accumulate`.
+
+    Notes:
+        Our reading of [NR08] for the defaults: ``b = None`` picks ``b`` from the effective memory
+        coefficient ``memory`` (0.8) by :func:`~hocnet.dpa.matrices.effective_memory`.
+        ``directional=False`` uses the single "in place" matrix ``W(9) = normalise(W_frame *
+        W_basic)`` (no direction step, ``D = 1``). Learnable parameters are stored unconstrained:
+        ``g = sigmoid(g_raw)`` in ``[0, 1]``, ``b = softplus(b_raw) >= 0``,
+        ``p = softplus(p_raw) >= 0`` and ``penalty_step = 1 + softplus(penalty_raw) > 1``;
+        a learnable value initialised on its bound (``g`` in {0, 1}, ``b = 0``, ``p = 0``,
+        ``penalty_step = 1``) starts ``1e-6`` inside it.
+
+    Args:
+        weights: ``(D, k, k)`` probability matrices (``D`` in {1, 9}); ``None`` builds them with
+            :func:`~hocnet.dpa.matrices.probability_matrices` from the keyword arguments.
+        b: memory factor ``>= 0``, or ``None`` for the value giving effective memory ``memory``.
+        g: sum/max mixing in ``[0, 1]``.
+        window: odd window size ``k`` (when ``weights`` is ``None``).
+        v_max: largest target speed in pixels per frame.
+        jitter: half-width of the uniform per-axis jitter in pixels.
+        psf: FWHM of the Gaussian PSF in pixels.
+        p: exponent of the turn penalty, ``>= 0``.
+        penalty_step: turn penalty factor per 45 degrees, ``>= 1``.
+        directional: 9 direction-dependent matrices (``True``) or one matrix (``False``).
+        learnable: subset of ``("b", "g", "p", "penalty")`` to make ``nn.Parameter``\ s; ``"p"``
+            and ``"penalty"`` need ``weights=None`` and ``directional=True``.
+        smooth: temperature of the log-sum-exp max, or ``None`` for the hard max.
+        var_table: optional ``(9, 9)`` direction-similarity table (directional only).
+        memory: effective memory coefficient used when ``b`` is ``None``, ``> 0``.
+
+    Examples:
+        >>> dpa = DPA(window=5, g=0.5, learnable=("b", "g"))
+        >>> state = dpa(torch.randn(2, 4, 16, 16))
+        >>> state.asf.shape, sorted(name for name, _ in dpa.named_parameters())
+        (torch.Size([2, 4, 16, 16]), ['b_raw', 'g_raw'])
+        >>> round(dpa.g.item(), 4)
+        0.5
+    """
+
+    def __init__(
+        self,
+        weights: torch.Tensor | None = None,
+        b: float | None = None,
+        g: float = 0.5,
+        *,
+        window: int = 7,
+        v_max: float = 1.0,
+        jitter: float = 0.5,
+        psf: float = 3.0,
+        p: float = 0.5,
+        penalty_step: float = 3.0,
+        directional: bool = True,
+        learnable: Iterable[str] | str = (),
+        smooth: float | None = None,
+        var_table: torch.Tensor | None = None,
+        memory: float = 0.8,
+    ) -> None:
+        super().__init__()
+        if isinstance(learnable, str):
+            learnable = (learnable,)
+        try:
+            names = tuple(learnable)
+        except TypeError:
+            raise TypeError(
+                f"`learnable`: expected a collection of names, got {type(learnable).__name__}"
+            ) from None
+        for name in names:
+            check_choice("learnable", name, LEARNABLE)
+        self.learnable = tuple(name for name in LEARNABLE if name in names)
+        g = check_number("g", g, low=0.0, high=1.0)
+        p = check_number("p", p, low=0.0)
+        penalty_step = check_number("penalty_step", penalty_step, low=1.0)
+        if b is not None:
+            b = check_number("b", b, low=0.0)
+        memory = check_number("memory", memory, low=0.0, low_inclusive=False)
+        self.smooth = (
+            None if smooth is None else check_number("smooth", smooth, low=0.0, low_inclusive=False)
+        )
+        rebuild = "p" in self.learnable or "penalty" in self.learnable
+        if weights is not None:
+            if rebuild:
+                raise ValueError(
+                    "`learnable`: expected no 'p' or 'penalty' with explicit weights (the "
+                    f"matrices are rebuilt from p and penalty_step), got {self.learnable}"
+                )
+            weights = _check_weights(weights, 1 << 30, 1 << 30)
+            if not weights.is_floating_point():
+                weights = weights.to(torch.get_default_dtype())
+            if directional != (weights.shape[0] == N_DIRECTIONS):
+                raise ValueError(
+                    f"`directional`: expected {weights.shape[0] == N_DIRECTIONS} for weights of "
+                    f"shape {tuple(weights.shape)}, got {directional}"
+                )
+            self.register_buffer("fixed_weights", weights.detach().clone())
+        elif rebuild:
+            if not directional:
+                raise ValueError(
+                    f"`learnable`: 'p' and 'penalty' need directional=True, got {self.learnable}"
+                )
+            k = _window("window", window)
+            dtype = torch.get_default_dtype()
+            self.register_buffer("base", _base_matrix(k, v_max, jitter, psf, None, dtype))
+            self.register_buffer("turn_steps", _turn_steps(k).to(dtype))
+            self.register_buffer("fixed_weights", None)
+        else:
+            built = probability_matrices(window, v_max, jitter, psf, p, penalty_step)
+            fixed = built if directional else built[IN_PLACE : IN_PLACE + 1]
+            self.register_buffer("fixed_weights", fixed.contiguous())
+        if var_table is not None:
+            if not directional:
+                raise ValueError("`var_table`: expected None with directional=False")
+            self.register_buffer("var_table", torch.as_tensor(var_table).detach().clone())
+        else:
+            self.register_buffer("var_table", None)
+
+        self._store("g", g, lambda x: math.log(x / (1 - x)), 0.0, 1.0)
+        self._store("p", p, _inverse_softplus, 0.0, None)
+        self._store("penalty", penalty_step, lambda x: _inverse_softplus(x - 1), 1.0, None)
+        if b is None:
+            with torch.no_grad():
+                b = float(effective_memory(self.weights.double(), g, memory))
+        self._store("b", b, _inverse_softplus, 0.0, None)
+
+    def _store(self, name: str, value: float, inverse: Any, low: float, high: float | None) -> None:
+        """Register ``name`` as a raw parameter (learnable) or a buffer holding the value."""
+        dtype = torch.get_default_dtype()
+        if name in self.learnable:
+            value = max(value, low + _MARGIN)
+            if high is not None:
+                value = min(value, high - _MARGIN)
+            raw = torch.tensor(inverse(value), dtype=dtype)
+            self.register_parameter(f"{name}_raw", nn.Parameter(raw))
+        else:
+            self.register_buffer(f"{name}_value", torch.tensor(value, dtype=dtype))
+
+    @property
+    def b(self) -> torch.Tensor:
+        """Memory factor ``b >= 0`` (0-dim tensor)."""
+        return F.softplus(self.b_raw) if "b" in self.learnable else self.b_value
+
+    @property
+    def g(self) -> torch.Tensor:
+        """Sum/max mixing ``g`` in ``[0, 1]`` (0-dim tensor)."""
+        return torch.sigmoid(self.g_raw) if "g" in self.learnable else self.g_value
+
+    @property
+    def p(self) -> torch.Tensor:
+        """Exponent of the turn penalty ``p >= 0`` (0-dim tensor)."""
+        return F.softplus(self.p_raw) if "p" in self.learnable else self.p_value
+
+    @property
+    def penalty_step(self) -> torch.Tensor:
+        """Turn penalty factor per 45 degrees, ``> 1`` when learnable (0-dim tensor)."""
+        if "penalty" in self.learnable:
+            return 1 + F.softplus(self.penalty_raw)
+        return self.penalty_value
+
+    @property
+    def weights(self) -> torch.Tensor:
+        """The current ``(D, k, k)`` probability matrices (rebuilt from ``p``, ``penalty_step``)."""
+        if self.fixed_weights is not None:
+            return self.fixed_weights
+        return _combine(self.base, self.turn_steps, self.p, self.penalty_step)
+
+    def forward(self, frames: torch.Tensor) -> DPAState:
+        """Run :func:`~hocnet.dpa.functional.accumulate` on ``frames``.
+
+        Args:
+            frames: ``(B, T, H, W)`` or ``(T, H, W)`` whitened frames.
+
+        Returns:
+            :class:`~hocnet.dpa.functional.DPAState` shaped like ``frames``.
+        """
+        return accumulate(
+            frames, self.weights, self.b, self.g, var_table=self.var_table, smooth=self.smooth
+        )
+
+    def extra_repr(self) -> str:
+        """Window size, number of matrices, learnable names and the smooth temperature."""
+        w = self.weights
+        return (
+            f"window={w.shape[-1]}, D={w.shape[0]}, learnable={self.learnable}, "
+            f"smooth={self.smooth}"
+        )

@@ -1,0 +1,161 @@
+import pytest
+import torch
+from torch.func import functional_call
+
+from hocnet.dpa.functional import accumulate
+from hocnet.dpa.layers import DPA
+from hocnet.dpa.matrices import effective_memory, probability_matrices, var_table
+
+F64 = torch.float64
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    # tiny tensors: thread wake-ups would dominate on a busy machine
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+class TestDPA:
+    def test_smoke_fixed_by_default(self):
+        dpa = DPA()
+        assert list(dpa.parameters()) == []
+        assert dpa.weights.shape == (9, 7, 7)
+        state = dpa(torch.randn(2, 3, 10, 12))
+        assert state.asf.shape == (2, 3, 10, 12)
+        assert "fixed_weights" in dict(dpa.named_buffers())
+        assert "window=7, D=9" in repr(dpa)
+
+    def test_unbatched(self):
+        state = DPA(window=3)(torch.randn(3, 6, 6))
+        assert not state.batched and state.asf.shape == (3, 6, 6)
+
+    def test_module_equals_function(self):
+        frames = torch.randn(2, 4, 9, 8)
+        dpa = DPA(g=0.3, window=5, v_max=1.0, psf=2.0, p=0.7, penalty_step=2.0)
+        weights = probability_matrices(5, 1.0, 0.5, 2.0, 0.7, 2.0)
+        b = effective_memory(weights, 0.3, 0.8)
+        assert dpa.b.item() == pytest.approx(b)
+        torch.testing.assert_close(dpa.weights, weights)
+        got, expected = dpa(frames), accumulate(frames, weights, b, 0.3)
+        torch.testing.assert_close(got.asf, expected.asf)
+        assert torch.equal(got.origin, expected.origin)
+        assert torch.equal(got.direction, expected.direction)
+
+    def test_module_equals_function_options(self):
+        frames = torch.randn(1, 4, 8, 8, dtype=F64)
+        weights = probability_matrices(3, dtype=F64)
+        table = var_table() * 2 - torch.eye(9, dtype=torch.int64)
+        dpa = DPA(weights, b=0.9, g=0.4, smooth=0.2, var_table=table).double()
+        got = dpa(frames)
+        expected = accumulate(frames, weights, 0.9, 0.4, var_table=table, smooth=0.2)
+        torch.testing.assert_close(got.asf, expected.asf)
+        assert torch.equal(got.direction, expected.direction)
+
+    def test_non_directional(self):
+        dpa = DPA(window=5, directional=False)
+        torch.testing.assert_close(dpa.weights, probability_matrices(5)[8:])
+        state = dpa(torch.randn(1, 3, 6, 6))
+        assert bool((state.direction == 0).all())
+
+    def test_learnable_parameters_and_constraints(self):
+        dpa = DPA(
+            window=5, b=0.0, g=1.0, p=0.0, penalty_step=1.0, learnable=("b", "g", "p", "penalty")
+        )
+        names = sorted(name for name, _ in dpa.named_parameters())
+        assert names == ["b_raw", "g_raw", "p_raw", "penalty_raw"]
+        # initialised just inside the bounds
+        assert 0 < dpa.b.item() < 1e-5 and 1 - 1e-5 < dpa.g.item() < 1
+        assert 0 < dpa.p.item() < 1e-5 and 1 < dpa.penalty_step.item() < 1 + 1e-5
+        with torch.no_grad():
+            for param in dpa.parameters():
+                param.fill_(-50.0)
+        assert dpa.b.item() >= 0 and dpa.g.item() >= 0 and dpa.p.item() >= 0
+        assert dpa.penalty_step.item() >= 1
+        with torch.no_grad():
+            for param in dpa.parameters():
+                param.fill_(50.0)
+        assert dpa.g.item() <= 1
+
+    def test_learnable_values_round_trip(self):
+        dpa = DPA(
+            window=5, b=0.7, g=0.3, p=0.6, penalty_step=2.5, learnable=("b", "g", "p", "penalty")
+        )
+        assert dpa.b.item() == pytest.approx(0.7)
+        assert dpa.g.item() == pytest.approx(0.3)
+        assert dpa.p.item() == pytest.approx(0.6)
+        assert dpa.penalty_step.item() == pytest.approx(2.5)
+        torch.testing.assert_close(dpa.weights, probability_matrices(5, p=0.6, penalty_step=2.5))
+
+    def test_training_step_moves_parameters(self):
+        dpa = DPA(window=5, g=0.5, learnable=("b", "g", "p", "penalty"), smooth=0.5)
+        frames = torch.randn(2, 4, 8, 8)
+        dpa(frames).asf[:, -1].mean().backward()
+        for name, param in dpa.named_parameters():
+            assert param.grad is not None and float(param.grad.abs()) > 0, name
+
+    def test_gradcheck_through_module(self):
+        dpa = DPA(
+            window=3, b=0.8, g=0.4, p=0.7, penalty_step=2.0, learnable=("b", "g", "p", "penalty")
+        )
+        dpa = dpa.double()
+        gen = torch.Generator().manual_seed(0)
+        frames = torch.randn(1, 3, 6, 6, generator=gen, dtype=F64, requires_grad=True)
+        names = [name for name, _ in dpa.named_parameters()]
+        params = tuple(p.detach().clone().requires_grad_() for p in dpa.parameters())
+
+        def fn(frames, *values):
+            return functional_call(dpa, dict(zip(names, values)), (frames,)).asf
+
+        assert torch.autograd.gradcheck(fn, (frames, *params))
+
+    def test_gradcheck_through_module_smooth(self):
+        dpa = DPA(window=3, g=0.6, learnable=("b", "g", "p", "penalty"), smooth=0.3).double()
+        gen = torch.Generator().manual_seed(1)
+        frames = torch.randn(2, 3, 5, 6, generator=gen, dtype=F64)
+        names = [name for name, _ in dpa.named_parameters()]
+        params = tuple(p.detach().clone().requires_grad_() for p in dpa.parameters())
+
+        def fn(*values):
+            return functional_call(dpa, dict(zip(names, values)), (frames,)).asf
+
+        assert torch.autograd.gradcheck(fn, params, fast_mode=True)
+
+    def test_state_dict_round_trip(self):
+        dpa = DPA(window=5, learnable=("g", "p"))
+        with torch.no_grad():
+            dpa.g_raw.fill_(0.3)
+        other = DPA(window=5, learnable=("g", "p"))
+        other.load_state_dict(dpa.state_dict())
+        assert other.g.item() == pytest.approx(dpa.g.item())
+
+    @pytest.mark.parametrize(
+        "kwargs, error, match",
+        [
+            ({"learnable": ("b", "speed")}, ValueError, "`learnable`"),
+            ({"learnable": 3}, TypeError, "`learnable`"),
+            ({"weights": torch.ones(9, 3, 3), "learnable": ("p",)}, ValueError, "`learnable`"),
+            ({"directional": False, "learnable": ("penalty",)}, ValueError, "`learnable`"),
+            ({"weights": torch.ones(1, 3, 3)}, ValueError, "`directional`"),
+            ({"weights": torch.ones(2, 3, 3)}, ValueError, "`weights`"),
+            ({"g": 2.0}, ValueError, "`g`"),
+            ({"b": -1.0}, ValueError, "`b`"),
+            ({"p": -1.0}, ValueError, "`p`"),
+            ({"penalty_step": 0.5}, ValueError, "`penalty_step`"),
+            ({"window": 4}, ValueError, "`window`"),
+            ({"smooth": -1.0}, ValueError, "`smooth`"),
+            ({"memory": 0.0}, ValueError, "`memory`"),
+            ({"directional": False, "var_table": var_table()}, ValueError, "`var_table`"),
+        ],
+    )
+    def test_exceptions(self, kwargs, error, match):
+        with pytest.raises(error, match=match):
+            DPA(**kwargs)
+
+    def test_forward_exceptions(self):
+        with pytest.raises(ValueError, match="`weights`"):
+            DPA(window=7)(torch.randn(2, 5, 5))
+        with pytest.raises(ValueError, match="`frames`"):
+            DPA(window=3)(torch.randn(5, 5))
