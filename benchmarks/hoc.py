@@ -1,0 +1,498 @@
+"""Speed benchmark of the modified HOC of [LA98]: loop reference, connectionist path, fast path.
+
+For every cube size x clutter density x order, one timed item is the order-``k`` modified HOC
+(``v = 4``, ``delta = pi/4``) run forward *and* backward on a seeded uniform-clutter cube. It is
+timed with the loop reference (:func:`hocnet.hoc.reference.hoc_reference`, tiny cubes only), the
+connectionist network (``method="conv"``) and the sparse fast path (``method="sparse"``), next to
+one 9x9 max-pool pass over the same cube -- the floor any windowed detector pays. All outputs are
+checked bit for bit (conv == sparse, and == reference where it runs). The peak memory of the fast
+path is measured in a fresh ``spawn`` child process per configuration.
+
+Run::
+
+    .venv/bin/python benchmarks/hoc.py            # full table (several minutes)
+    .venv/bin/python benchmarks/hoc.py --quick    # smoke test: small cubes, 2 % only (< 20 s)
+
+Options: ``--sizes 16x320x520,10x60x60`` (``TxHxW``), ``--densities 0.02``, ``--orders 1,4``,
+``--threads 2``, ``--seed 0``, ``--out STEM``. The table is printed and written to
+``benchmarks/results/hoc.md`` with the raw numbers in ``hoc.csv`` (``hoc_quick.*`` with
+``--quick``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import multiprocessing as mp
+import os
+import platform
+import resource
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from hocnet.hoc.functional import modified_hoc
+from hocnet.hoc.reference import hoc_reference
+
+V = 4
+DELTA = math.pi / 4
+POOL = 9  # max-pool window of the floor (odd, padding POOL // 2 keeps the size)
+REFERENCE_MAX_PIXELS = 6 * 16 * 16  # the Python loop reference runs only on cubes this small
+MIN_RUNS = 3  # a time is the min over at least this many runs ...
+MIN_TIME_S = 1.0  # ... and over as many more (up to MAX_RUNS) as fit in this much time ...
+MAX_RUNS = 50
+QUICK_MIN_TIME_S = 0.2  # MIN_TIME_S of --quick
+SINGLE_S = 5.0  # ... except that an item whose first run takes longer than this runs once
+
+FULL_SIZES = ((6, 16, 16), (10, 60, 60), (10, 320, 520), (16, 320, 520))
+QUICK_SIZES = ((6, 16, 16), (10, 60, 60))
+DENSITIES = (0.008, 0.02, 0.05)
+QUICK_DENSITIES = (0.02,)
+ORDERS = (1, 2, 4)
+
+TARGET_SIZE = (16, 320, 520)
+TARGET_DENSITY = 0.02
+TARGET_ORDER = 4
+TARGET_CONV_SPEEDUP = 20.0  # sparse must be at least this much faster than conv
+TARGET_FLOOR_RATIO = 3.0  # sparse must be within this factor of the max-pool floor
+TARGET_MEMORY_MB = 1024.0  # peak memory of the fast path
+
+_R = TypeVar("_R")
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+@dataclass
+class Row:
+    """One configuration of the benchmark (times in seconds, memory in MB)."""
+
+    size: str
+    density: float
+    order: int
+    n_points: int
+    reference_s: float | None
+    conv_s: float
+    conv_runs: int
+    sparse_s: float
+    maxpool_s: float
+    conv_over_sparse: float
+    sparse_over_maxpool: float
+    sparse_mpix_per_s: float
+    sparse_peak_mb: float
+    sparse_peak_abs_mb: float
+    survivors_fwd: int
+    survivors_bwd: int
+    identical: bool
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def make_cube(size: tuple[int, int, int], density: float, seed: int) -> torch.Tensor:
+    """Seeded ``(1, T, H, W)`` bool cube with each pixel on with probability ``density``."""
+    gen = torch.Generator().manual_seed(seed)
+    return torch.rand((1, *size), generator=gen) < density
+
+
+def hoc_both(cube: torch.Tensor, order: int, method: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """The timed item: order-``k`` modified HOC forward and backward."""
+    fwd = modified_hoc(cube, order, V, DELTA, "forward", method=method)
+    bwd = modified_hoc(cube, order, V, DELTA, "backward", method=method)
+    return fwd, bwd
+
+
+def reference_both(cube: torch.Tensor, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """The timed item with the loop reference (unbatched numpy in, numpy out)."""
+    arr = cube[0].numpy()
+    return (
+        hoc_reference(arr, order, V, DELTA, "forward"),
+        hoc_reference(arr, order, V, DELTA, "backward"),
+    )
+
+
+def max_pool_floor(cube: torch.Tensor) -> torch.Tensor:
+    """One 9x9 max-pool pass over every scan of the cube (the windowed-detector floor)."""
+    b, n_t, h, w = cube.shape
+    x = cube.float().reshape(b * n_t, 1, h, w)
+    return F.max_pool2d(x, POOL, stride=1, padding=POOL // 2)
+
+
+def timed(
+    fn: Callable[[], _R],
+    min_runs: int = MIN_RUNS,
+    min_time: float = MIN_TIME_S,
+    single: float = SINGLE_S,
+) -> tuple[float, int, _R]:
+    """Best wall time of ``fn`` over repeated runs.
+
+    Runs ``fn`` at least ``min_runs`` times and keeps going (at most ``MAX_RUNS``) until
+    ``min_time`` seconds were spent, taking the minimum -- the least disturbed run on a shared
+    machine. An item whose first run exceeds ``single`` seconds is run once.
+
+    Returns:
+        ``(best seconds, number of runs, result of the last run)``.
+    """
+    best = math.inf
+    runs = 0
+    spent = 0.0
+    while True:
+        t0 = time.perf_counter()
+        result = fn()
+        dt = time.perf_counter() - t0
+        best, runs, spent = min(best, dt), runs + 1, spent + dt
+        if (runs == 1 and dt > single) or runs >= MAX_RUNS:
+            return best, runs, result
+        if runs >= min_runs and spent >= min_time:
+            return best, runs, result
+
+
+def _proc_status_mb() -> dict[str, float] | None:
+    """``VmRSS`` and ``VmHWM`` of this process in MB from ``/proc/self/status`` (Linux)."""
+    try:
+        with open("/proc/self/status") as fh:
+            lines = fh.readlines()
+    except OSError:
+        return None
+    out = {}
+    for line in lines:
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "VmHWM"):
+            out[key] = int(value.split()[0]) / 1024
+    return out if len(out) == 2 else None
+
+
+def _reset_peak_rss() -> bool:
+    """Reset this process's ``VmHWM`` to its current RSS (Linux ``clear_refs`` mode 5)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return False
+    return True
+
+
+def _maxrss_mb() -> float:
+    """``ru_maxrss`` of this process in MB (Linux reports KiB, macOS bytes)."""
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
+
+
+def _sparse_peak_child(
+    size: tuple[int, int, int], density: float, order: int, seed: int, threads: int
+) -> tuple[float, float, str]:
+    """Runs in a fresh child process: peak RSS of one fast-path item above the baseline.
+
+    The child is forked from a ``forkserver`` that has imported ``torch`` and ``hocnet`` and
+    never run a computation. After one tiny warm-up call (torch's one-time runtime setup: thread
+    pool, allocator arenas), the peak-RSS counter is reset at the baseline, before the cube is
+    built, so the input cube, the outputs and every temporary of the fast path count, and
+    nothing of the parent benchmark process does.
+
+    Returns:
+        ``(peak minus baseline MB, absolute peak MB, method name)``.
+    """
+    torch.set_num_threads(threads)
+    hoc_both(make_cube((6, 16, 16), 0.05, 0), 1, "sparse")  # one-time runtime init, not counted
+    status = _proc_status_mb() if _reset_peak_rss() else None
+    if status is not None:
+        base, method = status["VmRSS"], "VmHWM"
+    else:  # no /proc: ru_maxrss, which also counts the import-time high-water mark
+        base, method = _maxrss_mb(), "ru_maxrss"
+    cube = make_cube(size, density, seed)
+    hoc_both(cube, order, "sparse")
+    status = _proc_status_mb() if method == "VmHWM" else None
+    peak = status["VmHWM"] if status is not None else _maxrss_mb()
+    return max(0.0, peak - base), peak, method
+
+
+_MEMORY_METHODS: set[str] = set()
+
+
+def sparse_peak_memory(
+    size: tuple[int, int, int], density: float, order: int, seed: int, threads: int
+) -> tuple[float, float]:
+    """``(increment MB, absolute peak MB)`` of the fast path, in a fresh child process."""
+    try:
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["__main__", "torch", "hocnet.hoc.functional"])
+    except ValueError:  # no forkserver on this platform
+        ctx = mp.get_context("spawn")
+    with ctx.Pool(1) as pool:
+        inc, peak, method = pool.apply(_sparse_peak_child, (size, density, order, seed, threads))
+    _MEMORY_METHODS.add(method)
+    return inc, peak
+
+
+# ----------------------------------------------------------------------------- benchmark
+
+
+def run_config(
+    size: tuple[int, int, int],
+    density: float,
+    order: int,
+    seed: int,
+    threads: int,
+    quick: bool = False,
+) -> Row:
+    """Time and check one configuration (``quick``: the slow paths run once)."""
+    slow: dict[str, float] = {"min_runs": 1, "min_time": 0.0} if quick else {}
+    fast: dict[str, float] = {"min_time": QUICK_MIN_TIME_S} if quick else {}
+    cube = make_cube(size, density, seed)
+    pixels = cube.numel()
+
+    sparse_s, _, (sf, sb) = timed(lambda: hoc_both(cube, order, "sparse"), **fast)
+    conv_s, conv_runs, (cf, cb) = timed(lambda: hoc_both(cube, order, "conv"), **slow)
+    maxpool_s, _, _ = timed(lambda: max_pool_floor(cube), **fast)
+    identical = torch.equal(sf, cf) and torch.equal(sb, cb)
+
+    reference_s: float | None = None
+    if pixels <= REFERENCE_MAX_PIXELS:
+        reference_s, _, (rf, rb) = timed(lambda: reference_both(cube, order), **slow)
+        identical = (
+            identical and np.array_equal(rf, sf[0].numpy()) and np.array_equal(rb, sb[0].numpy())
+        )
+    if not identical:
+        raise AssertionError(f"outputs differ at size {size}, density {density}, order {order}")
+
+    peak_mb, peak_abs_mb = sparse_peak_memory(size, density, order, seed, threads)
+    return Row(
+        size="x".join(map(str, size)),
+        density=density,
+        order=order,
+        n_points=int(cube.sum()),
+        reference_s=reference_s,
+        conv_s=conv_s,
+        conv_runs=conv_runs,
+        sparse_s=sparse_s,
+        maxpool_s=maxpool_s,
+        conv_over_sparse=conv_s / sparse_s,
+        sparse_over_maxpool=sparse_s / maxpool_s,
+        sparse_mpix_per_s=pixels / sparse_s / 1e6,
+        sparse_peak_mb=peak_mb,
+        sparse_peak_abs_mb=peak_abs_mb,
+        survivors_fwd=int(sf.sum()),
+        survivors_bwd=int(sb.sum()),
+        identical=identical,
+    )
+
+
+def warm_up() -> None:
+    """One small call of each path so that one-time setup is not timed in the first row."""
+    cube = make_cube((6, 16, 16), 0.05, 0)
+    for method in ("sparse", "conv"):
+        hoc_both(cube, 2, method)
+    max_pool_floor(cube)
+
+
+# ----------------------------------------------------------------------------- reporting
+
+
+def _fmt_s(x: float | None) -> str:
+    if x is None:
+        return "—"
+    return f"{x:.3g}" if x >= 1e-3 else f"{x:.2e}"
+
+
+def markdown(rows: list[Row], header: list[str]) -> str:
+    """The table as Markdown, preceded by ``header`` lines."""
+    cols = (
+        "size (TxHxW)",
+        "density",
+        "order",
+        "points",
+        "reference s",
+        "conv s",
+        "sparse s",
+        "maxpool s",
+        "conv/sparse",
+        "sparse/maxpool",
+        "sparse Mpix-scans/s",
+        "sparse peak MB",
+        "survivors f/b",
+    )
+    lines = [*header, "", "| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        conv = _fmt_s(r.conv_s) + ("" if r.conv_runs > 1 else "¹")
+        cells = (
+            r.size,
+            f"{r.density:g}",
+            str(r.order),
+            str(r.n_points),
+            _fmt_s(r.reference_s),
+            conv,
+            _fmt_s(r.sparse_s),
+            _fmt_s(r.maxpool_s),
+            f"{r.conv_over_sparse:.1f}x",
+            f"{r.sparse_over_maxpool:.2f}",
+            f"{r.sparse_mpix_per_s:.1f}",
+            f"{r.sparse_peak_mb:.1f}",
+            f"{r.survivors_fwd}/{r.survivors_bwd}",
+        )
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def headline(rows: list[Row]) -> list[str]:
+    """Headline lines for the target configuration, with PASS/FAIL, if it was run."""
+    size = "x".join(map(str, TARGET_SIZE))
+    hit = [
+        r
+        for r in rows
+        if r.size == size and r.density == TARGET_DENSITY and r.order == TARGET_ORDER
+    ]
+    if not hit:
+        return [
+            f"Target configuration ({size}, {TARGET_DENSITY:.0%}, order {TARGET_ORDER}) not run."
+        ]
+    r = hit[0]
+    speed_ok = r.conv_over_sparse >= TARGET_CONV_SPEEDUP
+    floor_ok = r.sparse_over_maxpool <= TARGET_FLOOR_RATIO
+    mem_ok = r.sparse_peak_mb < TARGET_MEMORY_MB and r.sparse_peak_abs_mb < TARGET_MEMORY_MB
+    verdict = lambda ok: "PASS" if ok else "FAIL"  # noqa: E731
+    what = f"{size}, {TARGET_DENSITY:.0%} clutter, order {TARGET_ORDER} forward + backward"
+    return [
+        f"Headline ({what}): "
+        f"fast path = {r.sparse_s * 1e3:.0f} ms, conv = {r.conv_s:.1f} s "
+        f"({r.conv_over_sparse:.0f}x), max-pool floor = {r.maxpool_s * 1e3:.0f} ms "
+        f"(sparse/floor = {r.sparse_over_maxpool:.2f}), peak memory = {r.sparse_peak_mb:.0f} MB "
+        f"(process total {r.sparse_peak_abs_mb:.0f} MB)",
+        f"- fast path >= {TARGET_CONV_SPEEDUP:.0f}x faster than conv: "
+        f"{verdict(speed_ok)} ({r.conv_over_sparse:.1f}x)",
+        f"- fast path within {TARGET_FLOOR_RATIO:.0f}x of the max-pool floor: "
+        f"{verdict(floor_ok)} ({r.sparse_over_maxpool:.2f}x)",
+        f"- peak memory under 1 GB: {verdict(mem_ok)} ({r.sparse_peak_mb:.0f} MB above baseline, "
+        f"{r.sparse_peak_abs_mb:.0f} MB process total)",
+    ]
+
+
+def write_csv(rows: list[Row], path: Path) -> None:
+    """Raw numbers, one row per configuration."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=[f.name for f in fields(Row)])
+        writer.writeheader()
+        for r in rows:
+            writer.writerow(asdict(r))
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def _parse_size(text: str) -> tuple[int, int, int]:
+    parts = text.lower().split("x")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"`--sizes`: expected TxHxW, got {text!r}")
+    n_t, h, w = (int(p) for p in parts)
+    return n_t, h, w
+
+
+def _csv_of(conv: Callable[[str], _R]) -> Callable[[str], tuple[_R, ...]]:
+    return lambda text: tuple(conv(p) for p in text.split(",") if p.strip())
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Command-line options."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="sizes 6x16x16 and 10x60x60, density 0.02 only (smoke test)",
+    )
+    p.add_argument("--sizes", type=_csv_of(_parse_size), help="comma-separated TxHxW")
+    p.add_argument("--densities", type=_csv_of(float), help="comma-separated clutter densities")
+    p.add_argument("--orders", type=_csv_of(int), help="comma-separated HOC orders")
+    p.add_argument("--threads", type=int, default=2, help="torch.set_num_threads (default 2)")
+    p.add_argument("--seed", type=int, default=0, help="cube seed (default 0)")
+    p.add_argument("--out", type=Path, help="output stem (default benchmarks/results/hoc)")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark, print the table and the headline, write ``.md`` and ``.csv``."""
+    args = parse_args(argv)
+    sizes = args.sizes or (QUICK_SIZES if args.quick else FULL_SIZES)
+    densities = args.densities or (QUICK_DENSITIES if args.quick else DENSITIES)
+    orders = args.orders or ORDERS
+    out = args.out or RESULTS / ("hoc_quick" if args.quick else "hoc")
+    torch.set_num_threads(args.threads)
+
+    started = time.perf_counter()
+    load_before = os.getloadavg()
+    warm_up()
+    rows: list[Row] = []
+    configs = [(s, d, k) for s in sizes for d in densities for k in orders]
+    for i, (size, density, order) in enumerate(configs, 1):
+        row = run_config(size, density, order, args.seed, args.threads, args.quick)
+        rows.append(row)
+        print(
+            f"[{i}/{len(configs)}] {row.size} d={density:g} k={order}: "
+            f"sparse {row.sparse_s:.3g} s, conv {row.conv_s:.3g} s, "
+            f"maxpool {row.maxpool_s:.3g} s, peak {row.sparse_peak_mb:.1f} MB",
+            file=sys.stderr,
+            flush=True,
+        )
+    total = time.perf_counter() - started
+    load_after = os.getloadavg()
+
+    if _MEMORY_METHODS == {"VmHWM"}:
+        memory_note = (
+            "the peak is `VmHWM` from /proc/self/status, reset to the current RSS at the "
+            "baseline by writing 5 to /proc/self/clear_refs"
+        )
+    else:
+        memory_note = (
+            "the peak is `ru_maxrss` (no resettable VmHWM here), so usage below the "
+            "import-time high-water mark reads as 0"
+        )
+    min_time = QUICK_MIN_TIME_S if args.quick else MIN_TIME_S
+    header = [
+        "# Modified HOC speed: loop reference vs connectionist (conv) vs fast path (sparse)",
+        "",
+        f"- {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, torch {torch.__version__}, "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"torch threads = {args.threads}, load average {load_before[0]:.2f} -> "
+        f"{load_after[0]:.2f} (other jobs may share the machine), total run {total:.0f} s.",
+        f"- Timed item: order-k modified HOC (v = {V}, delta = pi/4) forward + backward on a "
+        f"(1, T, H, W) bool cube, each pixel on with probability `density` "
+        f"(torch.Generator seed {args.seed}). Times are wall seconds: the min over >= "
+        f"{MIN_RUNS} runs (more, up to {MAX_RUNS}, while under {min_time:g} s in total), or a "
+        f"single run when the first run exceeds {SINGLE_S:g} s (marked ¹)"
+        + (" or in --quick mode for conv and reference." if args.quick else "."),
+        f"- reference: the Python loop oracle `hoc_reference`, only for cubes of at most "
+        f"{REFERENCE_MAX_PIXELS} pixels (— otherwise).",
+        f"- maxpool: one `max_pool2d(x.float().reshape(B*T, 1, H, W), {POOL}, stride=1, "
+        f"padding={POOL // 2})` pass over the same cube — the floor of any windowed detector.",
+        "- sparse Mpix-scans/s: T*H*W cube pixels per second of the timed (forward + backward) "
+        "fast-path item.",
+        "- sparse peak MB: each configuration's fast path runs once in a fresh child process "
+        "(`multiprocessing` forkserver that has imported torch + hocnet and computed nothing). "
+        "Reported is its peak RSS after the run minus its RSS at the baseline (after the "
+        "imports and one tiny warm-up call, before the cube is built; input cube, outputs and "
+        "all temporaries count): "
+        f"{memory_note}. Peak-RSS counters of a spawn child are not usable here: Linux "
+        "carries `ru_maxrss` over exec, so a spawn child reports the parent's peak.",
+        "- survivors f/b: points kept by the forward / backward network at that order.",
+        "- identical: yes — conv and sparse outputs are bit-identical (torch.equal) in every row, "
+        "and equal the loop reference wherever it ran.",
+    ]
+    lines = headline(rows)
+    text = markdown(rows, header) + "\n" + "\n".join(lines) + "\n"
+    print(text)
+    print("identical: yes")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".md").write_text(text)
+    write_csv(rows, out.with_suffix(".csv"))
+    print(f"wrote {out.with_suffix('.md')} and {out.with_suffix('.csv')}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,335 @@
+"""Shared helpers of the experiment scripts: seeds, mean ± std, tables, files, progress, CLI.
+
+The experiment scripts load this module by file path (they are themselves imported by file path
+by ``hocnet reproduce``), so it must not depend on ``experiments`` being a package.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import math
+import pathlib
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, TypeVar
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+from tqdm.auto import tqdm
+
+T = TypeVar("T")
+
+RESULTS_DIR = pathlib.Path(__file__).resolve().parent / "results"
+"""Default output folder: ``experiments/results``."""
+
+FULL_SEEDS = 20
+"""Scenes per setting in a full run (the paper used one or six)."""
+
+QUICK_SEEDS = 2
+"""Scenes per setting in a quick (smoke) run."""
+
+PAPER_NA_NOTE = (
+    "Values of the paper's own tables: n/a (paper text not available in this workplace); "
+    "a `paper` column appears only where the paper's value is known."
+)
+
+
+def n_seeds(quick: bool, seeds: int | None) -> int:
+    """Scenes per setting: ``seeds`` if given, else 2 (quick) or 20 (full).
+
+    Examples:
+        >>> n_seeds(False, None), n_seeds(True, None), n_seeds(True, 5)
+        (20, 2, 5)
+    """
+    if seeds is not None:
+        if int(seeds) < 1:
+            raise ValueError(f"`seeds`: expected an integer >= 1, got {seeds}")
+        return int(seeds)
+    return QUICK_SEEDS if quick else FULL_SEEDS
+
+
+def seed_list(base: int, n: int) -> list[int]:
+    """Seeds ``base, base + 1, ..., base + n - 1`` (one per scene).
+
+    Examples:
+        >>> seed_list(100, 3)
+        [100, 101, 102]
+    """
+    return [base + i for i in range(n)]
+
+
+def out_dir_of(out_dir: pathlib.Path | str | None) -> pathlib.Path:
+    """The output folder (created if needed): ``out_dir`` or :data:`RESULTS_DIR`."""
+    path = RESULTS_DIR if out_dir is None else pathlib.Path(out_dir)
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def mean_std(values: Iterable[float], digits: int = 3, scale: float = 1.0) -> str:
+    """Format ``mean ± std`` (sample std, ``ddof = 1``; ``± 0`` for one value).
+
+    Examples:
+        >>> mean_std([1.0, 2.0, 3.0], digits=2)
+        '2.00 ± 1.00'
+        >>> mean_std([0.5], digits=1, scale=100)
+        '50.0 ± 0.0'
+    """
+    xs = [float(v) * scale for v in values]
+    if not xs:
+        return "n/a"
+    m = sum(xs) / len(xs)
+    s = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1)) if len(xs) > 1 else 0.0
+    return f"{m:.{digits}f} ± {s:.{digits}f}"
+
+
+def mean(values: Iterable[float]) -> float:
+    """Arithmetic mean (NaN for no values).
+
+    Examples:
+        >>> mean([1, 2])
+        1.5
+    """
+    xs = [float(v) for v in values]
+    return sum(xs) / len(xs) if xs else math.nan
+
+
+def std(values: Iterable[float]) -> float:
+    """Sample standard deviation (``ddof = 1``; 0 for one value, NaN for none).
+
+    Examples:
+        >>> std([1, 2, 3])
+        1.0
+    """
+    xs = [float(v) for v in values]
+    if not xs:
+        return math.nan
+    if len(xs) == 1:
+        return 0.0
+    m = sum(xs) / len(xs)
+    return math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
+
+
+def pct(value: float, digits: int = 2) -> str:
+    """Format a fraction as a percentage.
+
+    Examples:
+        >>> pct(0.0123)
+        '1.23 %'
+    """
+    return f"{100 * value:.{digits}f} %"
+
+
+def md_table(headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A GitHub markdown table.
+
+    Examples:
+        >>> print(md_table(["a", "b"], [[1, "x"]]))
+        | a | b |
+        |---|---|
+        | 1 | x |
+    """
+    lines = ["| " + " | ".join(str(h) for h in headers) + " |"]
+    lines.append("|" + "|".join("---" for _ in headers) + "|")
+    lines.extend("| " + " | ".join(str(c) for c in row) + " |" for row in rows)
+    return "\n".join(lines)
+
+
+def write_csv(path: pathlib.Path, rows: Sequence[dict[str, Any]]) -> pathlib.Path:
+    """Write dict rows (the union of their keys, in first-seen order) to a CSV file."""
+    fields: list[str] = []
+    for row in rows:
+        fields.extend(k for k in row if k not in fields)
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _csv_value(v) for k, v in row.items()})
+    return path
+
+
+def _csv_value(value: Any) -> Any:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return value
+
+
+def write_text(path: pathlib.Path, text: str) -> pathlib.Path:
+    """Write ``text`` (with a trailing newline) to ``path``."""
+    path.write_text(text.rstrip("\n") + "\n")
+    return path
+
+
+def progress(
+    iterable: Iterable[T], *, enabled: bool, desc: str, total: int | None = None
+) -> Iterator[T]:
+    """Wrap ``iterable`` in a tqdm progress bar (on stderr) when ``enabled``."""
+    if not enabled:
+        yield from iterable
+        return
+    yield from tqdm(iterable, desc=desc, total=total, leave=False, dynamic_ncols=True)
+
+
+@contextlib.contextmanager
+def single_thread() -> Iterator[None]:
+    """Run torch single-threaded inside the block (the previous thread count is restored).
+
+    The sparse HOC path is many small tensor operations; on a shared 2-core CPU the intra-op
+    thread pool spends most of its time waiting (measured 10-100x slower than one thread while
+    other processes were busy), so the experiments run with one torch thread.
+    """
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+class Timer:
+    """Wall-clock timer used as a context manager; ``seconds`` after exit.
+
+    Examples:
+        >>> with Timer() as timer:
+        ...     pass
+        >>> timer.seconds >= 0
+        True
+    """
+
+    def __enter__(self) -> Timer:
+        self._start = time.perf_counter()
+        self.seconds = 0.0
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.seconds = time.perf_counter() - self._start
+
+
+def header(
+    title: str, description: str, *, quick: bool, n: int, seconds: float | None = None
+) -> str:
+    """Common top of a results markdown file."""
+    mode = "quick (smoke) run" if quick else "full run"
+    lines = [f"# {title}", "", description, "", f"- Mode: {mode}, {n} seeded scenes per setting."]
+    if seconds is not None:
+        lines.append(f"- Runtime: {seconds:.1f} s (wall clock, shared 2-core CPU).")
+    return "\n".join(lines)
+
+
+def main_for(
+    name: str,
+    description: str,
+    run: Callable[..., pathlib.Path],
+    argv: Sequence[str] | None = None,
+) -> pathlib.Path:
+    """The command line of an experiment script: ``--quick``, ``--seeds N``, ``--out DIR``."""
+    parser = argparse.ArgumentParser(prog=name, description=description)
+    parser.add_argument("--quick", action="store_true", help="small smoke run (2 seeds)")
+    parser.add_argument("--seeds", type=int, default=None, help="scenes per setting")
+    parser.add_argument(
+        "--out", type=pathlib.Path, default=None, help=f"output folder (default {RESULTS_DIR})"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    return run(quick=args.quick, seeds=args.seeds, out_dir=args.out, progress=not args.no_progress)
+
+
+# ----------------------------------------------------------------------------- HOC evaluation
+
+
+def hoc_scene_metrics(
+    cube: Any,
+    target_mask: Any,
+    true_tracks: Sequence[Any],
+    result: Any,
+    *,
+    min_points: int,
+) -> dict[str, Any]:
+    """Point and track metrics of one HOC result (``hocnet.hoc.HOCResult``) on one scene.
+
+    Returns a dict with the input counts, the points remaining / clutter rejection / target
+    points lost after the chain support (``hoc_*``) and after track identification (``id_*``),
+    the number of tracks found, the true tracks found (``track_recall`` with the default 80 %
+    overlap, tracks with fewer than ``min_points`` points not evaluated), the false tracks
+    (< 50 % target points) and the other tracks (mostly target points, but not the match of
+    any true track: fragments, duplicates, and chains zig-zagging between close tracks).
+    """
+    from hocnet import metrics
+
+    clutter = cube & ~target_mask
+    recall = metrics.track_recall(true_tracks, result.tracks, min_points=min_points)
+    row: dict[str, Any] = {
+        "input_points": int(cube.sum()),
+        "input_clutter": int(clutter.sum()),
+        "input_target": int((cube & target_mask).sum()),
+    }
+    for key, out in (("hoc", result.support), ("id", result.cleaned)):
+        row[f"{key}_remaining"] = metrics.points_remaining(out)
+        row[f"{key}_clutter_remaining"] = int((clutter & out).sum())
+        row[f"{key}_rejection"] = metrics.clutter_rejection(cube, out, target_mask)
+        row[f"{key}_target_lost"] = metrics.target_points_lost(cube, out, target_mask)
+    row["tracks_found"] = len(result.tracks)
+    row["true_evaluated"] = recall.n_evaluated
+    row["true_found"] = recall.n_found
+    row["false_tracks"] = metrics.false_tracks(result.tracks, target_mask)
+    matched = {m for m, f in zip(recall.matched, recall.found) if f}
+    row["other_tracks"] = len(result.tracks) - len(matched) - row["false_tracks"]
+    row["found_flags"] = recall.found
+    return row
+
+
+# ----------------------------------------------------------------------------- plotting
+
+
+def plot_scene_xy(
+    ax: Any,
+    cube: Any,
+    target_mask: Any,
+    true_tracks: Sequence[Any],
+    result: Any,
+    *,
+    title: str,
+    point_size: float = 1.0,
+) -> None:
+    """x-y view of one scene: input points, HOC support, identified and true tracks.
+
+    Identified tracks with at least half target points are drawn blue, false tracks red; true
+    tracks are dashed black on top.
+    """
+    import torch
+
+    _, y, x = cube.nonzero(as_tuple=True)
+    ax.scatter(x, y, s=point_size, color="0.78", label="input points", rasterized=True)
+    _, ys, xs = result.support.nonzero(as_tuple=True)
+    ax.scatter(
+        xs,
+        ys,
+        s=4 * point_size + 2,
+        color="tab:orange",
+        label="HOC support",
+        rasterized=True,
+    )
+    shown = {"true": False, "false": False}
+    for tr in result.tracks:
+        p = tr.points
+        hits = target_mask[p[:, 0], p[:, 1], p[:, 2]].to(torch.float64).mean()
+        kind = "true" if float(hits) >= 0.5 else "false"
+        colour = "tab:blue" if kind == "true" else "tab:red"
+        label = None
+        if not shown[kind]:
+            label = "identified track (target)" if kind == "true" else "false track"
+            shown[kind] = True
+        ax.plot(p[:, 2], p[:, 1], "-", color=colour, lw=2.6, alpha=0.75, label=label)
+    for i, tr in enumerate(true_tracks):
+        ax.plot(tr[:, 2], tr[:, 1], "--", color="k", lw=0.9, label="true track" if i == 0 else None)
+    ax.set_xlim(-0.5, cube.shape[-1] - 0.5)
+    ax.set_ylim(cube.shape[-2] - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (column)")
+    ax.set_ylabel("y (row)")
+    ax.set_title(f"{title}\n{x.numel()} input points, {xs.numel()} on the HOC support")

@@ -1,0 +1,364 @@
+"""Fig. 5 of [LA98]: continuous (sliding-window) detection over 16 scans.
+
+The 16-scan scene ``paper_scene("fig5", density, seed=base + i)`` (six tracks starting and ending
+at different scans, two of them splitting: eight true tracks counting the branches) is pushed scan
+by scan into ``hocnet.hoc.StreamingDetector(window=10, stride=2, order=2)``, which reports the
+windows 1-10, 3-12, 5-14 and 7-16 (1-based scans, as in the paper). For every window: which true
+tracks with at least 2k + 1 = 5 points in the window were found (``track_recall``, 80 % of their
+in-window points on one identified track), target points lost, clutter rejection after the HOC
+and after track identification, and whether the streaming result equals the batch
+``hocnet.hoc.detect`` run on the same window (support, cleaned cube, tracks and scores).
+
+Run: ``python experiments/hoc_fig5.py [--quick] [--seeds N] [--out DIR]`` or
+``hocnet reproduce hoc-fig5``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import pathlib
+import sys
+from collections.abc import Sequence
+from types import ModuleType
+
+
+def _load_common() -> ModuleType:
+    """Load ``experiments/_common.py`` by path (this script may itself be loaded by path)."""
+    name = "_hocnet_experiments_common"
+    if name not in sys.modules:
+        path = pathlib.Path(__file__).resolve().with_name("_common.py")
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+C = _load_common()
+
+import matplotlib.pyplot as plt  # noqa: E402
+import torch  # noqa: E402
+
+from hocnet import metrics  # noqa: E402
+from hocnet.data.binary import paper_scene  # noqa: E402
+from hocnet.hoc import HOCResult, StreamingDetector, detect  # noqa: E402
+
+NAME = "hoc-fig5"
+DESCRIPTION = (
+    "Fig. 5 of [LA98]: continuous mode, StreamingDetector(window=10, stride=2, order=2, v=4, "
+    "delta=pi/4) on the 16-scan scene with six tracks (two splitting); windows 1-10, 3-12, "
+    "5-14, 7-16."
+)
+
+WINDOW = 10
+STRIDE = 2
+ORDER = 2
+V = 4
+DELTA = math.pi / 4
+DENSITY = 0.01
+SEED_BASE = 5000
+TRACK_NAMES = {
+    1: "T1",
+    2: "T2 (splits)",
+    3: "T3",
+    4: "T4",
+    5: "T5 (splits)",
+    6: "T6 (turning)",
+    7: "T7 (branch of T2)",
+    8: "T8 (branch of T5)",
+}
+
+
+def _same(stream: HOCResult, batch: HOCResult) -> bool:
+    """Whether a streaming window result equals the batch result (ids aside)."""
+    if not (
+        torch.equal(stream.support, batch.support) and torch.equal(stream.cleaned, batch.cleaned)
+    ):
+        return False
+    if len(stream.tracks) != len(batch.tracks):
+        return False
+    for a, b in zip(stream.tracks, batch.tracks):
+        if not torch.equal(a.points, b.points) or not math.isclose(a.score, b.score):
+            return False
+    return True
+
+
+def evaluate(seeds: Sequence[int], density: float, progress: bool) -> tuple[list[dict], dict]:
+    """One row per (seed, window), and the first seed's scene and windows for the plot."""
+    rows = []
+    example: dict = {}
+    for seed in C.progress(seeds, enabled=progress, desc=NAME):
+        scene = paper_scene("fig5", density, seed=seed)
+        detector = StreamingDetector(window=WINDOW, stride=STRIDE, order=ORDER, v=V, delta=DELTA)
+        windows = []
+        for t in range(scene.cube.shape[0]):
+            out = detector.push(scene.cube[t])
+            if out is not None:
+                windows.append(out)
+        for w, out in enumerate(windows):
+            frames = scene.cube[out.start : out.stop]
+            truth = scene.target_mask[out.start : out.stop]
+            res = out.result
+            batch = detect(frames, order=ORDER, v=V, delta=DELTA)
+            recall = metrics.track_recall(
+                scene.tracks, out.tracks, window=(out.start, out.stop), min_points=2 * ORDER + 1
+            )
+            eligible = torch.zeros_like(truth)  # points of the evaluated true tracks
+            for tr, flag in zip(scene.tracks, recall.found):
+                if flag is not None:
+                    q = tr[(tr[:, 0] >= out.start) & (tr[:, 0] < out.stop)]
+                    eligible[q[:, 0] - out.start, q[:, 1], q[:, 2]] = True
+            row = {
+                "seed": seed,
+                "window": w + 1,
+                "scans": f"{out.start + 1}-{out.stop}",
+                "input_points": int(frames.sum()),
+                "input_clutter": int((frames & ~truth).sum()),
+                "input_target": int((frames & truth).sum()),
+                "hoc_remaining": metrics.points_remaining(res.support),
+                "hoc_rejection": metrics.clutter_rejection(frames, res.support, truth),
+                "hoc_target_lost": metrics.target_points_lost(frames, res.support, truth),
+                "id_remaining": metrics.points_remaining(res.cleaned),
+                "id_rejection": metrics.clutter_rejection(frames, res.cleaned, truth),
+                "id_target_lost": metrics.target_points_lost(frames, res.cleaned, truth),
+                "hoc_eligible_lost": metrics.target_points_lost(frames, res.support, eligible),
+                "id_eligible_lost": metrics.target_points_lost(frames, res.cleaned, eligible),
+                "tracks_found": len(res.tracks),
+                "true_evaluated": recall.n_evaluated,
+                "true_found": recall.n_found,
+                "false_tracks": metrics.false_tracks(res.tracks, truth),
+                "stream_equals_batch": int(_same(res, batch)),
+            }
+            for label, flag in zip(scene.track_labels, recall.found):
+                row[f"found_T{label}"] = "" if flag is None else int(flag)
+            rows.append(row)
+        if not example:
+            example = {"scene": scene, "windows": windows, "seed": seed}
+    return rows, example
+
+
+def _points_in_window(scene, start: int, stop: int) -> dict[int, int]:
+    out = {}
+    for label, tr in zip(scene.track_labels, scene.tracks):
+        out[label] = int(((tr[:, 0] >= start) & (tr[:, 0] < stop)).sum())
+    return out
+
+
+def _window_table(rows: list[dict], n_windows: int) -> str:
+    headers = [
+        "window (scans)",
+        "input points",
+        "rejection after HOC (%)",
+        "rejection after identification (%)",
+        "target lost after HOC: evaluated tracks / all (total)",
+        "paper: target lost",
+        "target lost after identification: evaluated tracks / all (total)",
+        "tracks found",
+        "false tracks",
+        "stream = batch",
+    ]
+    body = []
+    for w in range(1, n_windows + 1):
+        sel = [r for r in rows if r["window"] == w]
+        body.append(
+            [
+                sel[0]["scans"],
+                C.mean_std([r["input_points"] for r in sel], 0),
+                C.mean_std([r["hoc_rejection"] for r in sel], 2, scale=100),
+                C.mean_std([r["id_rejection"] for r in sel], 2, scale=100),
+                f"{sum(r['hoc_eligible_lost'] for r in sel)} / "
+                f"{sum(r['hoc_target_lost'] for r in sel)}",
+                "0",
+                f"{sum(r['id_eligible_lost'] for r in sel)} / "
+                f"{sum(r['id_target_lost'] for r in sel)}",
+                C.mean_std([r["tracks_found"] for r in sel], 2),
+                C.mean_std([r["false_tracks"] for r in sel], 2),
+                f"{sum(r['stream_equals_batch'] for r in sel)}/{len(sel)}",
+            ]
+        )
+    return C.md_table(headers, body)
+
+
+def _recall_table(rows: list[dict], example: dict) -> str:
+    scene = example["scene"]
+    headers = ["window (scans)", *TRACK_NAMES.values(), "true tracks found / evaluated"]
+    body = []
+    for w, out in enumerate(example["windows"], start=1):
+        sel = [r for r in rows if r["window"] == w]
+        counts = _points_in_window(scene, out.start, out.stop)
+        cells = [sel[0]["scans"]]
+        for label in TRACK_NAMES:
+            flags = [r[f"found_T{label}"] for r in sel if r[f"found_T{label}"] != ""]
+            if flags:
+                cells.append(f"{sum(flags)}/{len(flags)} ({counts[label]} pts)")
+            else:
+                cells.append(f"— ({counts[label]} pts)")
+        found = sum(r["true_found"] for r in sel)
+        evaluated = sum(r["true_evaluated"] for r in sel)
+        cells.append(f"{found}/{evaluated}")
+        body.append(cells)
+    return C.md_table(headers, body)
+
+
+def _plot(example: dict, path: pathlib.Path, density: float) -> None:
+    scene = example["scene"]
+    n_scans = scene.cube.shape[0]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 12.5), layout="constrained")
+    cmap = plt.get_cmap("viridis")
+    norm = plt.Normalize(1, n_scans)
+    for ax, out in zip(axes.flat, example["windows"]):
+        frames = scene.cube[out.start : out.stop]
+        _, y, x = frames.nonzero(as_tuple=True)
+        ax.scatter(x, y, s=3, color="0.8", label="input points", zorder=1)
+        for i, tr in enumerate(out.tracks):
+            p = tr.points
+            ax.plot(
+                p[:, 2],
+                p[:, 1],
+                "-",
+                color="0.35",
+                lw=1.0,
+                zorder=2,
+                label="identified track" if i == 0 else None,
+            )
+            ax.scatter(
+                p[:, 2],
+                p[:, 1],
+                c=p[:, 0] + 1,
+                cmap=cmap,
+                norm=norm,
+                s=28,
+                edgecolors="k",
+                linewidths=0.4,
+                zorder=3,
+            )
+        first = True
+        for tr in scene.tracks:
+            q = tr[(tr[:, 0] >= out.start) & (tr[:, 0] < out.stop)]
+            if q.shape[0] < 2:
+                continue
+            ax.plot(
+                q[:, 2],
+                q[:, 1],
+                "--",
+                color="tab:red",
+                lw=1.1,
+                zorder=4,
+                label="true track (in window)" if first else None,
+            )
+            first = False
+        ax.set_xlim(-0.5, scene.cube.shape[-1] - 0.5)
+        ax.set_ylim(scene.cube.shape[-2] - 0.5, -0.5)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (column)")
+        ax.set_ylabel("y (row)")
+        ax.set_title(f"Window scans {out.start + 1}-{out.stop}: {len(out.tracks)} tracks")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=3, fontsize=10)
+    sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=axes, shrink=0.6, label="scan (1-based) of the identified track points")
+    fig.suptitle(
+        f"[LA98] Fig. 5: continuous mode, window 10, stride 2, k = {ORDER}, density "
+        f"{100 * density:.1f} %, seed {example['seed']}"
+    )
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def run(
+    *,
+    quick: bool = False,
+    seeds: int | None = None,
+    out_dir: pathlib.Path | None = None,
+    progress: bool = True,
+) -> pathlib.Path:
+    """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
+
+    Args:
+        quick: smoke run (2 seeds).
+        seeds: scenes (default 20, quick 2).
+        out_dir: output folder (default ``experiments/results``).
+        progress: show a tqdm progress bar.
+
+    Returns:
+        Path of the markdown file.
+    """
+    n = C.n_seeds(quick, seeds)
+    out = C.out_dir_of(out_dir)
+    seed_values = C.seed_list(SEED_BASE, n)
+    with C.single_thread(), C.Timer() as timer:
+        rows, example = evaluate(seed_values, DENSITY, progress)
+    n_windows = len(example["windows"])
+    equal = sum(r["stream_equals_batch"] for r in rows)
+    lost_hoc = sum(r["hoc_target_lost"] for r in rows)
+    lost_id = sum(r["id_target_lost"] for r in rows)
+    lost_hoc_eligible = sum(r["hoc_eligible_lost"] for r in rows)
+    lost_id_eligible = sum(r["id_eligible_lost"] for r in rows)
+    parts = [
+        C.header(
+            "[LA98] Fig. 5: continuous mode", DESCRIPTION, quick=quick, n=n, seconds=timer.seconds
+        ),
+        f"- Scenes: `paper_scene('fig5', {DENSITY}, seed=seed)` (16 x 60 x 60, clutter density "
+        f"{C.pct(DENSITY, 1)}; the paper's density for this figure is not known here), seeds "
+        f"{seed_values[0]} .. {seed_values[-1]}.",
+        "- True tracks (1-based scans): T1 1-10; T2 3-16, splitting at scan 9 into T7; T3 5-14; "
+        "T4 2-9; T5 7-15, splitting at scan 10 into T8; T6 4-13, turning 0.1 rad per scan.",
+        "- A true track is evaluated in a window when it has >= 2k + 1 = 5 points there, and "
+        "found when one identified track holds >= 80 % of those points. Clutter rejection and "
+        "target points lost are computed on the window's scans.",
+        f"- Streaming result == batch `detect` on the same window (support, cleaned, track "
+        f"points and scores): {equal}/{len(rows)} windows.",
+        "- Target points lost over all windows, on the evaluated tracks (>= 5 points in the "
+        f"window, the ones Proposition 1 covers): {lost_hoc_eligible} after the HOC support, "
+        f"{lost_id_eligible} after track identification. Counting every target point in the "
+        f"window: {lost_hoc} and {lost_id}; the difference are the points of track pieces "
+        "shorter than 2k + 1 = 5 scans inside the window (a track entering or leaving it), "
+        "which no order-2 chain can hold unless clutter happens to extend them.",
+        "",
+        "## Per window (mean ± std over the scenes)",
+        "",
+        _window_table(rows, n_windows),
+        "",
+        "## True tracks found per window",
+        "",
+        "`a/b` = found in a of b scenes; `—` = fewer than 5 points in the window (not "
+        "evaluated); `(n pts)` = the track's points in the window.",
+        "",
+        _recall_table(rows, example),
+        "",
+        *(
+            []
+            if quick
+            else [
+                "Why tracks are missed: the HOC support keeps every point of the evaluated "
+                "tracks (0 lost above); the misses are made by track identification, which "
+                "links the best-scoring triples first. Near the gently turning T6 a clutter "
+                "point can offer a straighter (higher-scoring) link than the true next point, "
+                "and the track is cut into two pieces that each hold less than 80 % of it. "
+                "Example: seed 5013, window 5-14 (1-based): T6's point at 0-based scan 8 is "
+                "(x, y) = (25, 33) and a clutter point sits at (24, 33); the two identified "
+                "pieces are T6 at 0-based scans 4-9, and T6 at scan 7, the clutter point, T6 at "
+                "scans 9-12: 6 of T6's 9 in-window points each.",
+                "",
+            ]
+        ),
+        f"Note: {C.PAPER_NA_NOTE}",
+        "",
+        f"![{NAME}]({NAME}.png)",
+    ]
+    text = "\n".join(parts)
+    md = C.write_text(out / f"{NAME}.md", text)
+    C.write_csv(out / f"{NAME}.csv", rows)
+    _plot(example, out / f"{NAME}.png", DENSITY)
+    print(text)
+    return md
+
+
+def main(argv: Sequence[str] | None = None) -> pathlib.Path:
+    """Command line entry point."""
+    return C.main_for(NAME, DESCRIPTION, run, argv)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,159 @@
+import csv
+import importlib.util
+import pathlib
+import sys
+import time
+
+import pytest
+
+EXPERIMENTS = pathlib.Path(__file__).resolve().parents[2] / "experiments"
+SCRIPTS = {
+    "hoc-table2": "hoc_table2.py",
+    "hoc-table3": "hoc_table3.py",
+    "hoc-fig6": "hoc_fig6.py",
+    "hoc-fig5": "hoc_fig5.py",
+}
+
+
+def load(name: str):
+    """Import an experiment script by file path, as `hocnet reproduce` does."""
+    path = EXPERIMENTS / SCRIPTS[name]
+    module_name = f"_test_experiment_{path.stem}"
+    if module_name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(module_name, path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[module_name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[module_name]
+
+
+def read_rows(path: pathlib.Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def check_outputs(name: str, md: pathlib.Path, out: pathlib.Path) -> list[dict]:
+    assert md == out / f"{name}.md"
+    for ext in ("md", "csv", "png"):
+        path = out / f"{name}.{ext}"
+        assert path.is_file() and path.stat().st_size > 0, path
+    assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = md.read_text()
+    assert "n/a (paper text not available" in text
+    rows = read_rows(out / f"{name}.csv")
+    assert rows
+    return rows
+
+
+def rejection_columns(rows: list[dict]) -> list[float]:
+    values = []
+    for row in rows:
+        for key, value in row.items():
+            if "rejection" in key or key.endswith("_hoc") or key.endswith("_id"):
+                if value not in ("", None):
+                    values.append(float(value))
+    return values
+
+
+@pytest.mark.parametrize("name", sorted(SCRIPTS))
+def test_module_interface(name):
+    module = load(name)
+    assert module.NAME == name
+    assert isinstance(module.DESCRIPTION, str) and module.DESCRIPTION
+    assert callable(module.run) and callable(module.main)
+
+
+class TestTable2:
+    def test_quick(self, tmp_path, capsys):
+        module = load("hoc-table2")
+        start = time.perf_counter()
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        assert time.perf_counter() - start < 60  # loose bound; typically a few seconds
+        rows = check_outputs("hoc-table2", md, tmp_path)
+        assert len(rows) == 2 * 2  # 2 seeds x orders 2, 3 at one density
+        assert {r["order"] for r in rows} == {"2", "3"}
+        assert all(int(r["hoc_target_lost"]) == 0 for r in rows)
+        assert all(int(r["input_target"]) == 20 for r in rows)
+        values = rejection_columns(rows)
+        assert values and all(0.0 <= v <= 1.0 for v in values)
+        assert all(int(r["true_found"]) == 2 for r in rows)
+        assert "| density |" in capsys.readouterr().out
+
+    def test_main_cli(self, tmp_path):
+        module = load("hoc-table2")
+        md = module.main(["--quick", "--seeds", "1", "--out", str(tmp_path), "--no-progress"])
+        rows = check_outputs("hoc-table2", md, tmp_path)
+        assert {r["seed"] for r in rows} == {str(module.SEED_BASE)}
+
+    @pytest.mark.slow
+    def test_full(self, tmp_path):
+        module = load("hoc-table2")
+        rows = check_outputs("hoc-table2", module.run(out_dir=tmp_path), tmp_path)
+        assert len(rows) == 20 * 5 * 2
+        assert all(int(r["hoc_target_lost"]) == 0 for r in rows)
+
+
+class TestTable3:
+    def test_quick(self, tmp_path):
+        module = load("hoc-table3")
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        rows = check_outputs("hoc-table3", md, tmp_path)
+        assert len(rows) == 2 * 2
+        assert all(int(r["hoc_target_lost"]) == 0 for r in rows)
+        values = rejection_columns(rows)
+        assert values and all(0.0 <= v <= 1.0 for v in values)
+        for label in range(1, 6):  # every true track evaluated (>= 5 points)
+            assert all(r[f"found_T{label}"] in ("0", "1") for r in rows)
+        assert "T5 split branch found" in md.read_text()
+
+    @pytest.mark.slow
+    def test_full(self, tmp_path):
+        module = load("hoc-table3")
+        rows = check_outputs("hoc-table3", module.run(out_dir=tmp_path), tmp_path)
+        assert len(rows) == 20 * 3 * 2
+        assert all(int(r["hoc_target_lost"]) == 0 for r in rows)
+
+
+class TestFig6:
+    def test_quick(self, tmp_path):
+        module = load("hoc-fig6")
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        rows = check_outputs("hoc-fig6", md, tmp_path)
+        assert len(rows) == 2 * 2  # 2 densities x 2 seeds
+        values = rejection_columns(rows)
+        assert values and all(0.0 <= v <= 1.0 for v in values)
+        assert all(int(r["targets_lost_hoc"]) == 0 for r in rows)
+        text = md.read_text()
+        assert "Breakdown densities" in text and "1.23 %" in text and "4.92 %" in text
+
+    def test_breakdown(self):
+        module = load("hoc-fig6")
+        assert module.breakdown([0.01, 0.04], [1.0, 0.98]) == "2.00 %"
+        assert module.breakdown([0.01, 0.04], [0.9, 0.5]).startswith("<")
+        assert module.breakdown([0.01, 0.04], [1.0, 0.995]).startswith(">")
+
+    @pytest.mark.slow
+    def test_full(self, tmp_path):
+        module = load("hoc-fig6")
+        rows = check_outputs("hoc-fig6", module.run(out_dir=tmp_path), tmp_path)
+        assert len(rows) == 20 * 12
+
+
+class TestFig5:
+    def test_quick(self, tmp_path):
+        module = load("hoc-fig5")
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        rows = check_outputs("hoc-fig5", md, tmp_path)
+        assert len(rows) == 2 * 4  # 2 seeds x windows 1-10, 3-12, 5-14, 7-16
+        assert [r["scans"] for r in rows[:4]] == ["1-10", "3-12", "5-14", "7-16"]
+        assert all(r["stream_equals_batch"] == "1" for r in rows)
+        assert all(int(r["hoc_eligible_lost"]) == 0 for r in rows)
+        values = rejection_columns(rows)
+        assert values and all(0.0 <= v <= 1.0 for v in values)
+
+    @pytest.mark.slow
+    def test_full(self, tmp_path):
+        module = load("hoc-fig5")
+        rows = check_outputs("hoc-fig5", module.run(out_dir=tmp_path), tmp_path)
+        assert len(rows) == 20 * 4
+        assert all(r["stream_equals_batch"] == "1" for r in rows)
