@@ -170,10 +170,15 @@ class Detection:
             ``.tracks`` (objects with ``.points`` ``(N, 3)`` of ``(t, y, x)``, ``.id``, ``.score``
             and ``.batch``).
         params: the method's parameters as JSON-friendly values (stored in ``tracks.json``).
+        outputs: files to write besides ``tracks.json`` (name -> writer); ``None`` writes the
+            HOC outputs ``cleaned.npy``, ``support.npy`` and ``detection.png``.
+        summary: the line printed after a run; ``None`` prints the HOC point counts.
     """
 
     result: Any
     params: dict[str, Any] = field(default_factory=dict)
+    outputs: dict[str, Writer] | None = None
+    summary: str | None = None
 
 
 @dataclass(frozen=True)
@@ -186,6 +191,7 @@ class _Method:
     option_dests: tuple[str, ...]
     prepare: Callable[[argparse.Namespace], dict[str, Any]]
     run: Callable[[torch.Tensor, dict[str, Any]], Detection]
+    binary: bool = True
 
 
 def _add_hoc_options(group: argparse._ArgumentGroup) -> None:
@@ -288,6 +294,208 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     return Detection(result=result, params=detection_params)
 
 
+def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
+    group.add_argument(
+        "--g",
+        type=float,
+        default=None,
+        metavar="G",
+        help="sum/max mixing of eq. (11) of [NR08], in [0, 1] (default: 1)",
+    )
+    group.add_argument(
+        "--b",
+        type=float,
+        default=None,
+        metavar="B",
+        help="memory factor, >= 0 (default: the effective-memory b of eq. (12)-(14) for g)",
+    )
+    group.add_argument(
+        "--window",
+        type=int,
+        default=None,
+        metavar="K",
+        help="probability-matrix size, odd, at most the frame size (default: 7)",
+    )
+    group.add_argument(
+        "--v-max",
+        type=float,
+        default=None,
+        metavar="V",
+        help="largest target speed in pixels per frame, > 0 (default: 2.5)",
+    )
+    group.add_argument(
+        "--whiten",
+        choices=("mean", "median", "none"),
+        default=None,
+        help="anti-mean / anti-median whitening (7 x 7 ring, 3 x 3 guard) or none (default: mean)",
+    )
+    group.add_argument(
+        "--max-targets",
+        type=int,
+        default=None,
+        metavar="N",
+        help="largest number of tracks per sequence, >= 1 (default: 5)",
+    )
+    group.add_argument(
+        "--nms-radius",
+        type=int,
+        default=None,
+        metavar="R",
+        help="non-maximum suppression radius on the last ASF, >= 0 (default: 3)",
+    )
+    group.add_argument(
+        "--asf-threshold",
+        type=float,
+        default=None,
+        metavar="S",
+        help="keep last-frame ASF peaks above S (default: no threshold, the top peaks)",
+    )
+    group.add_argument(
+        "--target-free",
+        default=None,
+        metavar="FILE",
+        help="target-free frames (.npy/.npz) for a CFAR threshold at --pfa",
+    )
+    group.add_argument(
+        "--pfa",
+        type=float,
+        default=None,
+        metavar="P",
+        help="false-alarm probability per pixel of the CFAR threshold (default: 1e-3)",
+    )
+
+
+def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
+    """Validate the DPA options (flag names in the messages) and fill in defaults."""
+    g = _check_number("--g", 1.0 if args.g is None else args.g, low=0.0, high=1.0)
+    b = None if args.b is None else _check_number("--b", args.b, low=0.0)
+    window = _check_int("--window", 7 if args.window is None else args.window, minimum=1)
+    if window % 2 == 0:
+        raise CLIError(f"--window: expected an odd integer, got {window}")
+    v_max = _check_number(
+        "--v-max", 2.5 if args.v_max is None else args.v_max, low=0.0, low_inclusive=False
+    )
+    max_targets = _check_int(
+        "--max-targets", 5 if args.max_targets is None else args.max_targets, minimum=1
+    )
+    nms_radius = _check_int(
+        "--nms-radius", 3 if args.nms_radius is None else args.nms_radius, minimum=0
+    )
+    threshold = (
+        None if args.asf_threshold is None else _check_number("--asf-threshold", args.asf_threshold)
+    )
+    pfa = _check_number(
+        "--pfa",
+        1e-3 if args.pfa is None else args.pfa,
+        low=0.0,
+        high=1.0,
+        low_inclusive=False,
+        high_inclusive=False,
+    )
+    if threshold is not None and args.target_free is not None:
+        raise CLIError("--asf-threshold: expected no fixed threshold together with --target-free")
+    target_free = None
+    if args.target_free is not None:
+        from hocnet.data.io import load_cube
+
+        try:
+            target_free = load_cube(args.target_free)
+        except (ValueError, TypeError, OSError) as err:
+            raise CLIError(str(err).replace("`path`", "--target-free")) from None
+    return {
+        "g": g,
+        "b": b,
+        "window": window,
+        "v_max": v_max,
+        "whiten": args.whiten or "mean",
+        "max_targets": max_targets,
+        "nms_radius": nms_radius,
+        "asf_threshold": threshold,
+        "pfa": pfa,
+        "target_free": target_free,
+    }
+
+
+def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
+    """Whiten, accumulate (eq. 11 of [NR08]), pick the last-frame peaks and back-track them."""
+    import torch
+
+    from hocnet.data.io import save_cube
+    from hocnet.data.whitening import anti_mean, anti_median
+    from hocnet.dpa import effective_memory, probability_matrices
+    from hocnet.dpa.backtrack import detect
+    from hocnet.plot import plot_dpa
+
+    frames = cube.float()
+    height, width = frames.shape[-2:]
+    window = params["window"]
+    if window > min(height, width):
+        raise CLIError(
+            f"--window: expected at most the frame size min(H, W) = {min(height, width)}, "
+            f"got {window}"
+        )
+    whiten = {"mean": anti_mean, "median": anti_median}.get(params["whiten"])
+    if whiten is not None:
+        outer = min(7, *(n if n % 2 else n - 1 for n in (height, width)))
+        if outer < 3:
+            raise CLIError(f"--whiten: frames of {height} x {width} are too small for a ring")
+        inner = 3 if outer >= 5 else 1
+
+        def whitened(x: torch.Tensor) -> torch.Tensor:
+            return whiten(x.float(), outer, inner)
+    else:
+
+        def whitened(x: torch.Tensor) -> torch.Tensor:
+            return x.float()
+
+    white = whitened(frames)
+    weights = probability_matrices(window=window, v_max=params["v_max"])
+    b = params["b"]
+    if b is None:
+        b = float(effective_memory(weights, params["g"]))
+    target_free = params["target_free"]
+    if target_free is not None:
+        target_free = whitened(target_free)
+    found = detect(
+        white,
+        weights,
+        b,
+        params["g"],
+        max_targets=params["max_targets"],
+        nms_radius=params["nms_radius"],
+        threshold=params["asf_threshold"],
+        target_free=target_free,
+        pfa=params["pfa"],
+    )
+    asf = found.state.asf
+    batched = frames.dim() == 4
+    n_t = frames.shape[-3]
+    tracks, support = found.tracks, torch.zeros(frames.shape, dtype=torch.bool)
+    t = torch.arange(n_t)
+    for tr in tracks:
+        (support[tr.batch] if batched else support)[t, tr.points[:, 1], tr.points[:, 2]] = True
+    result = argparse.Namespace(support=support, cleaned=support, tracks=tracks, state=found.state)
+    outputs: dict[str, Writer] = {"asf.npy": lambda path: save_cube(path, asf)}
+    scenes = range(frames.shape[0]) if batched else [None]
+    for i in scenes:
+        one = found.tracks if i is None else [tr for tr in found.tracks if tr.batch == i]
+        fig = plot_dpa(
+            white if i is None else white[i],
+            asf if i is None else asf[i],
+            [tr.positions for tr in one],
+            title="DPA detection" + ("" if i is None else f" (batch element {i})"),
+        )
+        outputs["detection.png" if i is None else f"detection_{i:03d}.png"] = _png_writer(fig)
+    params = {k: v for k, v in params.items() if k != "target_free"}
+    params.update(b=b, threshold_used=found.threshold, cfar=target_free is not None)
+    summary = (
+        f"dpa: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
+        f"{' x '.join(map(str, frames.shape))} frames (g = {params['g']:g}, b = {b:.4g}, "
+        f"threshold = {found.threshold if found.threshold is not None else 'none'})"
+    )
+    return Detection(result=result, params=params, outputs=outputs, summary=summary)
+
+
 _METHODS: dict[str, _Method] = {
     "hoc": _Method(
         name="hoc",
@@ -297,7 +505,26 @@ _METHODS: dict[str, _Method] = {
         prepare=_prepare_hoc,
         run=_run_hoc,
     ),
-    # "dpa": _Method(...)  -- the dynamic-programming detector of [NR08], once hocnet.dpa is ready
+    "dpa": _Method(
+        name="dpa",
+        help="dynamic-programming track-before-detect of [NR08] (float frames)",
+        add_options=_add_dpa_options,
+        option_dests=(
+            "g",
+            "b",
+            "window",
+            "v_max",
+            "whiten",
+            "max_targets",
+            "nms_radius",
+            "asf_threshold",
+            "target_free",
+            "pfa",
+        ),
+        prepare=_prepare_dpa,
+        run=_run_dpa,
+        binary=False,
+    ),
 }
 
 
@@ -405,6 +632,53 @@ def _match_tables(scene: Any, tracks: Sequence[Any]) -> tuple[str, str, int]:
     return true_table, found_table, n_false
 
 
+def _demo_dpa(seed: int, writers: dict[str, Writer], *, plot: bool) -> None:
+    """The DPA part of the demo: one dim target in a clear-sky IR sequence ([NR08])."""
+    from hocnet.data.infrared import IRTarget, simulate_ir
+    from hocnet.data.whitening import anti_mean
+    from hocnet.dpa import detect, effective_memory, probability_matrices, tracking_success
+
+    snr_db, g = 12.0, 0.0
+    target = IRTarget(12.0, 16.0, 0.8, 0.3, snr_db=snr_db)
+    seq = simulate_ir((25, 64, 64), [target], clouds="clear", jitter=0.25, seed=seed)
+    start = time.perf_counter()
+    white = anti_mean(seq.frames)
+    weights = probability_matrices(window=7, v_max=2.5)
+    b = float(effective_memory(weights, g))
+    found = detect(white, weights, b, g, max_targets=1)
+    runtime = time.perf_counter() - start
+    truth = seq.positions[0]
+    print(
+        f"\nDPA ([NR08]): one target at {snr_db:g} dB peak SNR moving (0.8, 0.3) px/frame, "
+        f"25 frames of 64 x 64, clear sky, jitter 0.25 px; anti-mean whitening, 7 x 7 matrices, "
+        f"g = {g:g}, b = {b:.3g} (effective memory 0.8)"
+    )
+    if found.tracks:
+        track = found.tracks[0].positions
+        error = (track.to(truth.dtype) - truth).norm(dim=-1)
+        within = int((error <= 1.5).sum())
+        ok = bool(tracking_success(track, truth))
+        print(
+            f"Back-tracked track: within 1.5 px of the truth in {within} of {len(error)} frames "
+            f"(mean error {float(error.mean()):.2f} px): "
+            f"{'tracked' if ok else 'NOT tracked'} (>= 80 % of frames)"
+        )
+    else:
+        print("Back-tracked track: none")
+    print(f"Runtime: {runtime:.2f} s (whitening + accumulation + back-tracking)")
+    if plot:
+        from hocnet.plot import plot_dpa
+
+        fig = plot_dpa(
+            white,
+            found.state.asf,
+            [tr.positions for tr in found.tracks],
+            truth=truth,
+            title=f"hocnet demo: DPA of [NR08], {snr_db:g} dB target, seed {seed}",
+        )
+        writers["demo_dpa.png"] = _png_writer(fig)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from hocnet.data.binary import paper_scene
     from hocnet.hoc import detect
@@ -475,6 +749,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         f"{lost_tracks} after track identification"
     )
     print(f"Runtime: {runtime:.2f} s (HOC support + track identification)")
+    if not args.no_dpa:
+        _demo_dpa(seed, writers, plot=not args.no_plot)
     if writers:
         for path in _write_outputs(out, writers):
             print(f"wrote {path}")
@@ -487,13 +763,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_detect(args: argparse.Namespace) -> int:
+    import torch
+
     from hocnet.data.io import load_cube, save_cube, save_tracks_json
     from hocnet.plot import plot_before_after
 
     method, params = _prepare_method(args)
     out = _check_out_dir(Path(args.out))
     try:
-        cube = load_cube(args.cube, key=args.key, binary=True)
+        cube = load_cube(args.cube, key=args.key, binary=method.binary)
     except (ValueError, TypeError, OSError) as err:
         message = str(err).replace("`path`", "CUBE").replace("`key`", "--key")
         raise CLIError(message.replace("`cube`: ", "")) from None
@@ -506,16 +784,19 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     tracks = list(result.tracks)
     support, cleaned = result.support, result.cleaned
 
-    points_in, points_support, points_kept = (int(c.sum()) for c in (cube, support, cleaned))
+    points_in, points_support, points_kept = (
+        int(c.sum()) if c.dtype == torch.bool else None for c in (cube, support, cleaned)
+    )
     meta: dict[str, Any] = {
         "method": method.name,
         **detection.params,
         "input": str(Path(args.cube).resolve()),
         "input_shape": list(cube.shape),
-        "points_in": points_in,
-        "points_support": points_support,
-        "points_out": points_kept,
     }
+    if method.binary:
+        meta.update(points_in=points_in, points_support=points_support, points_out=points_kept)
+    else:
+        meta["track_pixels"] = points_kept
     if args.key is not None:
         meta["key"] = args.key
     if batched:
@@ -523,10 +804,19 @@ def _cmd_detect(args: argparse.Namespace) -> int:
 
     writers: dict[str, Writer] = {
         "tracks.json": lambda path: save_tracks_json(path, tracks, **meta),
-        "cleaned.npy": lambda path: save_cube(path, cleaned),
-        "support.npy": lambda path: save_cube(path, support),
     }
-    if not args.no_plot:
+    if detection.outputs is not None:
+        writers.update(
+            {
+                k: w
+                for k, w in detection.outputs.items()
+                if not (args.no_plot and k.endswith(".png"))
+            }
+        )
+    else:
+        writers["cleaned.npy"] = lambda path: save_cube(path, cleaned)
+        writers["support.npy"] = lambda path: save_cube(path, support)
+    if detection.outputs is None and not args.no_plot:
         scenes = range(cube.shape[0]) if batched else [None]
         progress = _progress(scenes, desc="plotting", total=len(scenes), min_items=8)
         for b in progress:
@@ -541,11 +831,14 @@ def _cmd_detect(args: argparse.Namespace) -> int:
             writers["detection.png" if b is None else f"detection_{b:03d}.png"] = _png_writer(fig)
 
     paths = _write_outputs(out, writers)
-    print(
-        f"{method.name}: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
-        f"{' x '.join(map(str, cube.shape))} cube ({runtime:.2f} s); points in: {points_in}, "
-        f"in the support: {points_support}, kept on tracks: {points_kept}"
-    )
+    if detection.summary is not None:
+        print(f"{detection.summary} ({runtime:.2f} s)")
+    else:
+        print(
+            f"{method.name}: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
+            f"{' x '.join(map(str, cube.shape))} cube ({runtime:.2f} s); points in: {points_in}, "
+            f"in the support: {points_support}, kept on tracks: {points_kept}"
+        )
     print(f"wrote {len(paths)} files to {out}/: {', '.join(p.name for p in paths[:5])}", end="")
     print(f", ... ({len(paths) - 5} more)" if len(paths) > 5 else "")
     return 0
@@ -761,8 +1054,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="simulate a Table-III-like scene, detect its tracks, print a summary, write PNGs",
         description="Simulate the crossing / splitting / parallel tracks of Table III of [LA98]\n"
         "(10 scans of 60 x 60 pixels, uniform clutter), run the modified HOC detector, and\n"
-        "print true versus found tracks, clutter rejection, target points lost and runtime.\n"
-        "Writes DIR/demo_before_after.png and DIR/demo_3d.png.",
+        "print true versus found tracks, clutter rejection, target points lost and runtime;\n"
+        "then run the DPA of [NR08] on a simulated IR sequence with one dim target.\n"
+        "Writes DIR/demo_before_after.png, DIR/demo_3d.png and DIR/demo_dpa.png.",
         formatter_class=_Formatter,
     )
     demo.add_argument(
@@ -785,6 +1079,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--order", type=int, default=2, metavar="K", help="HOC order, >= 1 (default: 2)"
     )
     demo.add_argument("--no-plot", action="store_true", help="print the summary only, no PNGs")
+    demo.add_argument("--no-dpa", action="store_true", help="skip the DPA part of the demo")
     demo.set_defaults(func=_cmd_demo)
 
     detect = commands.add_parser(

@@ -36,7 +36,7 @@ from matplotlib.ticker import MaxNLocator
 
 from hocnet._check import as_cube, check_int
 
-__all__ = ["plot_before_after", "plot_cube_3d", "plot_map", "plot_tracks"]
+__all__ = ["plot_before_after", "plot_cube_3d", "plot_dpa", "plot_map", "plot_tracks"]
 
 _SCAN_CMAP = "viridis"
 _TRACK_COLORS = mpl.colormaps["tab10"].colors
@@ -659,3 +659,76 @@ def plot_map(
 
 
 _REAL_DTYPES = (torch.bool, torch.uint8, torch.int8, torch.int16, torch.int32, torch.int64)
+
+
+def plot_dpa(
+    frames: torch.Tensor | np.ndarray,
+    asf: torch.Tensor | np.ndarray,
+    tracks: Sequence[torch.Tensor] = (),
+    *,
+    truth: torch.Tensor | np.ndarray | None = None,
+    title: str | None = None,
+    path: PathLike | None = None,
+) -> Figure:
+    """DPA result at a glance: the last frame with back-tracked tracks, and the last ASF map.
+
+    Args:
+        frames: ``(T, H, W)`` (whitened) frames; the last one is shown.
+        asf: ``(T, H, W)`` accumulated score function; the last frame is shown.
+        tracks: back-tracked trajectories, each ``(T, 2)`` as ``(x, y)`` per frame.
+        truth: optional true positions ``(N, T, 2)`` or ``(T, 2)`` as ``(x, y)`` (dashed).
+        title: figure title.
+        path: if given, save the figure there.
+
+    Returns:
+        The :class:`~matplotlib.figure.Figure`.
+
+    Examples:
+        >>> fig = plot_dpa(torch.zeros(3, 8, 8), torch.zeros(3, 8, 8), [torch.zeros(3, 2)])
+        >>> type(fig).__name__, len(fig.axes)
+        ('Figure', 4)
+    """
+    frames_np = np.asarray(torch.as_tensor(frames).detach().cpu().float())
+    asf_np = np.asarray(torch.as_tensor(asf).detach().cpu().float())
+    if frames_np.ndim != 3 or asf_np.shape != frames_np.shape:
+        raise ValueError(
+            "`asf`: expected (T, H, W) frames and ASF of the same shape, got "
+            f"{frames_np.shape} and {asf_np.shape}"
+        )
+    fig = _new_figure((11, 4.8))
+    ax_frame, ax_asf = fig.subplots(1, 2)
+    n_t = frames_np.shape[0]
+    for ax, image, name in (
+        (ax_frame, frames_np[-1], f"last frame (t = {n_t - 1}) with back-tracked tracks"),
+        (ax_asf, asf_np[-1], "last-frame accumulated score (ASF)"),
+    ):
+        shown = ax.imshow(image, cmap="gray" if ax is ax_frame else "magma", origin="upper")
+        fig.colorbar(shown, ax=ax, shrink=0.85)
+        ax.set_title(name)
+        ax.set_xlabel("x (pixels)")
+        ax.set_ylabel("y (pixels)")
+    colours = _colours(len(tracks))
+    for i, tr in enumerate(tracks):
+        xy = np.asarray(torch.as_tensor(tr).detach().cpu().float())
+        ax_frame.plot(xy[:, 0], xy[:, 1], "-", color=colours[i], lw=1.8, label=f"track {i + 1}")
+        ax_frame.plot(xy[-1, 0], xy[-1, 1], "o", color=colours[i], mfc="none", ms=10)
+        ax_asf.plot(xy[-1, 0], xy[-1, 1], "o", color=colours[i], mfc="none", ms=10)
+    if truth is not None:
+        true_np = np.asarray(torch.as_tensor(truth).detach().cpu().float())
+        for k, xy in enumerate(true_np.reshape(-1, n_t, 2)):
+            ax_frame.plot(
+                xy[:, 0], xy[:, 1], "--", color="cyan", lw=1.2, label="truth" if k == 0 else None
+            )
+    if tracks or truth is not None:
+        ax_frame.legend(loc="upper right", fontsize=8)
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        fig.savefig(path)
+    return fig
+
+
+def _colours(n: int) -> list[Any]:
+    """``n`` distinct colours from matplotlib's tab10 / tab20 cycles."""
+    cmap = mpl.colormaps["tab10" if n <= 10 else "tab20"]
+    return [cmap(i % cmap.N) for i in range(n)]

@@ -64,8 +64,13 @@ class TestDemo:
         out = tmp_path / "demo"
         assert main(["demo", "--out", str(out)]) == 0
         stdout = capsys.readouterr().out
-        assert sorted(p.name for p in out.iterdir()) == ["demo_3d.png", "demo_before_after.png"]
-        for name in ("demo_3d.png", "demo_before_after.png"):
+        assert sorted(p.name for p in out.iterdir()) == [
+            "demo_3d.png",
+            "demo_before_after.png",
+            "demo_dpa.png",
+        ]
+        assert "DPA ([NR08])" in stdout and "Back-tracked track" in stdout
+        for name in ("demo_3d.png", "demo_before_after.png", "demo_dpa.png"):
             assert_png(out / name)
         assert no_leftovers(tmp_path) == []
 
@@ -368,6 +373,91 @@ def experiments(tmp_path):
         (folder / f"{stem}.py").write_text(text)
     (folder / "notes.py").write_text("X = 1\n")  # no NAME: not an experiment
     return folder
+
+
+@pytest.fixture(scope="module")
+def ir_sequence():
+    from hocnet.data.infrared import IRTarget, simulate_ir
+
+    target = IRTarget(6.0, 8.0, 0.8, 0.3, snr_db=15.0)
+    return simulate_ir((12, 24, 28), [target], clouds="clear", jitter=0.0, seed=3)
+
+
+@pytest.fixture
+def frames_file(tmp_path, ir_sequence):
+    path = tmp_path / "frames.npy"
+    save_cube(path, ir_sequence.frames)
+    return path
+
+
+class TestDetectDPA:
+    def test_outputs_match_the_library(self, tmp_path, frames_file, ir_sequence, capsys):
+        from hocnet.data.whitening import anti_mean
+        from hocnet.dpa import detect as dpa_detect
+        from hocnet.dpa import effective_memory, probability_matrices
+
+        out = tmp_path / "out"
+        code = main(["detect", str(frames_file), "--method", "dpa", "--g", "0", "--out", str(out)])
+        assert code == 0
+        assert "dpa: " in capsys.readouterr().out
+        assert sorted(p.name for p in out.iterdir()) == ["asf.npy", "detection.png", "tracks.json"]
+        assert_png(out / "detection.png")
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        weights = probability_matrices(window=7, v_max=2.5)
+        b = float(effective_memory(weights, 0.0))
+        expected = dpa_detect(anti_mean(ir_sequence.frames), weights, b, 0.0)
+        assert meta["method"] == "dpa" and meta["b"] == pytest.approx(b)
+        assert [t["points"].tolist() for t in tracks] == [
+            t.points.tolist() for t in expected.tracks
+        ]
+        asf = np.load(out / "asf.npy")
+        np.testing.assert_allclose(asf, expected.state.asf.numpy(), rtol=1e-6, atol=1e-6)
+        # the strongest track follows the target
+        first = tracks[0]["points"]
+        truth = ir_sequence.positions[0]
+        err = (first[:, [2, 1]].double() - truth).norm(dim=-1)
+        assert (err <= 1.5).float().mean() >= 0.8
+
+    def test_cfar_threshold_from_target_free_frames(self, tmp_path, frames_file, ir_sequence):
+        free = tmp_path / "free.npy"
+        save_cube(free, ir_sequence.target_free)
+        out = tmp_path / "out"
+        args = ["detect", str(frames_file), "--method", "dpa", "--target-free", str(free)]
+        assert main([*args, "--pfa", "0.01", "--out", str(out)]) == 0
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["cfar"] is True and meta["threshold_used"] is not None
+
+    @pytest.mark.parametrize(
+        ("extra", "match"),
+        [
+            (["--g", "1.5"], r"--g: expected a number in \[0, 1\]"),
+            (["--b", "-1"], r"--b: expected a number in \[0, inf\)"),
+            (["--window", "99"], r"--window: expected at most the frame size"),
+            (["--window", "4"], r"--window: expected an odd integer"),
+            (["--order", "3"], r"--order: applies to --method hoc"),
+            (["--pfa", "0"], r"--pfa"),
+        ],
+    )
+    def test_bad_options(self, tmp_path, frames_file, capsys, extra, match):
+        out = tmp_path / "out"
+        code = main(["detect", str(frames_file), "--method", "dpa", *extra, "--out", str(out)])
+        assert_one_line_error(capsys, code, match)
+        assert not out.exists() and no_leftovers(tmp_path) == []
+
+    @pytest.mark.parametrize(
+        ("mutate", "match"),
+        [
+            (lambda a: np.where(np.arange(a.size).reshape(a.shape) == 7, np.nan, a), "finite"),
+            (lambda a: a[0], r"shape \(T, H, W\)"),
+        ],
+    )
+    def test_bad_frames(self, tmp_path, ir_sequence, capsys, mutate, match):
+        path = tmp_path / "bad.npy"
+        np.save(path, mutate(ir_sequence.frames.numpy()))
+        out = tmp_path / "out"
+        code = main(["detect", str(path), "--method", "dpa", "--out", str(out)])
+        assert_one_line_error(capsys, code, match)
+        assert not out.exists()
 
 
 class TestReproduce:

@@ -239,3 +239,20 @@ class TestPlotMap:
     def test_errors(self, image, error, match):
         with pytest.raises(error, match=match):
             plot_map(image)
+
+
+class TestPlotDPA:
+    def test_figure_and_png(self, tmp_path):
+        from hocnet.plot import plot_dpa
+
+        frames = torch.randn(4, 10, 12, generator=torch.Generator().manual_seed(0))
+        track = torch.tensor([[1, 1], [2, 2], [3, 3], [4, 4]])
+        path = tmp_path / "dpa.png"
+        fig = plot_dpa(frames, frames.cumsum(0), [track], truth=track.float(), path=path)
+        assert type(fig).__name__ == "Figure" and path.stat().st_size > 1000
+
+    def test_shape_mismatch(self):
+        from hocnet.plot import plot_dpa
+
+        with pytest.raises(ValueError, match="`asf`"):
+            plot_dpa(torch.zeros(3, 4, 4), torch.zeros(2, 4, 4))

@@ -4,6 +4,7 @@ O. Nichtern, S. R. Rotman, "Parameter adjustment for a dynamic programming track
 target detection algorithm", EURASIP J. Adv. Signal Process., 2008.
 """
 
+from hocnet.dpa.backtrack import DPADetection, DPATrack, backtrack, cfar_threshold, detect
 from hocnet.dpa.functional import DPAState, accumulate
 from hocnet.dpa.layers import DPA
 from hocnet.dpa.matrices import (
@@ -17,18 +18,37 @@ from hocnet.dpa.matrices import (
     probability_matrices,
     var_table,
 )
+from hocnet.dpa.metrics import (
+    algorithm_score,
+    block_snr,
+    detection_probability,
+    frame_thresholds,
+    frames_to_reach,
+    tracking_success,
+)
 
 __all__ = [
     "DPA",
+    "DPADetection",
     "DPAState",
+    "DPATrack",
     "accumulate",
+    "algorithm_score",
     "b_versus_g",
+    "backtrack",
     "basic_matrix",
+    "block_snr",
+    "cfar_threshold",
+    "detect",
+    "detection_probability",
     "effective_memory",
     "frame_matrix",
+    "frame_thresholds",
+    "frames_to_reach",
     "memory_line",
     "penalty_matrices",
     "penalty_matrix_in_place",
     "probability_matrices",
+    "tracking_success",
     "var_table",
 ]

@@ -82,7 +82,7 @@ def _turn_steps(k: int, device: torch.device | str | None = None) -> torch.Tenso
     """Turn between each offset of the window and each direction 1..8, in 45-degree steps.
 
     Returns:
-        ``(8, k, k)`` int64 in ``0..4``; the centre (no move) gets 2 (a 90-degree turn).
+        ``(8, k, k)`` int64 in ``0..4``; the centre (no move) gets 0 (no turn).
     """
     dy, dx = _offsets(k, device)
     sector = _sector(dy, dx)
@@ -90,7 +90,7 @@ def _turn_steps(k: int, device: torch.device | str | None = None) -> torch.Tenso
     diff = (sector.unsqueeze(0) - direction).abs() % 8
     steps = torch.minimum(diff, 8 - diff)
     h = k // 2
-    steps[:, h, h] = 2
+    steps[:, h, h] = 0
     return steps
 
 
@@ -246,9 +246,11 @@ def penalty_matrices(
     [NR08] for direction 1).
 
     Notes:
-        Our reading of [NR08]: the centre offset (the target stays in place) has no bearing; it
-        gets the weight of a 90-degree turn (``penalty_step ** -2``): stopping is as unlikely as
-        turning sideways, less likely than going on, more likely than turning back.
+        Our reading of [NR08]: the centre offset (the target stays in place) has no bearing, so
+        it is no turn and is not penalised (weight 1), as a zero move is never a turn anywhere in
+        hocnet (DESIGN section 2). Sub-pixel targets (0.2-0.6 px/frame in [NR08]) stay in their
+        pixel in most frames; penalising the centre like a 90-degree turn (our first reading)
+        made the directional matrices favour moving noise paths over such targets.
         Differentiable in ``penalty_step`` when it is a tensor.
 
     Args:
@@ -265,7 +267,7 @@ def penalty_matrices(
         >>> w = penalty_matrices(3, 3.0)
         >>> (81 * w[0]).round().int()  # direction 1 (+x): straight ahead is the right column
         tensor([[ 3,  9, 27],
-                [ 1,  9, 81],
+                [ 1, 81, 81],
                 [ 3,  9, 27]], dtype=torch.int32)
     """
     k = _window("window", window)
@@ -393,8 +395,7 @@ def var_table(*, device: torch.device | str | None = None) -> torch.Tensor:
 
     Notes:
         Our reading of [NR08]: direction 9 ("in place") scores 4 against every moving direction,
-        the score of a 90-degree difference (the same choice as the centre of
-        :func:`penalty_matrices`), and 6 against itself.
+        the score of a 90-degree difference, and 6 against itself.
 
     Args:
         device: device of the result.
@@ -500,9 +501,9 @@ def memory_line(weights: torch.Tensor, target: float = 0.8) -> tuple[float, floa
         Our matrices (:func:`probability_matrices` defaults ``jitter=0.5, psf=3, p=0.5,
         penalty_step=3``, direction 1) give, measured:
 
-        * 7 x 7, ``v_max = 2.5``: ``1/b = 1.1203 g + 0.1297`` (``max(w) = 0.1038``) — within
-          about 1 % of the paper's ``(1.118, 0.131)``;
-        * 5 x 5, ``v_max = 1``: ``1/b = 0.9571 g + 0.2929`` (``max(w) = 0.2343``) — more
+        * 7 x 7, ``v_max = 2.5``: ``1/b = 1.1160 g + 0.1340`` (``max(w) = 0.1072``) — within
+          about 2 % of the paper's ``(1.118, 0.131)``;
+        * 5 x 5, ``v_max = 1``: ``1/b = 0.9388 g + 0.3112`` (``max(w) = 0.2489``) — more
           peaked than the paper's ``(1.035, 0.214)``: with ``|v| <= 1`` most of the mass stays
           within one pixel, and our ``W_frame`` keeps only the 13 offsets within 2.2 px.
 

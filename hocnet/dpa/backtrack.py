@@ -1,0 +1,451 @@
+"""Trajectory retrieval and multi-target detection for the DPA [NR08].
+
+:func:`backtrack` follows the tracking matrix (eq. 8 of [NR08], ``DPAState.origin``) backwards
+from a pixel of the last frame and returns the trajectory that produced its accumulated score.
+:func:`detect` finds several targets: non-maximum suppression (NMS) on the last-frame ASF, an
+optional threshold -- fixed, or a constant-false-alarm-rate (CFAR) threshold estimated from
+target-free sequences by :func:`cfar_threshold` (the "future research" of [NR08]) -- and one
+back-tracked :class:`DPATrack` per kept peak.
+
+Conventions: positions are ``(x, y)`` = (column, row) pixel indices, flat indices are
+``y * W + x``; the pixel containing a float position ``(x, y)`` is
+``(floor(x + 0.5), floor(y + 0.5))`` (pixel centres sit on integer coordinates, as in
+:mod:`hocnet.data.infrared`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from hocnet._check import (
+    as_cube,
+    check_choice,
+    check_finite,
+    check_int,
+    check_number,
+    restore_batch,
+)
+from hocnet.dpa.functional import DPAState, accumulate
+from hocnet.dpa.metrics import _upper_quantile
+
+__all__ = ["DPADetection", "DPATrack", "backtrack", "cfar_threshold", "detect"]
+
+
+# ----------------------------------------------------------------------------- results
+
+
+@dataclass
+class DPATrack:
+    """One back-tracked target of :func:`detect`.
+
+    Attributes:
+        positions: ``(T, 2)`` int64 ``(x, y)`` pixel of the track in every frame.
+        scores: ``(T,)`` float: the ASF at each back-tracked pixel (detached).
+        score: the last-frame ASF at the end point (the detection statistic).
+        id: 1-based index of the track within its :class:`DPADetection`.
+        batch: index of the scene in the batch (0 for unbatched input).
+    """
+
+    positions: torch.Tensor
+    scores: torch.Tensor
+    score: float
+    id: int
+    batch: int = 0
+
+    @property
+    def points(self) -> torch.Tensor:
+        """``(T, 3)`` int64 rows ``(t, y, x)``, the track format of :mod:`hocnet.metrics`.
+
+        Examples:
+            >>> track = DPATrack(torch.tensor([[4, 1], [5, 1]]), torch.zeros(2), 0.0, 1)
+            >>> track.points.tolist()
+            [[0, 1, 4], [1, 1, 5]]
+        """
+        t = torch.arange(self.positions.shape[0], device=self.positions.device)
+        return torch.stack([t, self.positions[:, 1], self.positions[:, 0]], dim=1)
+
+
+@dataclass
+class DPADetection:
+    """Result of :func:`detect`.
+
+    Attributes:
+        state: the :class:`~hocnet.dpa.functional.DPAState` of the frames (input batching).
+        tracks: the detected tracks, ordered by scene and, within a scene, by decreasing
+            ``score`` (ties: lowest flat index of the end point first).
+        threshold: the detection threshold used, or ``None`` (no threshold: top-k peaks only).
+    """
+
+    state: DPAState
+    tracks: list[DPATrack]
+    threshold: float | None
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _check_state(state: Any) -> DPAState:
+    """Validate a :class:`DPAState` and return its batched form with int64 ``origin``."""
+    if not isinstance(state, DPAState):
+        raise TypeError(f"`state`: expected a DPAState, got {type(state).__name__}")
+    if not isinstance(state.asf, torch.Tensor) or not isinstance(state.origin, torch.Tensor):
+        raise TypeError("`state`: expected tensors in `asf` and `origin`, got other types")
+    s = state.as_batched()
+    asf, origin = s.asf, s.origin
+    if asf.dim() != 4 or origin.shape != asf.shape:
+        raise ValueError(
+            "`state`: expected `asf` and `origin` of the same shape (B, T, H, W), got "
+            f"{tuple(asf.shape)} and {tuple(origin.shape)}"
+        )
+    if not asf.is_floating_point():
+        raise TypeError(f"`state`: expected a floating `asf`, got dtype {asf.dtype}")
+    if origin.is_floating_point() or origin.is_complex() or origin.dtype == torch.bool:
+        raise TypeError(f"`state`: expected an integer `origin`, got dtype {origin.dtype}")
+    bsz, n_t, height, width = asf.shape
+    if min(bsz, n_t, height, width) < 1:
+        raise ValueError(f"`state`: expected a non-empty state, got shape {tuple(asf.shape)}")
+    check_finite("state", asf.detach())
+    origin = origin.long()
+    links = origin[:, 1:]
+    if links.numel() and bool(((links < 0) | (links >= height * width)).any()):
+        raise ValueError(
+            f"`state`: expected `origin` in [0, H * W) = [0, {height * width}) in frames 1.., "
+            f"got values in [{int(links.min())}, {int(links.max())}]"
+        )
+    return DPAState(asf, s.direction, origin, True)
+
+
+def _pixel_index(name: str, xy: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Flat index ``y * W + x`` of the pixels containing the ``(..., 2)`` ``(x, y)`` points."""
+    if xy.is_floating_point():
+        xy = torch.floor(xy + 0.5)
+    xy = xy.long()
+    x, y = xy[..., 0], xy[..., 1]
+    outside = (x < 0) | (x >= width) | (y < 0) | (y >= height)
+    if bool(outside.any()):
+        bad = xy[outside][0].tolist()
+        raise ValueError(
+            f"`{name}`: expected (x, y) inside the W x H = {width} x {height} frame, "
+            f"got {tuple(bad)}"
+        )
+    return y * width + x
+
+
+def _start_index(start: Any, state: DPAState, batched: bool) -> torch.Tensor:
+    """Validate ``start`` and return the ``(B,)`` flat index of the start pixels."""
+    bsz, _, height, width = state.asf.shape
+    if not isinstance(start, torch.Tensor):
+        try:
+            start = torch.as_tensor(start)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(
+                f"`start`: expected a tensor of (x, y) pixels, got {type(start).__name__}"
+            ) from None
+    if start.is_complex() or start.dtype == torch.bool:
+        raise TypeError(f"`start`: expected a real tensor, got dtype {start.dtype}")
+    shapes = [(2,), (bsz, 2)] if batched else [(2,)]
+    if tuple(start.shape) not in shapes:
+        wanted = " or ".join(str(s) for s in shapes)
+        raise ValueError(f"`start`: expected shape {wanted}, got {tuple(start.shape)}")
+    check_finite("start", start)
+    index = _pixel_index("start", start.to(state.asf.device), height, width)
+    return index.expand(bsz) if index.dim() == 0 else index
+
+
+def _follow(origin: torch.Tensor, batch: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """Follow ``origin`` ``(B, T, H * W)`` back from the last frame: ``(M, T)`` flat indices."""
+    n_t = origin.shape[1]
+    path = torch.empty(index.shape[0], n_t, dtype=torch.int64, device=origin.device)
+    path[:, n_t - 1] = index
+    for t in range(n_t - 1, 0, -1):
+        index = origin[batch, t, index]
+        path[:, t - 1] = index
+    return path
+
+
+def _to_xy(flat: torch.Tensor, width: int) -> torch.Tensor:
+    """``(..., 2)`` ``(x, y)`` of flat indices."""
+    return torch.stack([flat % width, flat // width], dim=-1)
+
+
+def _local_maxima(scores: torch.Tensor, radius: int) -> torch.Tensor:
+    """NMS peaks of ``(B, H, W)`` scores: ``(B, H, W)`` bool.
+
+    A pixel is a peak if no in-frame pixel of its ``(2r + 1) x (2r + 1)`` neighbourhood is
+    larger and none with a lower flat index is equal (so a plateau has one peak, its first
+    pixel in row-major order).
+    """
+    if radius == 0:
+        return torch.ones_like(scores, dtype=torch.bool)
+    _, height, width = scores.shape
+    k = 2 * radius + 1
+    # max_pool2d pads with -inf: out-of-frame pixels never win
+    pooled = F.max_pool2d(scores.unsqueeze(1), k, stride=1, padding=radius).squeeze(1)
+    peak = scores >= pooled
+    padded = F.pad(scores, (radius, radius, radius, radius), value=float("nan"))
+    for dy in range(-radius, 1):
+        for dx in range(-radius, radius + 1):
+            if dy == 0 and dx >= 0:
+                break
+            # neighbour q = p + (dx, dy) has a lower flat index; NaN (outside) never ties
+            shifted = padded[
+                :, radius + dy : radius + dy + height, radius + dx : radius + dx + width
+            ]
+            peak &= shifted != scores
+    return peak
+
+
+def _select_peaks(
+    last: torch.Tensor, radius: int, threshold: float | None, max_targets: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(batch, flat index, value)`` of the kept peaks, by scene then decreasing value."""
+    bsz = last.shape[0]
+    keep = _local_maxima(last, radius)
+    if threshold is not None:
+        keep &= last > torch.tensor(threshold, dtype=torch.float64).to(last.dtype)
+    values = last.reshape(bsz, -1)
+    keep = keep.reshape(bsz, -1)
+    # rank the kept peaks first; stable sort: equal values keep the lowest flat index first
+    key = values.masked_fill(~keep, float("-inf"))
+    order = torch.sort(key, dim=1, descending=True, stable=True).indices
+    order = order[:, : min(max_targets, order.shape[1])]
+    kept = keep.gather(1, order)
+    batch = torch.arange(bsz, device=last.device).unsqueeze(1).expand_as(order)[kept]
+    flat = order[kept]
+    return batch, flat, values[batch, flat]
+
+
+# ----------------------------------------------------------------------------- API
+
+
+def backtrack(state: DPAState, start: torch.Tensor | None = None) -> torch.Tensor:
+    """Retrieve a trajectory from the tracking matrix of the DPA, eq. (8) of [NR08].
+
+    Starting at a pixel ``p_{T-1}`` of the last frame, ``p_{n-1} = origin_n(p_n)`` for
+    ``n = T - 1, ..., 1``: the source pixel whose term won the max of eq. (11).
+
+    Notes:
+        Our reading of [NR08]: without ``start`` the trajectory ends at the pixel with the
+        highest last-frame ASF (ties: lowest flat index ``y * W + x``). A float ``start`` means
+        the pixel containing it, ``floor(x + 0.5), floor(y + 0.5)``.
+
+    Args:
+        state: a :class:`~hocnet.dpa.functional.DPAState` from
+            :func:`~hocnet.dpa.functional.accumulate`, batched ``(B, T, H, W)`` or unbatched
+            ``(T, H, W)``.
+        start: ``(B, 2)`` (batched state; a ``(2,)`` start is used for every scene) or ``(2,)``
+            ``(x, y)`` pixel of the last frame, inside the frame, or ``None`` for the highest
+            last-frame ASF.
+
+    Returns:
+        ``(B, T, 2)`` int64 ``(x, y)`` per frame, or ``(T, 2)`` for an unbatched state.
+
+    Raises:
+        TypeError: if ``state`` is not a DPAState or ``start`` is not a real tensor.
+        ValueError: inconsistent state, wrong ``start`` shape, or a start outside the frame.
+
+    Examples:
+        >>> from hocnet.dpa.functional import accumulate
+        >>> frames = torch.zeros(4, 9, 9)
+        >>> for t in range(4):
+        ...     frames[t, 4, 2 + t] = 1.0  # a target moving +x, one pixel per frame
+        >>> state = accumulate(frames, torch.ones(1, 3, 3) / 9, b=1.0, g=0.0)
+        >>> backtrack(state).tolist()
+        [[2, 4], [3, 4], [4, 4], [5, 4]]
+        >>> backtrack(state, start=torch.tensor([0, 0])).tolist()  # a background pixel
+        [[0, 0], [0, 0], [0, 0], [0, 0]]
+    """
+    s = _check_state(state)
+    bsz, n_t, _, width = s.asf.shape
+    if start is None:
+        index = s.asf[:, -1].detach().reshape(bsz, -1).argmax(dim=1)  # first maximum
+    else:
+        index = _start_index(start, s, state.batched)
+    batch = torch.arange(bsz, device=index.device)
+    path = _follow(s.origin.reshape(bsz, n_t, -1), batch, index)
+    return restore_batch(_to_xy(path, width), state.batched)
+
+
+def cfar_threshold(
+    target_free: torch.Tensor,
+    weights: torch.Tensor,
+    b: float | torch.Tensor,
+    g: float | torch.Tensor,
+    *,
+    pfa: float = 1e-3,
+    nms_radius: int = 3,
+    var_table: torch.Tensor | None = None,
+    smooth: float | None = None,
+    samples: str = "pixels",
+) -> float:
+    """CFAR threshold on the last-frame ASF for a requested false-alarm rate.
+
+    Runs :func:`~hocnet.dpa.functional.accumulate` on target-free sequences (whitened exactly
+    like the data), collects last-frame ASF values and returns their empirical upper
+    ``pfa``-quantile: with ``N`` samples and ``m = floor(pfa * N)``, the ``(m + 1)``-th largest
+    sample, so exactly ``m`` samples (fewer with ties) lie strictly above it and the empirical
+    false-alarm rate on ``target_free`` is in ``(pfa - 1/N, pfa]``. :func:`detect` keeps peaks
+    strictly above the threshold.
+
+    Notes:
+        Our reading of [NR08] (which leaves a CFAR threshold to future research):
+        ``samples="pixels"`` (default) uses every last-frame pixel of every sequence
+        (``N = B * H * W``), so ``pfa`` is the per-pixel probability that background exceeds
+        the threshold, the usual per-pixel Pfa; since :func:`detect` only reports NMS peaks,
+        the expected number of false detections per scene is at most ``pfa * H * W``.
+        ``samples="peaks"`` uses only the local maxima after NMS of radius ``nms_radius``
+        (the candidates :func:`detect` actually thresholds), so ``pfa`` is the probability that
+        a background *peak* is reported. ``nms_radius`` is used only with ``"peaks"``.
+
+    Args:
+        target_free: target-free whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
+        weights: probability matrices ``(D, k, k)``, as for ``accumulate``.
+        b: memory factor ``>= 0``.
+        g: sum/max mixing in ``[0, 1]``.
+        pfa: requested false-alarm probability in ``(0, 1)``; needs ``pfa >= 1 / N``.
+        nms_radius: NMS radius ``>= 0`` (``samples="peaks"`` only).
+        var_table: optional ``(9, 9)`` direction-similarity table.
+        smooth: optional log-sum-exp temperature ``> 0``.
+        samples: ``"pixels"`` or ``"peaks"``, see Notes.
+
+    Returns:
+        The threshold, a float.
+
+    Raises:
+        TypeError: wrong argument types.
+        ValueError: out-of-range arguments, or ``pfa < 1 / N`` (the message says how many
+            samples would be needed).
+
+    Examples:
+        >>> noise = torch.randn(4, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+        >>> w = torch.ones(1, 3, 3) / 9
+        >>> thr = cfar_threshold(noise, w, 0.8, 0.5, pfa=0.01)
+        >>> state = accumulate(noise, w, 0.8, 0.5)
+        >>> int((state.asf[:, -1] > thr).sum())  # floor(0.01 * 4 * 16 * 16) = 10
+        10
+    """
+    cube, _ = as_cube("target_free", target_free)
+    pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    nms_radius = check_int("nms_radius", nms_radius, minimum=0)
+    samples = check_choice("samples", samples, ("pixels", "peaks"))
+    state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth)
+    last = state.asf[:, -1].detach()
+    if samples == "pixels":
+        values = last.reshape(-1)
+        what = "last-frame pixels of `target_free` (B * H * W)"
+    else:
+        values = last[_local_maxima(last, nms_radius)]
+        what = f"last-frame NMS peaks (radius {nms_radius}) of `target_free`"
+    return float(_upper_quantile(values, pfa, what))
+
+
+def detect(
+    frames: torch.Tensor,
+    weights: torch.Tensor,
+    b: float | torch.Tensor,
+    g: float | torch.Tensor,
+    *,
+    max_targets: int = 5,
+    nms_radius: int = 3,
+    threshold: float | None = None,
+    target_free: torch.Tensor | None = None,
+    pfa: float = 1e-3,
+    var_table: torch.Tensor | None = None,
+    smooth: float | None = None,
+) -> DPADetection:
+    """Detect several targets with the DPA [NR08] and back-track each of them.
+
+    1. :func:`~hocnet.dpa.functional.accumulate` the frames;
+    2. non-maximum suppression on the last-frame ASF: a pixel is a peak if it is the maximum of
+       its ``(2r + 1) x (2r + 1)`` neighbourhood, ``r = nms_radius`` (out-of-frame pixels are
+       excluded; ties go to the lowest flat index ``y * W + x``, so a plateau gives one peak);
+    3. keep the peaks strictly above ``threshold`` (or above
+       :func:`cfar_threshold` ``(target_free, ..., pfa=pfa)`` when ``target_free`` is given; with
+       neither, no threshold), at most ``max_targets`` per scene, highest first;
+    4. :func:`backtrack` each kept peak.
+
+    Notes:
+        Our reading of [NR08]: a detection is a peak strictly above the threshold (so the CFAR
+        threshold's empirical false-alarm rate is at most ``pfa``); the CFAR threshold is the
+        per-pixel one of :func:`cfar_threshold` with its default ``samples="pixels"``.
+
+    Args:
+        frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
+        weights: probability matrices ``(D, k, k)``, as for ``accumulate``.
+        b: memory factor ``>= 0``.
+        g: sum/max mixing in ``[0, 1]``.
+        max_targets: largest number of tracks per scene, ``>= 1``.
+        nms_radius: NMS radius ``r >= 0`` (``0``: every pixel is a peak).
+        threshold: fixed detection threshold, or ``None``.
+        target_free: target-free frames ``(B', T', H', W')`` or ``(T', H', W')``, whitened like
+            ``frames``, to estimate a CFAR threshold; not together with ``threshold``.
+        pfa: false-alarm probability of the CFAR threshold, in ``(0, 1)``.
+        var_table: optional ``(9, 9)`` direction-similarity table.
+        smooth: optional log-sum-exp temperature ``> 0``.
+
+    Returns:
+        :class:`DPADetection` with the state, the tracks (each ``positions`` ``(T, 2)``
+        ``(x, y)``) and the threshold used.
+
+    Raises:
+        TypeError: wrong argument types.
+        ValueError: out-of-range arguments, or both ``threshold`` and ``target_free``.
+
+    Examples:
+        >>> frames = torch.zeros(3, 16, 16)
+        >>> for t in range(3):
+        ...     frames[t, 3, 2 + t] = 1.0
+        ...     frames[t, 12, 12 - t] = 0.9
+        >>> result = detect(frames, torch.ones(1, 3, 3) / 9, 1.0, 0.0, threshold=0.5)
+        >>> [(tr.id, tr.positions[-1].tolist()) for tr in result.tracks]
+        [(1, [4, 3]), (2, [10, 12])]
+        >>> result.tracks[1].positions[0].tolist()
+        [12, 12]
+    """
+    max_targets = check_int("max_targets", max_targets, minimum=1)
+    nms_radius = check_int("nms_radius", nms_radius, minimum=0)
+    pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    if threshold is not None:
+        if target_free is not None:
+            raise ValueError(
+                "`threshold`: expected None when `target_free` is given (the CFAR threshold is "
+                f"estimated from it), got {threshold!r}"
+            )
+        threshold = check_number("threshold", threshold)
+    state = accumulate(frames, weights, b, g, var_table=var_table, smooth=smooth)
+    if target_free is not None:
+        threshold = cfar_threshold(
+            target_free,
+            weights,
+            b,
+            g,
+            pfa=pfa,
+            nms_radius=nms_radius,
+            var_table=var_table,
+            smooth=smooth,
+        )
+    s = state.as_batched()
+    bsz, n_t, height, width = s.asf.shape
+    asf = s.asf.detach().reshape(bsz, n_t, -1)
+    batch, flat, value = _select_peaks(
+        asf[:, -1].view(bsz, height, width), nms_radius, threshold, max_targets
+    )
+    path = _follow(s.origin.reshape(bsz, n_t, -1), batch, flat)  # (M, T)
+    frame = torch.arange(n_t, device=path.device)
+    scores = asf[batch.unsqueeze(1), frame.unsqueeze(0), path]  # (M, T)
+    xy = _to_xy(path, width)
+    tracks = [
+        DPATrack(
+            positions=xy[i],
+            scores=scores[i],
+            score=float(value[i]),
+            id=i + 1,
+            batch=int(batch[i]),
+        )
+        for i in range(path.shape[0])
+    ]
+    return DPADetection(state=state, tracks=tracks, threshold=threshold)

@@ -1,0 +1,518 @@
+"""Figures of merit of the DPA [NR08]: Block SNR (eq. 16), algorithm score (eq. 17), and more.
+
+* :func:`block_snr` -- the contrast of a target against its surrounding blocks, eq. (16);
+* :func:`algorithm_score` -- ``A_S``, the Block SNR of the ASF averaged over the last frames,
+  eq. (17);
+* :func:`tracking_success` -- whether a back-tracked trajectory follows the truth;
+* :func:`frame_thresholds` and :func:`detection_probability` -- per-frame CFAR thresholds and
+  the probability of detection at a fixed false-alarm rate, frame by frame;
+* :func:`frames_to_reach` -- how many frames a Pd curve needs to reach a level.
+
+Positions are ``(x, y)`` = (column, row); a float position lies in the pixel
+``(floor(x + 0.5), floor(y + 0.5))`` (pixel centres on integer coordinates, as in
+:mod:`hocnet.data.infrared`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+from hocnet._check import as_cube, check_finite, check_int, check_number
+
+__all__ = [
+    "algorithm_score",
+    "block_snr",
+    "detection_probability",
+    "frame_thresholds",
+    "frames_to_reach",
+    "tracking_success",
+]
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _tensor(name: str, value: Any, what: str) -> torch.Tensor:
+    """``value`` as a real (non-bool) tensor, finite."""
+    if not isinstance(value, torch.Tensor):
+        try:
+            value = torch.as_tensor(value)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"`{name}`: expected {what}, got {type(value).__name__}") from None
+    if value.is_complex() or value.dtype == torch.bool:
+        raise TypeError(f"`{name}`: expected a real tensor, got dtype {value.dtype}")
+    check_finite(name, value)
+    return value
+
+
+def _float(value: torch.Tensor) -> torch.Tensor:
+    return value if value.is_floating_point() else value.to(torch.get_default_dtype())
+
+
+def _check_block(block: Any, max_numbers: Any) -> tuple[int, int]:
+    block = check_int("block", block, minimum=1)
+    if block % 2 == 0:
+        raise ValueError(f"`block`: expected an odd integer, got {block}")
+    max_numbers = check_int("max_numbers", max_numbers, minimum=1, maximum=block * block)
+    return block, max_numbers
+
+
+def _pixels(name: str, xy: torch.Tensor, height: int, width: int) -> tuple[torch.Tensor, ...]:
+    """Column and row of the pixels containing ``(..., 2)`` ``(x, y)``; must be in the frame."""
+    if xy.is_floating_point():
+        xy = torch.floor(xy + 0.5)
+    xy = xy.long()
+    x, y = xy[..., 0], xy[..., 1]
+    outside = (x < 0) | (x >= width) | (y < 0) | (y >= height)
+    if bool(outside.any()):
+        bad = tuple(xy[outside][0].tolist())
+        raise ValueError(
+            f"`{name}`: expected (x, y) inside the W x H = {width} x {height} frame, got {bad}"
+        )
+    return x, y
+
+
+def _patches(
+    images: torch.Tensor, which: torch.Tensor, x: torch.Tensor, y: torch.Tensor, half: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(K, 2h + 1, 2h + 1)`` windows of ``images[which]`` centred on ``(x, y)`` + in-frame mask.
+
+    Out-of-frame entries hold a copy of the nearest border pixel and are ``False`` in the mask.
+    """
+    _, height, width = images.shape
+    off = torch.arange(-half, half + 1, device=images.device)
+    rows = y.unsqueeze(1) + off  # (K, n)
+    cols = x.unsqueeze(1) + off
+    valid = ((rows >= 0) & (rows < height)).unsqueeze(2) & ((cols >= 0) & (cols < width)).unsqueeze(
+        1
+    )
+    patch = images[
+        which.view(-1, 1, 1),
+        rows.clamp(0, height - 1).unsqueeze(2),
+        cols.clamp(0, width - 1).unsqueeze(1),
+    ]
+    return patch, valid
+
+
+def _block_snr(
+    images: torch.Tensor,
+    which: torch.Tensor,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    block: int,
+    max_numbers: int,
+) -> torch.Tensor:
+    """Block SNR of eq. (16) at ``K`` targets: image ``which[i]``, pixel ``(x[i], y[i])``."""
+    half = block // 2
+    patch, valid = _patches(images.to(torch.float64), which, x, y, block + half)
+    inner = torch.zeros(3 * block, 3 * block, dtype=torch.bool, device=images.device)
+    inner[block : 2 * block, block : 2 * block] = True
+    bg, bg_valid = patch[:, ~inner], valid[:, ~inner]  # (K, 8 b^2)
+    n_bg = bg_valid.sum(dim=1)
+    if bool((n_bg == 0).any()):
+        raise ValueError(
+            "`image`: expected background pixels around the target block, got an image that "
+            f"the {block} x {block} target block covers entirely"
+        )
+    low = bg.masked_fill(~bg_valid, math.inf).amin(dim=1)
+    high = bg.masked_fill(~bg_valid, -math.inf).amax(dim=1)
+    constant = low == high
+    mean = bg.masked_fill(~bg_valid, 0.0).sum(dim=1) / n_bg
+    mean = torch.where(constant, low, mean)
+    dev = (bg - mean.unsqueeze(1)).masked_fill(~bg_valid, 0.0)
+    var = dev.square().sum(dim=1) / n_bg
+    std = torch.where(constant, torch.zeros_like(var), var.clamp_min(0.0).sqrt())
+    target, t_valid = patch[:, inner], valid[:, inner]  # (K, b^2)
+    top = target.masked_fill(~t_valid, -math.inf).topk(max_numbers, dim=1).values
+    count = t_valid.sum(dim=1).clamp(max=max_numbers)
+    use = torch.arange(max_numbers, device=images.device).unsqueeze(0) < count.unsqueeze(1)
+    signal = top.masked_fill(~use, 0.0).sum(dim=1) / count
+    contrast = signal - mean
+    flat_bg = torch.sign(contrast) * math.inf
+    flat_bg = torch.where(contrast == 0, torch.zeros_like(contrast), flat_bg)
+    safe = torch.where(constant, torch.ones_like(std), std)
+    return torch.where(constant, flat_bg, contrast / safe).to(_float(images).dtype)
+
+
+def _targets(
+    name: str, positions: Any, bsz: int, n_t: int, batched: bool, what: str
+) -> torch.Tensor:
+    """Validate per-frame target positions -> ``(B, N, T, 2)``."""
+    pos = _tensor(name, positions, what)
+    one, many = (3, 4) if batched else (2, 3)
+    if pos.dim() == one:
+        pos = pos.unsqueeze(-3)
+    elif pos.dim() != many:
+        shapes = "(B, T, 2) or (B, N, T, 2)" if batched else "(T, 2) or (N, T, 2)"
+        raise ValueError(f"`{name}`: expected shape {shapes}, got {tuple(pos.shape)}")
+    if not batched:
+        pos = pos.unsqueeze(0)
+    if pos.shape[0] != bsz or pos.shape[2] != n_t or pos.shape[3] != 2:
+        raise ValueError(
+            f"`{name}`: expected B = {bsz}, T = {n_t} and (x, y) pairs in the last axis, got "
+            f"shape {tuple(torch.as_tensor(positions).shape)}"
+        )
+    if pos.shape[1] == 0:
+        raise ValueError(f"`{name}`: expected at least one target, got N = 0")
+    return pos
+
+
+def _upper_quantile(values: torch.Tensor, pfa: float, what: str) -> torch.Tensor:
+    """``(m + 1)``-th largest of ``values`` (last axis), ``m = floor(pfa * N)``; ``(...)``."""
+    n = values.shape[-1]
+    m = math.floor(pfa * n * (1.0 + 1e-12))
+    if m < 1:
+        needed = math.ceil(1.0 / pfa - 1e-9)
+        raise ValueError(
+            f"`pfa`: expected a number >= 1/N = {1.0 / max(n, 1):.3g} with N = {n} {what}, got "
+            f"{pfa:g}; pfa = {pfa:g} needs at least {needed} samples"
+        )
+    return torch.kthvalue(values, n - m, dim=-1).values
+
+
+# ----------------------------------------------------------------------------- API
+
+
+def block_snr(
+    image: torch.Tensor, position: torch.Tensor, *, block: int = 5, max_numbers: int = 1
+) -> torch.Tensor:
+    """Block SNR of a target, eq. (16) of [NR08].
+
+    The image is tiled with non-overlapping ``block x block`` blocks aligned on the target: the
+    target block is centred on the target pixel and the background is the 8 blocks around it
+    (the ``3 x 3`` blocks minus the target block). Then
+
+    ``Block_SNR = (signal - mean(background)) / std(background)``,
+
+    with ``signal`` the mean of the ``max_numbers`` highest values of the target block.
+
+    Notes:
+        Our reading of [NR08]: ``std`` is the population standard deviation (divide by ``n``)
+        of the background pixels. Blocks are clipped at the image border: out-of-frame pixels
+        are excluded from the background and from the target block (if the clipped target
+        block has fewer than ``max_numbers`` pixels, all of them are averaged). A constant
+        background (``std == 0``) gives ``+inf`` / ``-inf`` / ``0`` for a positive / negative
+        / zero numerator. The target position must lie in the frame. The computation runs in
+        float64; the result has the image's float dtype.
+
+    Args:
+        image: ``(B, H, W)`` or ``(H, W)`` map, e.g. an ASF frame or a whitened frame.
+        position: ``(B, 2)`` (or ``(2,)``, used for every image) or ``(2,)`` ``(x, y)`` of the
+            target; float allowed (the pixel containing it is used).
+        block: odd block size ``>= 1``.
+        max_numbers: number of highest target-block values averaged, ``1 .. block * block``.
+
+    Returns:
+        ``(B,)`` Block SNR per image, or a 0-d tensor for an unbatched image.
+
+    Raises:
+        TypeError: non-real inputs or non-integer sizes.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, a position outside the frame, or
+            an image without background pixels.
+
+    Examples:
+        >>> image = torch.zeros(15, 15)
+        >>> image[::2] = 1.0  # rows alternate 1, 0: 110 of the 200 background pixels are 1
+        >>> image[7, 7] = 10.0
+        >>> round(float(block_snr(image, torch.tensor([7.2, 6.9]))), 4)
+        18.9952
+        >>> round((10 - 0.55) / (0.55 * 0.45) ** 0.5, 4)
+        18.9952
+        >>> float(block_snr(torch.ones(15, 15), torch.tensor([7, 7])))  # flat: 0 / 0 -> 0
+        0.0
+    """
+    block, max_numbers = _check_block(block, max_numbers)
+    img = _float(_tensor("image", image, "a tensor of shape (B, H, W) or (H, W)"))
+    if img.dim() not in (2, 3) or img.shape[-1] < 1 or img.shape[-2] < 1:
+        raise ValueError(f"`image`: expected shape (B, H, W) or (H, W), got {tuple(img.shape)}")
+    batched = img.dim() == 3
+    images = img if batched else img.unsqueeze(0)
+    bsz, height, width = images.shape
+    pos = _tensor("position", position, "a tensor of (x, y) positions")
+    shapes = [(2,), (bsz, 2)] if batched else [(2,)]
+    if tuple(pos.shape) not in shapes:
+        wanted = " or ".join(str(s) for s in shapes)
+        raise ValueError(f"`position`: expected shape {wanted}, got {tuple(pos.shape)}")
+    pos = pos.to(images.device).expand(bsz, 2)
+    x, y = _pixels("position", pos, height, width)
+    which = torch.arange(bsz, device=images.device)
+    snr = _block_snr(images, which, x, y, block, max_numbers)
+    return snr if batched else snr[0]
+
+
+def algorithm_score(
+    asf: torch.Tensor,
+    positions: torch.Tensor,
+    *,
+    last: int = 6,
+    block: int = 5,
+    max_numbers: int = 1,
+) -> torch.Tensor:
+    """Algorithm score ``A_S`` of eq. (17) of [NR08]: the mean Block SNR of the ASF.
+
+    ``A_S = mean over the last `last` frames (and over the targets) of block_snr(ASF_n,
+    position_n)``, with :func:`block_snr` at the true target position of each frame.
+
+    Notes:
+        Our reading of [NR08]: the average runs over the ``last`` final frames (once the
+        recursion has accumulated), with equal weight per frame and per target; every true
+        position in those frames must lie in the frame. An infinite Block SNR (constant
+        background) makes ``A_S`` infinite.
+
+    Args:
+        asf: ASF sequence ``(B, T, H, W)`` or ``(T, H, W)``.
+        positions: true ``(x, y)`` target positions ``(B, T, 2)`` / ``(T, 2)``, or for several
+            targets ``(B, N, T, 2)`` / ``(N, T, 2)`` (as ``IRSequence.positions``); float.
+        last: number of final frames averaged, ``1 .. T``.
+        block: odd block size ``>= 1``.
+        max_numbers: number of highest target-block values averaged, ``1 .. block * block``.
+
+    Returns:
+        ``(B,)`` scores, or a 0-d tensor for an unbatched ``asf``.
+
+    Raises:
+        TypeError: non-real inputs or non-integer sizes.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, positions outside the frame.
+
+    Examples:
+        >>> asf = torch.zeros(8, 15, 15)
+        >>> asf[:, ::2] = 1.0
+        >>> asf[:, 7, 7] = 10.0
+        >>> positions = torch.tensor([[7.0, 7.0]]).expand(8, 2)
+        >>> round(float(algorithm_score(asf, positions, last=3)), 4)
+        18.9952
+    """
+    block, max_numbers = _check_block(block, max_numbers)
+    cube, batched = as_cube("asf", asf)
+    cube = _float(cube)
+    bsz, n_t, height, width = cube.shape
+    pos = _targets("positions", positions, bsz, n_t, batched, "a tensor of (x, y) positions")
+    last = check_int("last", last, minimum=1, maximum=n_t)
+    n_targets = pos.shape[1]
+    images = cube[:, n_t - last :].reshape(bsz * last, height, width)
+    pos = pos[:, :, n_t - last :].to(cube.device)  # (B, N, L, 2)
+    x, y = _pixels("positions", pos, height, width)
+    which = torch.arange(bsz, device=cube.device).view(bsz, 1, 1) * last
+    which = (which + torch.arange(last, device=cube.device).view(1, 1, last)).expand(
+        bsz, n_targets, last
+    )
+    snr = _block_snr(images, which.reshape(-1), x.reshape(-1), y.reshape(-1), block, max_numbers)
+    score = snr.view(bsz, n_targets * last).mean(dim=1)
+    return score if batched else score[0]
+
+
+def tracking_success(
+    trajectory: torch.Tensor,
+    truth: torch.Tensor,
+    *,
+    radius: float = 1.5,
+    fraction: float = 0.8,
+    last: int | None = None,
+) -> torch.Tensor:
+    """Whether a back-tracked trajectory follows the true target.
+
+    A frame is a hit when the Euclidean distance between the trajectory's pixel and the true
+    position is ``<= radius``; the track is a success when the hits make up at least
+    ``fraction`` of the frames (of the ``last`` final frames if given).
+
+    Args:
+        trajectory: ``(B, T, 2)`` or ``(T, 2)`` ``(x, y)`` per frame (e.g. from
+            :func:`~hocnet.dpa.backtrack.backtrack`), integer or float.
+        truth: true ``(x, y)`` of the same shape, float.
+        radius: hit radius in pixels, ``> 0``.
+        fraction: required fraction of hit frames, in ``(0, 1]``.
+        last: evaluate only the ``last`` final frames, ``1 .. T``; ``None`` for all.
+
+    Returns:
+        bool ``(B,)``, or a 0-d bool tensor for ``(T, 2)`` input.
+
+    Raises:
+        TypeError: non-real inputs.
+        ValueError: shape mismatch, NaN/inf, out-of-range arguments.
+
+    Examples:
+        >>> truth = torch.tensor([[0.0, 0.0], [1.0, 0.2], [2.0, 0.4], [3.0, 0.6], [4.0, 0.8]])
+        >>> found = torch.tensor([[0, 0], [1, 0], [2, 0], [3, 1], [9, 9]])
+        >>> bool(tracking_success(found, truth)), bool(tracking_success(found, truth, last=2))
+        (True, False)
+    """
+    traj = _tensor("trajectory", trajectory, "a tensor of (x, y) pixels")
+    if traj.dim() not in (2, 3) or traj.shape[-1] != 2 or traj.shape[-2] < 1:
+        raise ValueError(
+            f"`trajectory`: expected shape (B, T, 2) or (T, 2), got {tuple(traj.shape)}"
+        )
+    ref = _tensor("truth", truth, "a tensor of (x, y) positions")
+    if ref.shape != traj.shape:
+        raise ValueError(
+            f"`truth`: expected the shape of `trajectory` {tuple(traj.shape)}, got "
+            f"{tuple(ref.shape)}"
+        )
+    radius = check_number("radius", radius, low=0.0, low_inclusive=False)
+    fraction = check_number("fraction", fraction, low=0.0, high=1.0, low_inclusive=False)
+    n_t = traj.shape[-2]
+    n_last = n_t if last is None else check_int("last", last, minimum=1, maximum=n_t)
+    diff = (
+        traj[..., n_t - n_last :, :].double() - ref[..., n_t - n_last :, :].to(traj.device).double()
+    )
+    hit = torch.linalg.vector_norm(diff, dim=-1) <= radius
+    return hit.double().mean(dim=-1) >= fraction - 1e-12
+
+
+def frames_to_reach(pd_curve: torch.Tensor, frames: torch.Tensor, level: float = 0.9) -> float:
+    """Smallest number of frames at which a Pd curve reaches ``level``.
+
+    The curve is interpolated linearly between its points; the answer is the first crossing:
+    ``frames[0]`` if ``pd_curve[0] >= level``, else the interpolated abscissa between the last
+    point below ``level`` and the first point at or above it.
+
+    Args:
+        pd_curve: ``(K,)`` values in ``[0, 1]`` (probability of detection per point).
+        frames: ``(K,)`` strictly increasing numbers of frames.
+        level: the level to reach, in ``[0, 1]``.
+
+    Returns:
+        The number of frames as a float, ``inf`` if the curve never reaches ``level``.
+
+    Raises:
+        TypeError: non-real inputs.
+        ValueError: shapes, NaN/inf, values out of ``[0, 1]``, non-increasing ``frames``.
+
+    Examples:
+        >>> frames_to_reach(torch.tensor([0.25, 0.5, 1.0]), torch.tensor([5, 10, 15]), 0.75)
+        12.5
+        >>> frames_to_reach(torch.tensor([0.25, 0.5]), torch.tensor([5, 10]), 0.75)
+        inf
+    """
+    pd = _tensor("pd_curve", pd_curve, "a 1-D tensor of probabilities").double()
+    if pd.dim() != 1 or pd.numel() < 1:
+        raise ValueError(f"`pd_curve`: expected a non-empty 1-D tensor, got {tuple(pd.shape)}")
+    if bool(((pd < 0) | (pd > 1)).any()):
+        raise ValueError(
+            f"`pd_curve`: expected values in [0, 1], got min {float(pd.min()):g}, "
+            f"max {float(pd.max()):g}"
+        )
+    fr = _tensor("frames", frames, "a 1-D tensor of frame counts").double()
+    if fr.shape != pd.shape:
+        raise ValueError(
+            f"`frames`: expected the shape of `pd_curve` {tuple(pd.shape)}, got {tuple(fr.shape)}"
+        )
+    if fr.numel() > 1 and not bool((fr[1:] > fr[:-1]).all()):
+        raise ValueError("`frames`: expected strictly increasing values, got a non-increasing step")
+    level = check_number("level", level, low=0.0, high=1.0)
+    reached = torch.nonzero(pd >= level).flatten()
+    if reached.numel() == 0:
+        return math.inf
+    i = int(reached[0])
+    if i == 0:
+        return float(fr[0])
+    p0, p1, f0, f1 = float(pd[i - 1]), float(pd[i]), float(fr[i - 1]), float(fr[i])
+    return f0 + (level - p0) / (p1 - p0) * (f1 - f0)
+
+
+def frame_thresholds(asf: torch.Tensor, pfa: float = 1e-3) -> torch.Tensor:
+    """Per-frame CFAR thresholds from a target-free ASF sequence.
+
+    For each frame ``n``, the empirical upper ``pfa``-quantile of the ``N = B * H * W`` ASF
+    values of that frame, with the rule of :func:`~hocnet.dpa.backtrack.cfar_threshold`
+    (the ``(m + 1)``-th largest, ``m = floor(pfa * N)``), so its last entry equals
+    ``cfar_threshold(...)`` on the same data. Since ``ASF_n`` depends only on frames
+    ``0 .. n``, entry ``n`` is the threshold of a detector stopped after ``n + 1`` frames.
+
+    Args:
+        asf: target-free ASF ``(B, T, H, W)`` or ``(T, H, W)``.
+        pfa: per-pixel false-alarm probability in ``(0, 1)``, ``>= 1 / (B * H * W)``.
+
+    Returns:
+        ``(T,)`` thresholds in the ASF's float dtype.
+
+    Raises:
+        TypeError: non-real input.
+        ValueError: bad shape, NaN/inf, ``pfa`` out of range or below ``1 / N``.
+
+    Examples:
+        >>> asf = torch.arange(2 * 3 * 10.0).reshape(2, 3, 10)  # T = 2 frames of 3 x 10
+        >>> frame_thresholds(asf, pfa=0.1).tolist()  # 3 of 30 values lie above
+        [26.0, 56.0]
+    """
+    cube, _ = as_cube("asf", asf)
+    cube = _float(cube).detach()
+    pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    values = cube.transpose(0, 1).reshape(cube.shape[1], -1)  # (T, B * H * W)
+    return _upper_quantile(values, pfa, "pixels per frame of `asf` (B * H * W)")
+
+
+def detection_probability(
+    asf: torch.Tensor,
+    positions: torch.Tensor,
+    threshold: float | torch.Tensor,
+    *,
+    radius: float = 1.5,
+) -> torch.Tensor:
+    """Probability of detection per frame at a given threshold (e.g. a CFAR one).
+
+    A target counts as detected in frame ``n`` when some ASF pixel whose centre lies within
+    ``radius`` px (Euclidean, ``<=``) of its true position exceeds the threshold (strictly,
+    as in :func:`~hocnet.dpa.backtrack.detect`). ``Pd_n`` is the fraction of (scene, target)
+    pairs detected in frame ``n``. With the thresholds of :func:`frame_thresholds` on
+    target-free data this is the Pd-versus-frames curve at a fixed per-pixel Pfa, ready for
+    :func:`frames_to_reach`.
+
+    Notes:
+        Our reading of [NR08]: detection is per pixel near the truth (no NMS, no back-tracking),
+        which matches the per-pixel false-alarm rate of the thresholds. A true position whose
+        neighbourhood lies outside the frame is simply not detected.
+
+    Args:
+        asf: ASF ``(B, T, H, W)`` or ``(T, H, W)``.
+        positions: true ``(x, y)`` ``(B, T, 2)`` / ``(T, 2)`` or ``(B, N, T, 2)`` /
+            ``(N, T, 2)``.
+        threshold: one number, or ``(T,)`` per-frame thresholds.
+        radius: detection radius in pixels, ``>= 0``.
+
+    Returns:
+        ``(T,)`` float64 ``Pd`` per frame.
+
+    Raises:
+        TypeError: non-real inputs.
+        ValueError: wrong shapes, NaN/inf, negative radius.
+
+    Examples:
+        >>> asf = torch.zeros(3, 8, 8)
+        >>> asf[1:, 4, 4] = 5.0
+        >>> detection_probability(asf, torch.tensor([[4.4, 4.0]]).expand(3, 2), 1.0).tolist()
+        [0.0, 1.0, 1.0]
+    """
+    cube, batched = as_cube("asf", asf)
+    cube = _float(cube).detach()
+    bsz, n_t, height, width = cube.shape
+    pos = _targets("positions", positions, bsz, n_t, batched, "a tensor of (x, y) positions")
+    pos = pos.to(cube.device).double()
+    thr = _tensor("threshold", threshold, "a number or a (T,) tensor").to(cube.device).double()
+    if thr.dim() == 0 or thr.numel() == 1:
+        thr = thr.reshape(1).expand(n_t)
+    elif tuple(thr.shape) != (n_t,):
+        raise ValueError(
+            f"`threshold`: expected a number or shape ({n_t},), got {tuple(thr.shape)}"
+        )
+    radius = check_number("radius", radius, low=0.0)
+    n_targets = pos.shape[1]
+    half = math.floor(radius) + 1
+    centre = torch.floor(pos + 0.5).long()
+    # clamp far-away targets so the window indices stay small; their mask is all False anyway
+    cx = centre[..., 0].clamp(-half - 1, width + half)
+    cy = centre[..., 1].clamp(-half - 1, height + half)
+    which = (
+        torch.arange(bsz * n_t, device=cube.device).view(bsz, 1, n_t).expand(bsz, n_targets, n_t)
+    )
+    images = cube.reshape(bsz * n_t, height, width).double()
+    patch, valid = _patches(images, which.reshape(-1), cx.reshape(-1), cy.reshape(-1), half)
+    off = torch.arange(-half, half + 1, device=cube.device, dtype=torch.float64)
+    dx = cx.reshape(-1, 1, 1) + off.view(1, 1, -1) - pos[..., 0].reshape(-1, 1, 1)
+    dy = cy.reshape(-1, 1, 1) + off.view(1, -1, 1) - pos[..., 1].reshape(-1, 1, 1)
+    near = valid & (dx.square() + dy.square() <= radius * radius)
+    best = patch.masked_fill(~near, -math.inf).amax(dim=(1, 2)).view(bsz, n_targets, n_t)
+    hit = best > thr.view(1, 1, n_t)
+    return hit.double().mean(dim=(0, 1))

@@ -1,0 +1,417 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hocnet.data.infrared import IRTarget, simulate_ir
+from hocnet.data.whitening import anti_mean
+from hocnet.dpa.backtrack import (
+    DPADetection,
+    DPATrack,
+    _local_maxima,
+    backtrack,
+    cfar_threshold,
+    detect,
+)
+from hocnet.dpa.functional import DPAState, accumulate
+from hocnet.dpa.matrices import effective_memory, probability_matrices
+from hocnet.dpa.metrics import frame_thresholds, tracking_success
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    # small tensors on a shared machine: thread wake-ups would dominate
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+W7 = probability_matrices(7, v_max=2.0)
+B7 = effective_memory(W7, 0.5)
+W5 = probability_matrices(5, v_max=1.0)
+B5 = effective_memory(W5, 0.5)
+
+
+def _random_state(seed, batch=2, t=6, h=9, w=11, directional=True, g=0.3):
+    gen = torch.Generator().manual_seed(seed)
+    frames = torch.randn(batch, t, h, w, generator=gen, dtype=torch.float64)
+    weights = probability_matrices(5, v_max=1.0, dtype=torch.float64)
+    if not directional:
+        weights = weights[8:9]
+    return accumulate(frames, weights, 0.9, g)
+
+
+def backtrack_loop(state, start=None):
+    """Slow oracle: follow the tracking matrix pixel by pixel."""
+    s = state.as_batched()
+    asf, origin = s.asf.detach().numpy(), s.origin.numpy()
+    n_b, n_t, n_h, n_w = asf.shape
+    out = np.zeros((n_b, n_t, 2), dtype=np.int64)
+    for b in range(n_b):
+        if start is None:
+            best, x, y = -math.inf, 0, 0
+            for yy in range(n_h):
+                for xx in range(n_w):
+                    if asf[b, -1, yy, xx] > best:  # strict: the first maximum wins
+                        best, x, y = asf[b, -1, yy, xx], xx, yy
+        else:
+            x, y = (int(v) for v in start[b])
+        out[b, n_t - 1] = (x, y)
+        for t in range(n_t - 1, 0, -1):
+            src = int(origin[b, t, y, x])
+            y, x = src // n_w, src % n_w
+            out[b, t - 1] = (x, y)
+    return out if state.batched else out[0]
+
+
+def _straight_scene(seed, batch=None, jitter=0.0, snr_db=30.0):
+    target = IRTarget(6.3, 8.2, 1.2, 0.6, snr_db=snr_db)
+    return simulate_ir(
+        (12, 32, 32), [target], clouds="clear", jitter=jitter, batch=batch, seed=seed
+    )
+
+
+def _two_targets(seed, batch=None):
+    targets = [IRTarget(5.0, 6.0, 1.0, 0.5, snr_db=20.0), IRTarget(26.0, 25.0, -1.0, -0.3, 16.0)]
+    return simulate_ir((10, 32, 32), targets, clouds="clear", batch=batch, seed=seed)
+
+
+class TestBacktrack:
+    def test_smoke_shapes(self):
+        state = _random_state(0)
+        path = backtrack(state)
+        assert path.shape == (2, 6, 2) and path.dtype == torch.int64
+        single = accumulate(torch.randn(5, 8, 8), W5, B5, 0.5)
+        assert not single.batched
+        assert backtrack(single).shape == (5, 2)
+        assert backtrack(single, torch.tensor([3, 4])).shape == (5, 2)
+
+    @pytest.mark.parametrize("seed", range(6))
+    @pytest.mark.parametrize("directional", [True, False])
+    def test_equals_loop(self, seed, directional):
+        state = _random_state(seed, batch=3, directional=directional, g=0.25 * (seed % 5))
+        np.testing.assert_array_equal(backtrack(state).numpy(), backtrack_loop(state))
+        gen = torch.Generator().manual_seed(100 + seed)
+        start = torch.stack(
+            [torch.randint(0, 11, (3,), generator=gen), torch.randint(0, 9, (3,), generator=gen)],
+            dim=1,
+        )
+        np.testing.assert_array_equal(
+            backtrack(state, start).numpy(), backtrack_loop(state, start.tolist())
+        )
+
+    def test_unbatched_equals_loop_and_batched(self):
+        frames = torch.randn(7, 10, 12, generator=torch.Generator().manual_seed(3))
+        state = accumulate(frames, W5, B5, 0.4)
+        path = backtrack(state)
+        np.testing.assert_array_equal(path.numpy(), backtrack_loop(state))
+        batched = accumulate(frames.unsqueeze(0), W5, B5, 0.4)
+        np.testing.assert_array_equal(backtrack(batched)[0].numpy(), path.numpy())
+
+    def test_non_contiguous_state(self):
+        state = _random_state(4, batch=2, t=5, h=12, w=12).as_batched()
+        sliced = DPAState(
+            state.asf.transpose(2, 3),
+            state.direction.transpose(2, 3),
+            state.origin.transpose(2, 3),  # garbage links but in range: the loop must agree
+            True,
+        )
+        np.testing.assert_array_equal(backtrack(sliced).numpy(), backtrack_loop(sliced))
+
+    def test_ties_lowest_flat_index(self):
+        state = accumulate(torch.zeros(3, 6, 7), W5, B5, 0.5)
+        np.testing.assert_array_equal(backtrack(state).numpy(), [[0, 0]] * 3)
+
+    def test_single_frame(self):
+        frames = torch.zeros(1, 5, 6)
+        frames[0, 3, 4] = 1.0
+        state = accumulate(frames, torch.ones(1, 1, 1), 1.0, 0.0)
+        assert backtrack(state).tolist() == [[4, 3]]
+
+    def test_float_start_uses_containing_pixel(self):
+        state = _random_state(1)
+        expected = backtrack(state, torch.tensor([[2, 4], [7, 0]]))
+        got = backtrack(state, torch.tensor([[2.4, 3.6], [6.5, -0.49]]))
+        np.testing.assert_array_equal(got.numpy(), expected.numpy())
+
+    def test_start_broadcast_over_batch(self):
+        state = _random_state(2, batch=3)
+        got = backtrack(state, torch.tensor([5, 5]))
+        expected = backtrack(state, torch.tensor([[5, 5]] * 3))
+        np.testing.assert_array_equal(got.numpy(), expected.numpy())
+        assert (got[:, -1] == torch.tensor([5, 5])).all()
+
+    @pytest.mark.parametrize("seed", range(3))
+    def test_recovers_straight_target(self, seed):
+        seq = _straight_scene(seed, batch=2)
+        state = accumulate(anti_mean(seq.frames), W7, B7, 0.5)
+        path = backtrack(state)
+        truth = seq.positions[:, 0]  # (B, T, 2)
+        dist = torch.linalg.vector_norm(path.double() - truth, dim=-1)
+        assert float(dist.max()) <= 1.5, dist
+        assert bool(tracking_success(path, truth, fraction=1.0).all())
+
+    def test_recovers_jittered_target(self):
+        seq = _straight_scene(7, jitter=0.5, snr_db=20.0)
+        path = backtrack(accumulate(anti_mean(seq.frames), W7, B7, 0.5))
+        dist = torch.linalg.vector_norm(path.double() - seq.positions[0], dim=-1)
+        assert float(dist.max()) <= 1.5, dist
+
+    def test_exceptions(self):
+        state = _random_state(0)
+        with pytest.raises(TypeError, match="`state`"):
+            backtrack(torch.zeros(2, 3, 4, 4))
+        with pytest.raises(ValueError, match="`start`: expected shape"):
+            backtrack(state, torch.zeros(3, 2))
+        with pytest.raises(ValueError, match="`start`: expected shape"):
+            backtrack(state, torch.zeros(2, 3))
+        with pytest.raises(ValueError, match=r"`start`: expected \(x, y\) inside"):
+            backtrack(state, torch.tensor([11, 0]))
+        with pytest.raises(ValueError, match=r"`start`: expected \(x, y\) inside"):
+            backtrack(state, torch.tensor([0.0, -0.6]))
+        with pytest.raises(TypeError, match="`start`"):
+            backtrack(state, torch.tensor([True, False]))
+        with pytest.raises(TypeError, match="`start`"):
+            backtrack(state, "centre")
+        with pytest.raises(ValueError, match="`start`"):
+            backtrack(state, torch.tensor([math.nan, 1.0]))
+        unbatched = DPAState(state.asf[0], state.direction[0], state.origin[0], False)
+        with pytest.raises(ValueError, match="`start`: expected shape"):
+            backtrack(unbatched, torch.zeros(1, 2))
+        bad = state.origin.clone()
+        bad[0, 2, 0, 0] = 99
+        with pytest.raises(ValueError, match="`state`: expected `origin`"):
+            backtrack(DPAState(state.asf, state.direction, bad, True))
+        with pytest.raises(ValueError, match="`state`"):
+            backtrack(DPAState(state.asf, state.direction, state.origin[:, 1:], True))
+        with pytest.raises(TypeError, match="`state`"):
+            backtrack(DPAState(state.asf, state.direction, state.origin.double(), True))
+
+
+def nms_loop(image, radius):
+    """Slow oracle of the NMS peak rule on a (H, W) array."""
+    n_h, n_w = image.shape
+    peak = np.zeros((n_h, n_w), dtype=bool)
+    for y in range(n_h):
+        for x in range(n_w):
+            ok = True
+            for yy in range(max(0, y - radius), min(n_h, y + radius + 1)):
+                for xx in range(max(0, x - radius), min(n_w, x + radius + 1)):
+                    v, me = image[yy, xx], image[y, x]
+                    if v > me or (v == me and yy * n_w + xx < y * n_w + x):
+                        ok = False
+            peak[y, x] = ok
+    return peak
+
+
+def _frame_detect(image, **kwargs):
+    """``detect`` on one frame with identity weights: the last ASF is the image itself."""
+    return detect(image.unsqueeze(-3), torch.ones(1, 1, 1), 1.0, 0.0, **kwargs)
+
+
+class TestDetect:
+    def test_smoke(self):
+        seq = _two_targets(0)
+        result = detect(anti_mean(seq.frames), W7, B7, 0.5, max_targets=3)
+        assert isinstance(result, DPADetection)
+        assert result.threshold is None and not result.state.batched
+        assert len(result.tracks) == 3
+        for i, track in enumerate(result.tracks):
+            assert isinstance(track, DPATrack)
+            assert track.id == i + 1 and track.batch == 0
+            assert track.positions.shape == (10, 2) and track.positions.dtype == torch.int64
+            assert track.scores.shape == (10,) and track.scores.dtype == torch.float32
+            assert track.score == float(track.scores[-1])
+            assert track.points.shape == (10, 3)
+        scores = [t.score for t in result.tracks]
+        assert scores == sorted(scores, reverse=True)
+
+    def test_tracks_equal_backtrack_and_asf(self):
+        frames = torch.randn(2, 6, 12, 12, generator=torch.Generator().manual_seed(5))
+        result = detect(frames, W5, B5, 0.5, max_targets=4, nms_radius=2)
+        for track in result.tracks:
+            state = result.state
+            path = backtrack(state, track.positions[-1].expand(2, 2))[track.batch]
+            np.testing.assert_array_equal(track.positions.numpy(), path.numpy())
+            x, y = track.positions[:, 0], track.positions[:, 1]
+            asf = state.asf[track.batch, torch.arange(6), y, x]
+            np.testing.assert_array_equal(track.scores.numpy(), asf.numpy())
+
+    @pytest.mark.parametrize("seed", range(2))
+    def test_finds_two_targets(self, seed):
+        seq = _two_targets(seed, batch=2)
+        frames = anti_mean(seq.frames)
+        result = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=3)
+        assert [t.batch for t in result.tracks] == [0, 0, 1, 1]
+        assert [t.id for t in result.tracks] == [1, 2, 3, 4]
+        for b in range(2):
+            tracks = [t for t in result.tracks if t.batch == b]
+            truth = seq.positions[b]  # (2, T, 2)
+            matched = set()
+            for track in tracks:
+                dist = torch.linalg.vector_norm(track.positions.double() - truth, dim=-1)
+                n = int(dist[:, -1].argmin())
+                matched.add(n)
+                assert bool(tracking_success(track.positions, truth[n], fraction=0.9))
+            assert matched == {0, 1}
+
+    def test_nms_suppresses_neighbours(self):
+        seq = _two_targets(3)
+        frames = anti_mean(seq.frames)
+        suppressed = detect(frames, W7, B7, 0.5, max_targets=5, nms_radius=3)
+        ends = torch.stack([t.positions[-1] for t in suppressed.tracks]).double()
+        gaps = torch.cdist(ends, ends) + torch.eye(len(ends)) * 100
+        assert float(gaps.min()) > 3.0  # no two peaks within each other's neighbourhood
+        raw = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0)
+        a, b = (t.positions[-1].double() for t in raw.tracks)
+        assert float(torch.linalg.vector_norm(a - b)) <= 1.5  # both on the brightest target
+        assert raw.tracks[0].score == suppressed.tracks[0].score
+
+    def test_threshold_keeps_only_strong_peaks(self):
+        seq = _two_targets(1)
+        frames = anti_mean(seq.frames)
+        loose = detect(frames, W7, B7, 0.5, max_targets=50)
+        strong = sorted((t.score for t in loose.tracks), reverse=True)
+        thr = 0.5 * (strong[1] + strong[2])
+        result = detect(frames, W7, B7, 0.5, max_targets=50, threshold=thr)
+        assert result.threshold == thr and len(result.tracks) == 2
+        assert all(t.score > thr for t in result.tracks)
+        assert detect(frames, W7, B7, 0.5, threshold=1e6).tracks == []
+
+    @pytest.mark.parametrize("radius", [0, 1, 2, 3])
+    @pytest.mark.parametrize("seed", range(4))
+    def test_nms_equals_loop(self, radius, seed):
+        gen = torch.Generator().manual_seed(seed)
+        image = torch.randint(0, 4, (2, 7, 9), generator=gen).double()  # many ties
+        got = _local_maxima(image, radius)
+        for b in range(2):
+            np.testing.assert_array_equal(got[b].numpy(), nms_loop(image[b].numpy(), radius))
+
+    def test_nms_hand_made(self):
+        image = torch.zeros(8, 10)
+        image[0, 0] = 5.0  # corner peak: out-of-frame pixels are excluded
+        image[4, 3] = image[4, 4] = 7.0  # a tie: the lower flat index (x = 3) wins
+        image[4, 7] = 6.0  # 3 px from the tie: suppressed at r = 3, kept at r = 2
+        ends = lambda res: [t.positions[-1].tolist() for t in res.tracks]  # noqa: E731
+        assert ends(_frame_detect(image, nms_radius=3, threshold=0.5)) == [[3, 4], [0, 0]]
+        assert ends(_frame_detect(image, nms_radius=2, threshold=0.5)) == [[3, 4], [7, 4], [0, 0]]
+        assert ends(_frame_detect(image, nms_radius=0, threshold=5.5)) == [[3, 4], [4, 4], [7, 4]]
+        # the zero background has no peak: each zero pixel has a larger or an earlier equal
+        # neighbour; a constant image has exactly one, its first pixel
+        assert len(_frame_detect(image, nms_radius=3, max_targets=100).tracks) == 2
+        flat = _frame_detect(torch.ones(8, 10), nms_radius=1, max_targets=100)
+        assert ends(flat) == [[0, 0]]
+
+    def test_max_targets_and_order(self):
+        image = torch.zeros(20, 20)
+        for i, (x, y) in enumerate([(2, 2), (17, 2), (2, 17), (17, 17), (10, 10)]):
+            image[y, x] = 1.0 + (i % 2)  # values 1, 2, 1, 2, 1: ties broken by flat index
+        result = _frame_detect(image, max_targets=4, threshold=0.5)
+        assert [t.positions[-1].tolist() for t in result.tracks] == [
+            [17, 2],
+            [17, 17],
+            [2, 2],
+            [10, 10],  # flat index 210 < 342 of (2, 17)
+        ]
+        assert [t.id for t in result.tracks] == [1, 2, 3, 4]
+
+    def test_batched_and_unbatched_agree(self):
+        frames = torch.randn(2, 5, 12, 12, generator=torch.Generator().manual_seed(9))
+        both = detect(frames, W5, B5, 0.5, max_targets=3)
+        assert both.state.batched
+        second = detect(frames[1], W5, B5, 0.5, max_targets=3)
+        mine = [t for t in both.tracks if t.batch == 1]
+        assert len(mine) == len(second.tracks) == 3
+        for a, b in zip(mine, second.tracks, strict=True):
+            np.testing.assert_array_equal(a.positions.numpy(), b.positions.numpy())
+            assert a.score == b.score
+
+    def test_cfar_threshold_from_target_free(self):
+        seq = _two_targets(2, batch=2)
+        frames, free = anti_mean(seq.frames), anti_mean(seq.target_free)
+        result = detect(frames, W7, B7, 0.5, target_free=free, pfa=0.01, max_targets=10)
+        assert result.threshold == cfar_threshold(free, W7, B7, 0.5, pfa=0.01)
+        assert all(t.score > result.threshold for t in result.tracks)
+        assert len(result.tracks) >= 4  # both targets in both scenes
+
+    def test_exceptions(self):
+        frames = torch.randn(4, 10, 10)
+        with pytest.raises(ValueError, match="`max_targets`"):
+            detect(frames, W5, B5, 0.5, max_targets=0)
+        with pytest.raises(TypeError, match="`max_targets`"):
+            detect(frames, W5, B5, 0.5, max_targets=2.5)
+        with pytest.raises(ValueError, match="`nms_radius`"):
+            detect(frames, W5, B5, 0.5, nms_radius=-1)
+        for pfa in (0.0, 1.0, -0.1):
+            with pytest.raises(ValueError, match="`pfa`"):
+                detect(frames, W5, B5, 0.5, pfa=pfa)
+        with pytest.raises(ValueError, match="`threshold`"):
+            detect(frames, W5, B5, 0.5, threshold=math.nan)
+        with pytest.raises(ValueError, match="`threshold`: expected None when `target_free`"):
+            detect(frames, W5, B5, 0.5, threshold=1.0, target_free=frames)
+        with pytest.raises(ValueError, match="`frames`"):
+            detect(torch.zeros(10, 10), W5, B5, 0.5)
+        with pytest.raises(ValueError, match="`g`"):
+            detect(frames, W5, B5, 1.5)
+        with pytest.raises(ValueError, match="`target_free`"):
+            detect(frames, W5, B5, 0.5, target_free=torch.zeros(10, 10))
+
+
+class TestCfarThreshold:
+    def _noise(self, seed, batch=16, t=8):
+        seq = simulate_ir((t, 32, 32), clouds="clear", batch=batch, seed=seed)
+        return anti_mean(seq.target_free)
+
+    def test_exact_rate_on_its_own_data(self):
+        free = self._noise(0, batch=4)
+        for pfa in (0.5, 0.05, 0.01, 1 / 4096):
+            thr = cfar_threshold(free, W5, B5, 0.5, pfa=pfa)
+            last = accumulate(free, W5, B5, 0.5).asf[:, -1]
+            assert int((last > thr).sum()) == math.floor(pfa * last.numel() * (1 + 1e-12))
+
+    @pytest.mark.parametrize("seed", range(3))
+    def test_rate_on_independent_noise(self, seed):
+        pfa = 0.02
+        thr = cfar_threshold(self._noise(2 * seed), W5, B5, 0.5, pfa=pfa)
+        last = accumulate(self._noise(2 * seed + 1), W5, B5, 0.5).asf[:, -1]
+        rate = float((last > thr).double().mean())
+        # 16 * 32 * 32 = 16384 samples per side: binomial sd about 0.0011 (before correlation)
+        assert abs(rate - pfa) < 0.3 * pfa, rate
+
+    def test_peaks(self):
+        free = self._noise(5, batch=8)
+        thr = cfar_threshold(free, W5, B5, 0.5, pfa=0.05, samples="peaks", nms_radius=2)
+        last = accumulate(free, W5, B5, 0.5).asf[:, -1]
+        peaks = last[_local_maxima(last, 2)]
+        assert int((peaks > thr).sum()) == math.floor(0.05 * peaks.numel())
+        assert thr > cfar_threshold(free, W5, B5, 0.5, pfa=0.05)  # peaks are the high tail
+
+    def test_unbatched_and_frame_thresholds(self):
+        free = self._noise(6, batch=1)
+        thr = cfar_threshold(free[0], W5, B5, 0.5, pfa=0.01)
+        assert thr == cfar_threshold(free, W5, B5, 0.5, pfa=0.01)
+        asf = accumulate(free, W5, B5, 0.5).asf
+        assert thr == float(frame_thresholds(asf, 0.01)[-1])
+
+    def test_too_few_samples(self):
+        free = torch.randn(2, 3, 10, 10)  # 200 samples
+        with pytest.raises(ValueError, match=r"`pfa`.*N = 200.*at least 1000 samples"):
+            cfar_threshold(free, W5, B5, 0.5, pfa=1e-3)
+        cfar_threshold(free, W5, B5, 0.5, pfa=1 / 200)  # the smallest estimable rate
+
+    def test_exceptions(self):
+        free = torch.randn(2, 3, 10, 10)
+        with pytest.raises(ValueError, match="`pfa`"):
+            cfar_threshold(free, W5, B5, 0.5, pfa=1.0)
+        with pytest.raises(ValueError, match="`target_free`"):
+            cfar_threshold(torch.zeros(10, 10), W5, B5, 0.5)
+        with pytest.raises(ValueError, match="`target_free`"):
+            cfar_threshold(torch.full((2, 10, 10), math.inf), W5, B5, 0.5)
+        with pytest.raises(ValueError, match="`samples`"):
+            cfar_threshold(free, W5, B5, 0.5, samples="all")
+        with pytest.raises(ValueError, match="`nms_radius`"):
+            cfar_threshold(free, W5, B5, 0.5, nms_radius=-2)
+        with pytest.raises(ValueError, match="`weights`"):
+            cfar_threshold(free, torch.ones(2, 3, 3), B5, 0.5)
