@@ -36,6 +36,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TypeVar
 
+# Idle OpenMP threads sleep instead of spinning: on a shared 2-core machine spinning threads made
+# small torch ops 10-100x slower (see benchmarks/dpa.py). Set before torch is imported.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import numpy as np
 import torch
 import torch.nn.functional as F
