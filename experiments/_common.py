@@ -333,3 +333,233 @@ def plot_scene_xy(
     ax.set_xlabel("x (column)")
     ax.set_ylabel("y (row)")
     ax.set_title(f"{title}\n{x.numel()} input points, {xs.numel()} on the HOC support")
+
+
+# ----------------------------------------------------------------------------- DPA [NR08]
+
+DPA_SCENES = ("NA23A-like", "NPA-like")
+"""The two simulated scene families of the DPA experiments (``hocnet.data.infrared``)."""
+
+DPA_SNR_DB = {"NA23A-like": 31.0, "NPA-like": 12.0}
+"""Peak SNR (dB) of the DPA parameter experiments, per scene.
+
+Fixed once from an exploratory scan before the sweeps were run (20 anti-mean whitened scenes of
+seed 100, not an evaluation seed; b on a coarse grid including 0, 7 x 7 matrices): the lowest
+SNR on a 1 dB grid at which the back-tracked track followed a target in at least half of the
+scenes for some b. At the simulator's default of 6 dB no b tracks in either family (see the
+SNR context table of ``dpa-b-sweep``); the bright, sharp-edged clouds of the NA23A-like scene
+leave whitened residuals of several tens of noise sigmas, hence its much higher SNR.
+"""
+
+DPA_MATRICES = {"7x7, v <= 2.5": (7, 2.5), "5x5, v <= 1": (5, 1.0)}
+"""Probability matrices of the DPA experiments: label -> (window, v_max) of
+``hocnet.dpa.probability_matrices`` (other arguments at their defaults)."""
+
+PAPER_EQ15 = {"7x7, v <= 2.5": (1.118, 0.131), "5x5, v <= 1": (1.035, 0.214)}
+"""Eq. (15) of [NR08], ``1/b = slope g + intercept``, for its two matrices (our attribution:
+the flatter 7 x 7 matrix has the smaller intercept = max(w) / 0.8)."""
+
+PAPER_B_RANGE = {
+    ("NA23A-like", 0.0): "4.4-6",
+    ("NPA-like", 0.0): "2-4.8",
+    ("NA23A-like", 1.0): "0.2-0.8",
+    ("NPA-like", 1.0): "0-0.8",
+}
+"""Table 2 of [NR08]: the ranges of b where tracking occurred, per (sequence, g)."""
+
+PAPER_VELOCITY = "0.6 ± 0.15 px/frame"
+"""[NR08]: the preferred effective target velocity."""
+
+PAPER_MAX_NUMBERS = {0.0: 3, 1.0: 1}
+"""[NR08]: the preferred Max_Numbers of the Block SNR, per g."""
+
+
+def dpa_scene(
+    scene: str,
+    seeds: Sequence[int],
+    *,
+    shape: tuple[int, int, int] = (25, 64, 64),
+    snr_db: float | None = None,
+    speed: float | None = None,
+) -> Any:
+    """One simulated sequence per seed, stacked into a batched ``IRSequence``.
+
+    Each scene is ``na23a_like(..., seed=s)`` or ``npa_like(..., seed=s)`` on its own, so a scene
+    depends on its seed only (a quick run's scenes are the first scenes of a full run).
+
+    Args:
+        scene: ``"NA23A-like"`` or ``"NPA-like"``.
+        seeds: one seed per scene.
+        shape: ``(T, H, W)``.
+        snr_db: peak SNR in dB (default :data:`DPA_SNR_DB` of the scene).
+        speed: target speed in px/frame (default: the simulator's, 0.3 / 0.2).
+
+    Returns:
+        ``hocnet.data.infrared.IRSequence`` with a leading batch axis of ``len(seeds)``.
+    """
+    from hocnet.data.infrared import na23a_like, npa_like
+
+    make = {"NA23A-like": na23a_like, "NPA-like": npa_like}[scene]
+    kwargs: dict[str, Any] = {"shape": shape}
+    kwargs["snr_db"] = DPA_SNR_DB[scene] if snr_db is None else snr_db
+    if speed is not None:
+        kwargs["speed"] = speed
+    return stack_sequences([make(seed=int(s), **kwargs) for s in seeds])
+
+
+def stack_sequences(parts: Sequence[Any]) -> Any:
+    """Stack unbatched ``IRSequence`` s (same shape and targets) into one batched sequence."""
+    import torch
+
+    from hocnet.data.infrared import IRSequence
+
+    return IRSequence(
+        frames=torch.stack([p.frames for p in parts]),
+        positions=torch.stack([p.positions for p in parts]),
+        target_free=torch.stack([p.target_free for p in parts]),
+        clouds=torch.stack([p.clouds for p in parts]),
+        jitter=torch.stack([p.jitter for p in parts]),
+        targets=parts[0].targets,
+        noise_sigma=parts[0].noise_sigma,
+    )
+
+
+def scene_speed(scene: str) -> float:
+    """Default target speed (px/frame) of a DPA scene family: 0.3 (NA23A) or 0.2 (NPA)."""
+    import inspect
+
+    from hocnet.data.infrared import na23a_like, npa_like
+
+    make = {"NA23A-like": na23a_like, "NPA-like": npa_like}[scene]
+    return float(inspect.signature(make).parameters["speed"].default)
+
+
+def dpa_tracked(trajectory: Any, positions: Any) -> tuple[Any, Any]:
+    """Whether a back-tracked trajectory follows one of the true targets.
+
+    ``hocnet.dpa.tracking_success`` (within 1.5 px in >= 80 % of the frames) against every
+    target; the trajectory "tracks" when it follows at least one of them.
+
+    Args:
+        trajectory: ``(B, T, 2)`` back-tracked ``(x, y)``.
+        positions: ``(B, N, T, 2)`` true ``(x, y)``.
+
+    Returns:
+        ``(tracked, which)``: bool ``(B,)`` and int64 ``(B,)`` index of the first target
+        followed (-1 if none).
+    """
+    import torch
+
+    from hocnet.dpa import tracking_success
+
+    hits = torch.stack(
+        [tracking_success(trajectory, positions[:, n]) for n in range(positions.shape[1])], dim=1
+    )
+    tracked = hits.any(dim=1)
+    which = torch.where(tracked, hits.to(torch.int64).argmax(dim=1), -1)
+    return tracked, which
+
+
+def b_ranges(bs: Sequence[float], rates: Sequence[float], level: float = 0.5) -> str:
+    """The b intervals (runs of consecutive grid values) whose rate is at least ``level``.
+
+    Examples:
+        >>> b_ranges([0.0, 0.2, 0.4, 0.6, 0.8], [0.2, 0.5, 0.9, 0.1, 0.6])
+        '0.2-0.4, 0.8'
+        >>> b_ranges([0.0, 1.0], [0.0, 0.4])
+        'none'
+    """
+    runs: list[list[float]] = []
+    previous = False
+    for b, rate in zip(bs, rates):
+        ok = rate >= level - 1e-12
+        if ok and previous:
+            runs[-1].append(b)
+        elif ok:
+            runs.append([b])
+        previous = ok
+    if not runs:
+        return "none"
+    return ", ".join(f"{r[0]:g}" if len(r) == 1 else f"{r[0]:g}-{r[-1]:g}" for r in runs)
+
+
+def whiten(frames: Any, method: str = "anti_mean") -> Any:
+    """Whiten ``(B, T, H, W)`` frames by ``anti_mean`` or ``anti_median`` (7 x 7 ring, 3 x 3 guard).
+
+    Args:
+        frames: intensities ``(B, T, H, W)``.
+        method: ``"anti_mean"`` or ``"anti_median"`` (``hocnet.data.whitening``).
+
+    Returns:
+        The whitened frames, same shape.
+    """
+    from hocnet.data import whitening
+
+    return {"anti_mean": whitening.anti_mean, "anti_median": whitening.anti_median}[method](frames)
+
+
+def plot_band(
+    ax: Any, x: Sequence[float], m: Sequence[float], s: Sequence[float], **kwargs: Any
+) -> None:
+    """A mean curve with a shaded mean ± std band (``kwargs`` go to ``ax.plot``)."""
+    (line,) = ax.plot(x, m, **kwargs)
+    low = [a - b for a, b in zip(m, s)]
+    high = [a + b for a, b in zip(m, s)]
+    ax.fill_between(x, low, high, color=line.get_color(), alpha=0.18, linewidth=0)
+
+
+def blockwise_score(
+    asf: Any, positions: Any, max_numbers: Sequence[int], *, last: int = 6, block: int = 5
+) -> dict[int, Any]:
+    """A_S under an alternative reading of eq. (16): Max_Numbers applied to every block.
+
+    ``hocnet.dpa.algorithm_score`` averages the ``max_numbers`` highest values of the *target*
+    block only and takes the background mean and std over all pixels of the 8 surrounding
+    blocks, so its A_S can only fall as Max_Numbers grows. In this reading every one of the
+    3 x 3 blocks is summarised by the mean of its ``max_numbers`` highest values, and
+    ``Block_SNR = (target value - mean of the 8 background values) / std of the 8 background
+    values`` (population std). Background blocks reaching outside the frame are left out. The
+    score is the mean over the last ``last`` frames and over the targets, as in eq. (17).
+
+    Args:
+        asf: ``(B, T, H, W)`` ASF.
+        positions: true ``(x, y)`` ``(B, N, T, 2)``.
+        max_numbers: the Max_Numbers values to evaluate (each ``1 .. block**2``).
+        last: number of final frames averaged.
+        block: odd block size.
+
+    Returns:
+        ``{max_numbers: (B,) float64 scores}``.
+    """
+    import torch
+
+    bsz, n_t = asf.shape[:2]
+    n_targets = positions.shape[1]
+    half = block // 2
+    reach = block + half  # half-width of the 3 x 3 blocks
+    images = asf[:, n_t - last :].detach().double()  # (B, L, H, W)
+    padded = torch.nn.functional.pad(images, (reach,) * 4, value=float("nan"))
+    xy = torch.floor(positions[:, :, n_t - last :].double() + 0.5).long()  # (B, N, L, 2)
+    off = torch.arange(-reach, reach + 1)
+    rows = (xy[..., 1, None] + reach + off)[..., :, None]  # (B, N, L, 3b, 1)
+    cols = (xy[..., 0, None] + reach + off)[..., None, :]  # (B, N, L, 1, 3b)
+    b_idx = torch.arange(bsz).view(bsz, 1, 1, 1, 1)
+    l_idx = torch.arange(last).view(1, 1, last, 1, 1)
+    patch = padded[b_idx, l_idx, rows, cols]  # (B, N, L, 3b, 3b)
+    k = bsz * n_targets * last
+    blocks = patch.reshape(k, 3, block, 3, block).permute(0, 1, 3, 2, 4).reshape(k, 9, -1)
+    valid = ~torch.isnan(blocks).any(dim=-1)  # (K, 9) block fully inside the frame
+    ordered = blocks.nan_to_num(nan=-math.inf).sort(dim=-1, descending=True).values
+    out = {}
+    for m in max_numbers:
+        value = ordered[..., :m].mean(dim=-1)  # (K, 9)
+        target = value[:, 4]
+        bg = torch.cat([value[:, :4], value[:, 5:]], dim=1)
+        ok = torch.cat([valid[:, :4], valid[:, 5:]], dim=1)
+        count = ok.sum(dim=1).clamp_min(1)
+        bg = bg.masked_fill(~ok, 0.0)
+        mean_bg = bg.sum(dim=1) / count
+        var = ((bg - mean_bg[:, None]).masked_fill(~ok, 0.0) ** 2).sum(dim=1) / count
+        snr = (target - mean_bg) / var.sqrt().clamp_min(1e-12)
+        out[m] = snr.view(bsz, n_targets * last).mean(dim=1)
+    return out
