@@ -24,10 +24,8 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-import multiprocessing as mp
 import os
 import platform
-import resource
 import sys
 import time
 from collections.abc import Callable
@@ -43,6 +41,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np
 import torch
 import torch.nn.functional as F
+from _common import memory_note as common_memory_note
+from _common import peak_memory_mb
 
 from hocnet.hoc.functional import modified_hoc
 from hocnet.hoc.reference import hoc_reference
@@ -159,81 +159,32 @@ def timed(
             return best, runs, result
 
 
-def _proc_status_mb() -> dict[str, float] | None:
-    """``VmRSS`` and ``VmHWM`` of this process in MB from ``/proc/self/status`` (Linux)."""
-    try:
-        with open("/proc/self/status") as fh:
-            lines = fh.readlines()
-    except OSError:
-        return None
-    out = {}
-    for line in lines:
-        key, _, value = line.partition(":")
-        if key in ("VmRSS", "VmHWM"):
-            out[key] = int(value.split()[0]) / 1024
-    return out if len(out) == 2 else None
+def _sparse_work(size: tuple[int, int, int], density: float, order: int, seed: int) -> None:
+    """One fast-path item, building its own input cube (runs in the measuring child)."""
+    hoc_both(make_cube(size, density, seed), order, "sparse")
 
 
-def _reset_peak_rss() -> bool:
-    """Reset this process's ``VmHWM`` to its current RSS (Linux ``clear_refs`` mode 5)."""
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return False
-    return True
-
-
-def _maxrss_mb() -> float:
-    """``ru_maxrss`` of this process in MB (Linux reports KiB, macOS bytes)."""
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
-
-
-def _sparse_peak_child(
-    size: tuple[int, int, int], density: float, order: int, seed: int, threads: int
-) -> tuple[float, float, str]:
-    """Runs in a fresh child process: peak RSS of one fast-path item above the baseline.
-
-    The child is forked from a ``forkserver`` that has imported ``torch`` and ``hocnet`` and
-    never run a computation. After one tiny warm-up call (torch's one-time runtime setup: thread
-    pool, allocator arenas), the peak-RSS counter is reset at the baseline, before the cube is
-    built, so the input cube, the outputs and every temporary of the fast path count, and
-    nothing of the parent benchmark process does.
-
-    Returns:
-        ``(peak minus baseline MB, absolute peak MB, method name)``.
-    """
-    torch.set_num_threads(threads)
-    hoc_both(make_cube((6, 16, 16), 0.05, 0), 1, "sparse")  # one-time runtime init, not counted
-    status = _proc_status_mb() if _reset_peak_rss() else None
-    if status is not None:
-        base, method = status["VmRSS"], "VmHWM"
-    else:  # no /proc: ru_maxrss, which also counts the import-time high-water mark
-        base, method = _maxrss_mb(), "ru_maxrss"
-    cube = make_cube(size, density, seed)
-    hoc_both(cube, order, "sparse")
-    status = _proc_status_mb() if method == "VmHWM" else None
-    peak = status["VmHWM"] if status is not None else _maxrss_mb()
-    return max(0.0, peak - base), peak, method
-
-
-_MEMORY_METHODS: set[str] = set()
+def _warm_up() -> None:
+    """Torch's one-time runtime set-up (thread pool, allocator arenas), not counted."""
+    hoc_both(make_cube((6, 16, 16), 0.05, 0), 1, "sparse")
 
 
 def sparse_peak_memory(
     size: tuple[int, int, int], density: float, order: int, seed: int, threads: int
 ) -> tuple[float, float]:
-    """``(increment MB, absolute peak MB)`` of the fast path, in a fresh child process."""
-    try:
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(["__main__", "torch", "hocnet.hoc.functional"])
-    except ValueError:  # no forkserver on this platform
-        ctx = mp.get_context("spawn")
-    with ctx.Pool(1) as pool:
-        inc, peak, method = pool.apply(_sparse_peak_child, (size, density, order, seed, threads))
-    _MEMORY_METHODS.add(method)
-    return inc, peak
+    """``(increment MB, absolute peak MB)`` of the fast path, in a fresh child process.
+
+    The child is forked from a ``forkserver`` that has imported ``torch`` and ``hocnet`` and
+    never run a computation; the input cube, the outputs and every temporary count, nothing of
+    the parent benchmark process does (see ``benchmarks/_common.py``).
+    """
+    return peak_memory_mb(
+        _sparse_work,
+        (size, density, order, seed),
+        _warm_up,
+        threads,
+        preload=("torch", "hocnet.hoc.functional"),
+    )
 
 
 # ----------------------------------------------------------------------------- benchmark
@@ -446,16 +397,7 @@ def main(argv: list[str] | None = None) -> int:
     total = time.perf_counter() - started
     load_after = os.getloadavg()
 
-    if _MEMORY_METHODS == {"VmHWM"}:
-        memory_note = (
-            "the peak is `VmHWM` from /proc/self/status, reset to the current RSS at the "
-            "baseline by writing 5 to /proc/self/clear_refs"
-        )
-    else:
-        memory_note = (
-            "the peak is `ru_maxrss` (no resettable VmHWM here), so usage below the "
-            "import-time high-water mark reads as 0"
-        )
+    memory_note = "the peak is " + common_memory_note()
     min_time = QUICK_MIN_TIME_S if args.quick else MIN_TIME_S
     header = [
         "# Modified HOC speed: loop reference vs connectionist (conv) vs fast path (sparse)",

@@ -19,31 +19,17 @@ Run: ``python experiments/dpa_b_sweep.py [--quick] [--seeds N] [--out DIR]`` or
 
 from __future__ import annotations
 
-import importlib.util
 import pathlib
 import sys
 from collections.abc import Sequence
-from types import ModuleType
 
+# the helpers next to this file, also when the script is loaded by path (`hocnet reproduce`)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _expkit as C
+import matplotlib.pyplot as plt
+import torch
 
-def _load_common() -> ModuleType:
-    """Load ``experiments/_common.py`` by path (this script may itself be loaded by path)."""
-    name = "_hocnet_experiments_common"
-    if name not in sys.modules:
-        path = pathlib.Path(__file__).resolve().with_name("_common.py")
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-C = _load_common()
-
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
-
-from hocnet.dpa import (  # noqa: E402
+from hocnet.dpa import (
     accumulate,
     algorithm_score,
     backtrack,

@@ -23,31 +23,17 @@ Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR]`` or
 
 from __future__ import annotations
 
-import importlib.util
 import pathlib
 import sys
 from collections.abc import Sequence
-from types import ModuleType
 
+# the helpers next to this file, also when the script is loaded by path (`hocnet reproduce`)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _expkit as C
+import matplotlib.pyplot as plt
+import torch
 
-def _load_common() -> ModuleType:
-    """Load ``experiments/_common.py`` by path (this script may itself be loaded by path)."""
-    name = "_hocnet_experiments_common"
-    if name not in sys.modules:
-        path = pathlib.Path(__file__).resolve().with_name("_common.py")
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-C = _load_common()
-
-import matplotlib.pyplot as plt  # noqa: E402
-import torch  # noqa: E402
-
-from hocnet.dpa import (  # noqa: E402
+from hocnet.dpa import (
     accumulate,
     algorithm_score,
     backtrack,
@@ -462,7 +448,7 @@ def run(
         "blocks): the target value can only fall as MN grows while the background is unchanged, "
         "so under this reading A_S is non-increasing in MN and peaks at MN = 1 by construction. "
         "*blockwise* = an alternative reading (our guess, `blockwise_score` in "
-        "`experiments/_common.py`): every block is summarised by the mean of its MN highest "
+        "`experiments/_expkit.py`): every block is summarised by the mean of its MN highest "
         "values and the target value is compared with the mean and std of the 8 background "
         "values.",
         "- Tuned b: "

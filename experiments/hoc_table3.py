@@ -14,32 +14,18 @@ Run: ``python experiments/hoc_table3.py [--quick] [--seeds N] [--out DIR]`` or
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import pathlib
 import sys
 from collections.abc import Sequence
-from types import ModuleType
 
+# the helpers next to this file, also when the script is loaded by path (`hocnet reproduce`)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _expkit as C
+import matplotlib.pyplot as plt
 
-def _load_common() -> ModuleType:
-    """Load ``experiments/_common.py`` by path (this script may itself be loaded by path)."""
-    name = "_hocnet_experiments_common"
-    if name not in sys.modules:
-        path = pathlib.Path(__file__).resolve().with_name("_common.py")
-        spec = importlib.util.spec_from_file_location(name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-C = _load_common()
-
-import matplotlib.pyplot as plt  # noqa: E402
-
-from hocnet.data.binary import paper_scene  # noqa: E402
-from hocnet.hoc import detect  # noqa: E402
+from hocnet.data.binary import paper_scene
+from hocnet.hoc import detect
 
 NAME = "hoc-table3"
 DESCRIPTION = (

@@ -50,7 +50,7 @@ def check_outputs(name: str, md: pathlib.Path, out: pathlib.Path) -> list[dict]:
 
 def common():
     load("dpa-b-sweep")
-    return sys.modules["_hocnet_experiments_common"]
+    return sys.modules["_expkit"]
 
 
 @pytest.mark.parametrize("name", sorted(SCRIPTS))
