@@ -85,7 +85,8 @@ def _tshift(y: torch.Tensor, s: int) -> torch.Tensor:
     return z
 
 
-def _chunks(n_frames: int, channels: int, h: int, w: int) -> int:
+def _chunks(channels: int, h: int, w: int) -> int:
+    """Frames per convolution call so that one call holds at most _CHUNK_ELEMENTS values."""
     return max(1, _CHUNK_ELEMENTS // max(1, channels * h * w))
 
 
@@ -126,7 +127,7 @@ def hoc_layer(
     y1 = _tshift(y, s).reshape(b * n_t, 1, h, w)
     y2 = _tshift(y, 2 * s).reshape(b * n_t, 1, h, w)
     out = torch.empty(b * n_t, 1, h, w, dtype=y.dtype, device=y.device)
-    step = _chunks(b * n_t, m, h, w)
+    step = _chunks(m, h, w)
     for lo in range(0, b * n_t, step):
         hi = min(b * n_t, lo + step)
         cont = activation(F.conv2d(y2[lo:hi], mask_kernels, padding=pad))
@@ -171,7 +172,7 @@ def hoc_mark(
     mk = marks.reshape(b * n_t, 1, h, w)
     mark1 = torch.empty_like(mk)
     mark2 = torch.empty_like(mk)
-    step = _chunks(b * n_t, m, h, w)
+    step = _chunks(m, h, w)
     for lo in range(0, b * n_t, step):
         hi = min(b * n_t, lo + step)
         cont = hard_limiter(F.conv2d(y2[lo:hi], mask_kernels, padding=pad))
