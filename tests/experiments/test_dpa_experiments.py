@@ -1,5 +1,3 @@
-import csv
-import importlib.util
 import itertools
 import math
 import pathlib
@@ -9,7 +7,9 @@ import time
 import pytest
 import torch
 
-EXPERIMENTS = pathlib.Path(__file__).resolve().parents[2] / "experiments"
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from _helpers import check_outputs, load_script
+
 SCRIPTS = {
     "dpa-b-sweep": "dpa_b_sweep.py",
     "dpa-sampling": "dpa_sampling.py",
@@ -18,34 +18,7 @@ SCRIPTS = {
 
 
 def load(name: str):
-    """Import an experiment script by file path, as `hocnet reproduce` does."""
-    path = EXPERIMENTS / SCRIPTS[name]
-    module_name = f"_test_experiment_{path.stem}"
-    if module_name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(module_name, path)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[module_name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[module_name]
-
-
-def read_rows(path: pathlib.Path) -> list[dict]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
-
-
-def check_outputs(name: str, md: pathlib.Path, out: pathlib.Path) -> list[dict]:
-    assert md == out / f"{name}.md"
-    for ext in ("md", "csv", "png"):
-        path = out / f"{name}.{ext}"
-        assert path.is_file() and path.stat().st_size > 0, path
-    assert (out / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    text = md.read_text()
-    assert "n/a (paper text not available" in text
-    assert f"![{name}]({name}.png)" in text
-    rows = read_rows(out / f"{name}.csv")
-    assert rows
-    return rows
+    return load_script(SCRIPTS[name])
 
 
 def common():
