@@ -6,7 +6,8 @@ one target under a cloud), 20 seeded 25 x 64 x 64 scenes each, anti-mean whitene
 (``hocnet.dpa.accumulate``, eq. 11) is run for every b of a grid, for g = 0 (max, b = 0 .. 8 step
 0.2) and g = 1 (sum, b = 0 .. 1 step 0.05), with the 7 x 7 probability matrices for speeds up to
 2.5 px/frame and with the 5 x 5 matrices for speeds up to 1 px/frame (the natural choice for
-these slow targets). For each b: the algorithm score A_S (eq. 17: the Block SNR of the ASF at the
+these slow targets), each also in its equal-gain variant (``hocnet.dpa.equalize_gain``, beyond
+[NR08]). For each b: the algorithm score A_S (eq. 17: the Block SNR of the ASF at the
 true positions, mean over the last six frames) and whether the back-tracked track (from the
 highest last-frame ASF) follows a true target (within 1.5 px in >= 80 % of the frames). The b
 range where tracking occurred (in >= 50 % of the scenes) is compared with Table 2 of [NR08];
@@ -34,6 +35,7 @@ from hocnet.dpa import (
     algorithm_score,
     backtrack,
     effective_memory,
+    equalize_gain,
     memory_line,
     probability_matrices,
 )
@@ -41,8 +43,9 @@ from hocnet.dpa import (
 NAME = "dpa-b-sweep"
 DESCRIPTION = (
     "Table 2 of [NR08]: algorithm score A_S (last six frames) and tracking versus the memory "
-    "factor b of the DPA, g = 0 (b = 0..8) and g = 1 (b = 0..1), 7 x 7 and 5 x 5 matrices, on "
-    "NA23A-like and NPA-like sequences; effective-memory b and eq. (15) constants."
+    "factor b of the DPA, g = 0 (b = 0..8) and g = 1 (b = 0..1), 7 x 7 and 5 x 5 matrices (and "
+    "their equal-gain variants), on NA23A-like and NPA-like sequences; effective-memory b and "
+    "eq. (15) constants."
 )
 
 SEED_BASE = 6000
@@ -62,9 +65,18 @@ CONTEXT_OFFSETS_DB = (-2.0, 0.0, 2.0)
 """SNR context table: the operating SNR of each scene plus these offsets, and 6 dB."""
 
 
-def _weights(matrix: str) -> torch.Tensor:
-    window, v_max = C.DPA_MATRICES[matrix]
-    return probability_matrices(window, v_max=v_max)
+EQUAL = ", equal gain"
+"""Suffix of the matrix variants rescaled by ``equalize_gain`` (beyond [NR08])."""
+VARIANTS = (*C.DPA_MATRICES, *(m + EQUAL for m in C.DPA_MATRICES))
+"""Matrix labels of the sweep: the paper's eq. (5) matrices, then their equal-gain variants."""
+
+
+def _weights(matrix: str, g: float = 0.0) -> torch.Tensor:
+    """Matrices of a label of :data:`VARIANTS` (equal-gain variants depend on ``g``)."""
+    base = matrix.removesuffix(EQUAL)
+    window, v_max = C.DPA_MATRICES[base]
+    weights = probability_matrices(window, v_max=v_max)
+    return equalize_gain(weights, g) if matrix != base else weights
 
 
 def _run_one(
@@ -94,10 +106,10 @@ def evaluate(
         seq = C.dpa_scene(scene, seeds, shape=shape)
         data[scene] = (C.whiten(seq.frames, WHITENING), seq.positions)
     jobs = [(s, m, g, b) for s in scenes for m in matrices for g in grid for b in grid[g]]
-    weights = {m: _weights(m) for m in matrices}
+    weights = {(m, g): _weights(m, g) for m in matrices for g in grid}
     for scene, matrix, g, b in C.progress(jobs, enabled=progress, desc=NAME):
         frames, positions = data[scene]
-        a_s, tracked, which = _run_one(frames, positions, weights[matrix], b, g)
+        a_s, tracked, which = _run_one(frames, positions, weights[matrix, g], b, g)
         for i, seed in enumerate(seeds):
             rows.append(
                 {
@@ -130,8 +142,18 @@ def context(
     """
     matrix = next(iter(C.DPA_MATRICES))
     weights = _weights(matrix)
-    settings = [("b = 0 (single frame)", 0.0, 0.0)]
-    settings += [(f"EMC b, g = {g:g}", effective_memory(weights, g, EMC), g) for g in (0.0, 1.0)]
+    settings = [("b = 0 (single frame)", 0.0, 0.0, weights)]
+    settings += [
+        (f"EMC b, g = {g:g}", effective_memory(weights, g, EMC), g, weights) for g in (0.0, 1.0)
+    ]
+    settings.append(
+        (
+            "EMC b, g = 0, equal gain",
+            effective_memory(weights, 0.0, EMC),
+            0.0,
+            _weights(matrix + EQUAL),
+        )
+    )
     jobs = []
     for scene in scenes:
         op = C.DPA_SNR_DB[scene]
@@ -142,8 +164,8 @@ def context(
         seq = C.dpa_scene(scene, seeds, shape=shape, snr_db=snr)
         for whitening in ("anti_mean", "anti_median"):
             frames = C.whiten(seq.frames, whitening)
-            for label, b, g in settings:
-                state = accumulate(frames, weights, b, g)
+            for label, b, g, w in settings:
+                state = accumulate(frames, w, b, g)
                 tracked, _ = C.dpa_tracked(backtrack(state), seq.positions)
                 rows += [
                     {
@@ -218,7 +240,7 @@ def _range_table(summaries: dict, scenes, matrices, grid) -> str:
         for g in grid:
             for matrix in matrices:
                 s = summaries[scene, matrix, g]
-                emc = effective_memory(_weights(matrix), g, EMC)
+                emc = effective_memory(_weights(matrix, g), g, EMC)
                 body.append(
                     [
                         scene,
@@ -306,7 +328,7 @@ def _plot(summaries: dict, scenes, matrices, grid, path: pathlib.Path) -> None:
     fig, axes = plt.subplots(
         2, len(keys), figsize=(4.6 * len(keys), 7.6), layout="constrained", sharex="col"
     )
-    colours = dict(zip(matrices, ("tab:blue", "tab:orange", "tab:green")))
+    colours = dict(zip(matrices, ("tab:blue", "tab:orange", "tab:green", "tab:red")))
     for col, (scene, g) in enumerate(keys):
         top, bottom = axes[0, col], axes[1, col]
         for matrix in matrices:
@@ -365,7 +387,7 @@ def run(
     shape = QUICK_SHAPE if quick else SHAPE
     grid = QUICK_B_GRID if quick else B_GRID
     scenes = C.DPA_SCENES
-    matrices = tuple(C.DPA_MATRICES)
+    matrices = VARIANTS
     seed_values = C.seed_list(SEED_BASE, n)
     with C.single_thread(), C.Timer() as timer:
         rows = evaluate(scenes, matrices, grid, seed_values, shape, progress)
@@ -389,7 +411,10 @@ def run(
         f"- Whitening: {WHITENING} (7 x 7 ring around a 3 x 3 guard). Anti-mean is linear and "
         "cheap; the context table also shows anti-median.",
         "- DPA: `accumulate(frames, probability_matrices(k, v_max), b, g)` with the 9 "
-        "direction-dependent matrices (defaults jitter 0.5, PSF FWHM 3, p 0.5, penalty step 3).",
+        "direction-dependent matrices (defaults jitter 0.5, PSF FWHM 3, p 0.5, penalty step 3); "
+        "the *equal gain* rows use `equalize_gain(probability_matrices(k, v_max), g)` instead "
+        "(beyond [NR08]: every direction, including 9 = in place, gets the per-step gain of "
+        "direction 1, so b means the same memory for a target that stays in its pixel).",
         f"- A_S: `algorithm_score(asf, true positions, last={LAST}, block=5, "
         f"max_numbers={MAX_NUMBERS})` (eq. 17; for NPA the mean over both targets).",
         "- Tracking: the track back-tracked from the highest last-frame ASF (`backtrack`) lies "
@@ -403,14 +428,15 @@ def run(
         "",
         "## Effective memory (eq. 12-14, EMC 0.8) and eq. (15)",
         "",
-        _emc_table(matrices),
+        _emc_table(tuple(C.DPA_MATRICES)),
         "",
         "The paper's b columns are derived from its eq. (15) (b = 1/intercept at g = 0, "
         "1/(slope + intercept) at g = 1). The EMC is taken from the direction-1 matrix (whose "
         "maximum, at the centre, sets the per-step gain of the max recursion); a target that "
         "stays in place is followed through the flatter in-place matrix W(9), whose per-step "
         "gain at the same b is the *gain* column: slow targets get a much shorter memory than "
-        "0.8.",
+        "0.8. The *equal gain* variants remove that mismatch (their direction-1 matrix, hence "
+        "their EMC b and eq. (15) constants, are the same).",
         "",
         "## Ranges of b where tracking occurred (Table 2)",
         "",

@@ -9,6 +9,9 @@ wispy clouds) for peak SNRs of 1 .. 16 dB:
 * **single frame**: the anti-mean whitened last frame, threshold = the empirical upper 1e-3
   quantile of the whitened target-free last frames;
 * **DPA, g = 0** and **DPA, g = 1** at their effective-memory b (eq. 12-14, EMC 0.8);
+* **DPA, g = 0, equal gain**: the same, with the direction matrices rescaled to the per-step
+  gain of direction 1 (``hocnet.dpa.equalize_gain``, beyond [NR08]), so that a target that stays
+  in its pixel (direction 9) keeps the memory 0.8 the b was chosen for;
 * **DPA, tuned (b, g)**: the best point of a (b, g) grid, chosen by the mean Pd on separate
   tuning sequences (never on the evaluation sequences).
 
@@ -52,6 +55,7 @@ from hocnet.dpa import (
     detect,
     detection_probability,
     effective_memory,
+    equalize_gain,
     frame_thresholds,
     frames_to_reach,
     probability_matrices,
@@ -60,8 +64,9 @@ from hocnet.dpa import (
 NAME = "dpa-pd-snr"
 DESCRIPTION = (
     "Beyond [NR08]: probability of detection at a CFAR per-pixel Pfa of 1e-3 versus peak SNR "
-    "and versus the number of frames, for a single-frame threshold and the DPA (g = 0, g = 1, "
-    "tuned (b, g)) on NPA-like sequences and on the same targets in clear sky."
+    "and versus the number of frames, for a single-frame threshold and the DPA (g = 0, g = 0 "
+    "with equal-gain matrices, g = 1, tuned (b, g)) on NPA-like sequences and on the same "
+    "targets in clear sky."
 )
 
 SCENE = "NPA-like"
@@ -318,7 +323,7 @@ def _plot(results, methods, snrs, frame_snrs, n_frames, n_targets, path: pathlib
     fig, axes = plt.subplots(
         len(KINDS), ncols, figsize=(4.9 * ncols, 4.3 * len(KINDS)), layout="constrained"
     )
-    styles = dict(zip(methods, ("k--o", "-s", "-^", "-D")))
+    styles = dict(zip(methods, ("k--o", "-s", "-v", "-^", "-D")))
     steps = list(range(1, n_frames + 1))
     for row, kind in enumerate(KINDS):
         ax = axes[row, 0]
@@ -407,15 +412,17 @@ def run(
             }
             for snr, pd in single_tuning.items()
         ]
+        b0 = effective_memory(weights, 0.0, EMC)
         settings = [
-            (SINGLE, 0.0, 0.0),
-            ("DPA g = 0", effective_memory(weights, 0.0, EMC), 0.0),
-            ("DPA g = 1", effective_memory(weights, 1.0, EMC), 1.0),
-            ("DPA tuned", b_best, g_best),
+            (SINGLE, 0.0, 0.0, weights),
+            ("DPA g = 0", b0, 0.0, weights),
+            ("DPA g = 0, equal gain", b0, 0.0, equalize_gain(weights, 0.0)),
+            ("DPA g = 1", effective_memory(weights, 1.0, EMC), 1.0, weights),
+            ("DPA tuned", b_best, g_best, weights),
         ]
-        methods = [label for label, _, _ in settings]
+        methods = [label for label, _, _, _ in settings]
         detectors = {
-            kind: [Detector(label, b, g, weights, calib[kind]) for label, b, g in settings]
+            kind: [Detector(label, b, g, w, calib[kind]) for label, b, g, w in settings]
             for kind in KINDS
         }
         results: dict = {}

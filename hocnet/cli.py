@@ -324,6 +324,13 @@ def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
         help="largest target speed in pixels per frame, > 0 (default: 2.5)",
     )
     group.add_argument(
+        "--equal-gain",
+        action="store_true",
+        default=None,
+        help="rescale the direction matrices to one per-step gain (beyond [NR08]; "
+        "recommended for sub-pixel targets that stay in place, see hocnet.dpa.equalize_gain)",
+    )
+    group.add_argument(
         "--whiten",
         choices=("mean", "median", "none"),
         default=None,
@@ -408,6 +415,7 @@ def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
         "window": window,
         "v_max": v_max,
         "whiten": args.whiten or "mean",
+        "equal_gain": bool(args.equal_gain),
         "max_targets": max_targets,
         "nms_radius": nms_radius,
         "asf_threshold": threshold,
@@ -422,7 +430,7 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
 
     from hocnet.data.io import save_cube
     from hocnet.data.whitening import anti_mean, anti_median
-    from hocnet.dpa import effective_memory, probability_matrices
+    from hocnet.dpa import effective_memory, equalize_gain, probability_matrices
     from hocnet.dpa.backtrack import detect
     from hocnet.plot import plot_dpa
 
@@ -450,6 +458,8 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
 
     white = whitened(frames)
     weights = probability_matrices(window=window, v_max=params["v_max"])
+    if params["equal_gain"]:
+        weights = equalize_gain(weights, params["g"])
     b = params["b"]
     if b is None:
         b = float(effective_memory(weights, params["g"]))
@@ -514,6 +524,7 @@ _METHODS: dict[str, _Method] = {
             "b",
             "window",
             "v_max",
+            "equal_gain",
             "whiten",
             "max_targets",
             "nms_radius",

@@ -418,6 +418,31 @@ class TestDetectDPA:
         err = (first[:, [2, 1]].double() - truth).norm(dim=-1)
         assert (err <= 1.5).float().mean() >= 0.8
 
+    def test_equal_gain(self, tmp_path, frames_file, ir_sequence):
+        from hocnet.data.whitening import anti_mean
+        from hocnet.dpa import detect as dpa_detect
+        from hocnet.dpa import effective_memory, equalize_gain, probability_matrices
+
+        out = tmp_path / "out"
+        args = ["detect", str(frames_file), "--method", "dpa", "--g", "0", "--equal-gain"]
+        assert main([*args, "--out", str(out)]) == 0
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        weights = equalize_gain(probability_matrices(window=7, v_max=2.5), 0.0)
+        b = float(effective_memory(weights, 0.0))
+        expected = dpa_detect(anti_mean(ir_sequence.frames), weights, b, 0.0)
+        assert meta["equal_gain"] is True and meta["b"] == pytest.approx(b)
+        np.testing.assert_allclose(
+            np.load(out / "asf.npy"), expected.state.asf.numpy(), rtol=1e-6, atol=1e-6
+        )
+
+    def test_equal_gain_is_a_dpa_option(self, tmp_path, capsys):
+        cube = tmp_path / "cube.npy"
+        np.save(cube, np.zeros((6, 8, 8), dtype=bool))
+        out = tmp_path / "out"
+        code = main(["detect", str(cube), "--method", "hoc", "--equal-gain", "--out", str(out)])
+        assert_one_line_error(capsys, code, r"--equal-gain: applies to --method dpa")
+        assert not out.exists()
+
     def test_cfar_threshold_from_target_free_frames(self, tmp_path, frames_file, ir_sequence):
         free = tmp_path / "free.npy"
         save_cube(free, ir_sequence.target_free)

@@ -26,6 +26,7 @@ from hocnet.dpa.matrices import (
     _turn_steps,
     _window,
     effective_memory,
+    equalize_gain,
     probability_matrices,
 )
 
@@ -74,6 +75,10 @@ class DPA(nn.Module):
         smooth: temperature of the log-sum-exp max, or ``None`` for the hard max.
         var_table: optional ``(9, 9)`` direction-similarity table (directional only).
         memory: effective memory coefficient used when ``b`` is ``None``, ``> 0``.
+        equal_gain: rescale the direction matrices to the per-step gain of direction 1 at the
+            current ``g`` (:func:`~hocnet.dpa.matrices.equalize_gain`, beyond [NR08]: gives
+            slow targets, which stay in place, the memory ``b`` was chosen for). Only with
+            ``directional=True``; recomputed at every forward pass when ``g`` is learnable.
 
     Examples:
         >>> dpa = DPA(window=5, g=0.5, learnable=("b", "g"))
@@ -101,6 +106,7 @@ class DPA(nn.Module):
         smooth: float | None = None,
         var_table: torch.Tensor | None = None,
         memory: float = 0.8,
+        equal_gain: bool = False,
     ) -> None:
         super().__init__()
         if isinstance(learnable, str):
@@ -114,6 +120,11 @@ class DPA(nn.Module):
         for name in names:
             check_choice("learnable", name, LEARNABLE)
         self.learnable = tuple(name for name in LEARNABLE if name in names)
+        if not isinstance(equal_gain, bool):
+            raise TypeError(f"`equal_gain`: expected a bool, got {type(equal_gain).__name__}")
+        if equal_gain and not directional:
+            raise ValueError("`equal_gain`: expected False with directional=False (one matrix)")
+        self.equal_gain = equal_gain
         g = check_number("g", g, low=0.0, high=1.0)
         p = check_number("p", p, low=0.0)
         penalty_step = check_number("penalty_step", penalty_step, low=1.0)
@@ -204,10 +215,16 @@ class DPA(nn.Module):
 
     @property
     def weights(self) -> torch.Tensor:
-        """The current ``(D, k, k)`` probability matrices (rebuilt from ``p``, ``penalty_step``)."""
+        """The current ``(D, k, k)`` probability matrices.
+
+        Rebuilt from ``p`` and ``penalty_step`` when those are learnable, and rescaled by
+        :func:`~hocnet.dpa.matrices.equalize_gain` at the current ``g`` when ``equal_gain``.
+        """
         if self.fixed_weights is not None:
-            return self.fixed_weights
-        return _combine(self.base, self.turn_steps, self.p, self.penalty_step)
+            w = self.fixed_weights
+        else:
+            w = _combine(self.base, self.turn_steps, self.p, self.penalty_step)
+        return equalize_gain(w, self.g) if self.equal_gain else w
 
     def forward(self, frames: torch.Tensor) -> DPAState:
         """Run :func:`~hocnet.dpa.functional.accumulate` on ``frames``.
@@ -227,5 +244,5 @@ class DPA(nn.Module):
         w = self.weights
         return (
             f"window={w.shape[-1]}, D={w.shape[0]}, learnable={self.learnable}, "
-            f"smooth={self.smooth}"
+            f"smooth={self.smooth}, equal_gain={self.equal_gain}"
         )

@@ -29,6 +29,7 @@ __all__ = [
     "b_versus_g",
     "basic_matrix",
     "effective_memory",
+    "equalize_gain",
     "frame_matrix",
     "memory_line",
     "penalty_matrices",
@@ -487,6 +488,64 @@ def effective_memory(
         return target / (g * total + (1 - g) * peak)
     g = check_number("g", g, low=0.0, high=1.0)
     return target / (g * float(total) + (1 - g) * float(peak))
+
+
+def equalize_gain(weights: torch.Tensor, g: float | torch.Tensor) -> torch.Tensor:
+    r"""Rescale each direction's matrix so every direction has the per-step gain of direction 1.
+
+    The per-step gain (effective memory coefficient per unit ``b``, see
+    :func:`effective_memory`) of matrix ``W(d)`` is ``G_d = g * sum(W(d)) + (1 - g) * max(W(d))``.
+    This returns ``W'(d) = W(d) * G_1 / G_d``, so that ``b * G_1`` is the memory of *every*
+    direction, not only of direction 1.
+
+    Notes:
+        Beyond [NR08]. Eq. (5) normalises every ``W(d)`` to sum 1, which equalises the gains of
+        the sum recursion (``g = 1``) but not of the max recursion: with the defaults the flat
+        in-place matrix ``W(9)`` has half the maximum of the directed ones (5 x 5, ``v_max = 1``:
+        0.123 against 0.249), so a target that stays in its pixel, as the paper's sub-pixel
+        targets do in most frames, is accumulated with about half the memory that
+        :func:`effective_memory` promises. ``hocnet reproduce dpa-pd-snr`` measures the effect.
+        ``W(1)`` is unchanged, so :func:`effective_memory` and :func:`memory_line` (eq. 15) give
+        the same ``b`` for the equalised matrices. Differentiable in ``weights`` and ``g``.
+
+    Args:
+        weights: ``(D, k, k)`` non-negative matrices with ``D`` in {1, 9} (``D = 1`` is returned
+            as a copy) and a positive gain in every direction.
+        g: sum/max mixing factor in ``[0, 1]``, float or 0-dim tensor.
+
+    Returns:
+        ``(D, k, k)`` rescaled matrices in the dtype of ``weights``.
+
+    Raises:
+        ValueError: on a wrong shape, negative or non-finite weights, a direction with zero
+            gain, or ``g`` outside ``[0, 1]``.
+
+    Examples:
+        >>> w = equalize_gain(probability_matrices(5, v_max=1.0), 0.0)
+        >>> peaks = w.amax(dim=(1, 2))
+        >>> bool(torch.allclose(peaks, peaks[0].expand(9)))
+        True
+    """
+    _memory_weights(weights)  # type, float dtype, finite
+    w = weights if isinstance(weights, torch.Tensor) else torch.as_tensor(weights, torch.float64)
+    if w.dim() != 3 or w.shape[0] not in (1, N_DIRECTIONS):
+        raise ValueError(
+            f"`weights`: expected shape (D, k, k) with D in (1, 9), got {tuple(w.shape)}"
+        )
+    if bool((w < 0).any()):
+        raise ValueError(f"`weights`: expected non-negative values, got min {float(w.min()):g}")
+    if isinstance(g, torch.Tensor):
+        check_finite("g", g)
+        if g.numel() != 1 or not 0.0 <= float(g.detach()) <= 1.0:
+            raise ValueError(f"`g`: expected one value in [0, 1], got {g.detach().flatten()[:4]}")
+        g = g.reshape(()).to(device=w.device, dtype=w.dtype)
+    else:
+        g = check_number("g", g, low=0.0, high=1.0)
+    gain = g * w.sum(dim=(-2, -1)) + (1 - g) * w.amax(dim=(-2, -1))
+    if bool((gain <= 0).any()):
+        zero = torch.nonzero(gain <= 0).flatten().tolist()
+        raise ValueError(f"`weights`: expected a positive gain in every direction, got 0 at {zero}")
+    return w * (gain[0] / gain).view(-1, 1, 1)
 
 
 def memory_line(weights: torch.Tensor, target: float = 0.8) -> tuple[float, float]:

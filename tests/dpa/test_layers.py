@@ -4,7 +4,12 @@ from torch.func import functional_call
 
 from hocnet.dpa.functional import accumulate
 from hocnet.dpa.layers import DPA
-from hocnet.dpa.matrices import effective_memory, probability_matrices, var_table
+from hocnet.dpa.matrices import (
+    effective_memory,
+    equalize_gain,
+    probability_matrices,
+    var_table,
+)
 
 F64 = torch.float64
 
@@ -53,6 +58,24 @@ class TestDPA:
         expected = accumulate(frames, weights, 0.9, 0.4, var_table=table, smooth=0.2)
         torch.testing.assert_close(got.asf, expected.asf)
         assert torch.equal(got.direction, expected.direction)
+
+    def test_equal_gain(self):
+        frames = torch.randn(2, 4, 9, 8)
+        dpa = DPA(g=0.2, window=5, v_max=1.0, equal_gain=True)
+        weights = equalize_gain(probability_matrices(5, 1.0), 0.2)
+        torch.testing.assert_close(dpa.weights, weights)
+        assert dpa.b.item() == pytest.approx(effective_memory(weights, 0.2))
+        torch.testing.assert_close(dpa(frames).asf, accumulate(frames, weights, dpa.b, 0.2).asf)
+        assert "equal_gain=True" in repr(dpa)
+
+    def test_equal_gain_follows_learnable_g(self):
+        dpa = DPA(window=3, g=0.3, equal_gain=True, learnable=("g", "p")).double()
+        dpa(torch.randn(1, 3, 6, 6, dtype=F64)).asf.sum().backward()
+        assert float(dpa.g_raw.grad.abs()) > 0
+        with torch.no_grad():
+            dpa.g_raw.fill_(-3.0)
+        expected = equalize_gain(probability_matrices(3, p=dpa.p.item(), dtype=F64), dpa.g)
+        torch.testing.assert_close(dpa.weights, expected)
 
     def test_non_directional(self):
         dpa = DPA(window=5, directional=False)
@@ -148,6 +171,8 @@ class TestDPA:
             ({"smooth": -1.0}, ValueError, "`smooth`"),
             ({"memory": 0.0}, ValueError, "`memory`"),
             ({"directional": False, "var_table": var_table()}, ValueError, "`var_table`"),
+            ({"directional": False, "equal_gain": True}, ValueError, "`equal_gain`"),
+            ({"equal_gain": 1}, TypeError, "`equal_gain`"),
         ],
     )
     def test_exceptions(self, kwargs, error, match):

@@ -9,6 +9,7 @@ from hocnet.dpa.matrices import (
     b_versus_g,
     basic_matrix,
     effective_memory,
+    equalize_gain,
     frame_matrix,
     memory_line,
     penalty_matrices,
@@ -295,6 +296,63 @@ class TestEffectiveMemory:
     def test_bad_weights(self):
         with pytest.raises(ValueError, match="`weights`"):
             effective_memory(torch.ones(2, 2, 3, 3), 0.5)
+
+
+class TestEqualizeGain:
+    @pytest.mark.parametrize("g", [0.0, 0.3, 1.0])
+    @pytest.mark.parametrize("window, v_max", [(5, 1.0), (7, 2.5)])
+    def test_every_direction_has_the_gain_of_direction_1(self, g, window, v_max):
+        w = probability_matrices(window, v_max=v_max, dtype=F64)
+        out = equalize_gain(w, g)
+        gain = g * out.sum(dim=(1, 2)) + (1 - g) * out.amax(dim=(1, 2))
+        expected = g * w[0].sum() + (1 - g) * w[0].max()
+        torch.testing.assert_close(gain, expected.expand(9))
+        torch.testing.assert_close(out[0], w[0])
+        # a rescaling per direction: the shape of every matrix is kept
+        scale = out.amax(dim=(1, 2), keepdim=True) / w.amax(dim=(1, 2), keepdim=True)
+        torch.testing.assert_close(out, w * scale)
+
+    def test_in_place_matrix_gains_at_g0_only(self):
+        w = probability_matrices(5, v_max=1.0, dtype=F64)
+        assert float(equalize_gain(w, 0.0)[8].max()) == pytest.approx(float(w[0].max()))
+        assert float(w[8].max()) < 0.6 * float(w[0].max())  # why the rescaling matters
+        torch.testing.assert_close(equalize_gain(w, 1.0), w)  # sums are already equal
+
+    def test_effective_memory_unchanged(self):
+        w = probability_matrices(7, v_max=2.5, dtype=F64)
+        for g in (0.0, 0.5, 1.0):
+            assert effective_memory(equalize_gain(w, g), g) == pytest.approx(effective_memory(w, g))
+
+    def test_single_matrix_copy(self):
+        w = torch.rand(1, 3, 3, dtype=F64)
+        out = equalize_gain(w, 0.2)
+        torch.testing.assert_close(out, w)
+        assert out.data_ptr() != w.data_ptr()
+
+    def test_gradcheck(self):
+        w = (probability_matrices(3, dtype=F64) + 0.01).requires_grad_()
+        g = torch.tensor(0.4, dtype=F64, requires_grad=True)
+        assert torch.autograd.gradcheck(equalize_gain, (w, g))
+
+    @pytest.mark.parametrize(
+        "weights, g, match",
+        [
+            (torch.ones(2, 3, 3), 0.5, "`weights`: expected shape"),
+            (torch.ones(3, 3), 0.5, "`weights`: expected shape"),
+            (-torch.ones(9, 3, 3), 0.5, "`weights`: expected non-negative"),
+            (torch.zeros(9, 3, 3), 0.5, "`weights`: expected a positive gain"),
+            (torch.ones(9, 3, 3), 1.5, "`g`"),
+            (torch.ones(9, 3, 3), torch.tensor([0.1, 0.2]), "`g`"),
+            (torch.full((9, 3, 3), math.nan), 0.5, "`weights`"),
+        ],
+    )
+    def test_exceptions(self, weights, g, match):
+        with pytest.raises(ValueError, match=match):
+            equalize_gain(weights, g)
+
+    def test_type_error(self):
+        with pytest.raises(TypeError, match="`weights`"):
+            equalize_gain("matrices", 0.5)
 
 
 class TestMemoryLine:

@@ -107,8 +107,19 @@ class TestBSweep:
         assert time.perf_counter() - start < 60  # loose bound; a few seconds
         rows = check_outputs("dpa-b-sweep", md, tmp_path)
         sweep = [r for r in rows if r["table"] == "sweep"]
-        # 2 scenes x 2 matrices x (3 + 3) b values x 2 seeds
-        assert len(sweep) == 2 * 2 * 6 * 2
+        # 2 scenes x 4 matrices (2 + their equal-gain variants) x (3 + 3) b values x 2 seeds
+        assert len(sweep) == 2 * 4 * 6 * 2
+        # eq. (5) matrices sum to 1, so at g = 1 the equal-gain variant is the same recursion
+        for r in sweep:
+            if r["g"] == "1" and not r["matrix"].endswith(", equal gain"):
+                twin = [
+                    o
+                    for o in sweep
+                    if o["matrix"] == r["matrix"] + ", equal gain"
+                    and all(o[k] == r[k] for k in ("scene", "g", "b", "seed"))
+                ]
+                assert len(twin) == 1
+                assert float(twin[0]["a_s"]) == pytest.approx(float(r["a_s"]), rel=1e-5)
         assert {r["tracked"] for r in sweep} <= {"0", "1"}
         assert all(math.isfinite(float(r["a_s"])) for r in sweep)
         # b = 0 switches the accumulation off: A_S is the single frame's, whatever g or matrices
@@ -186,9 +197,15 @@ class TestPdSnr:
         rows = check_outputs("dpa-pd-snr", md, tmp_path)
         pd_rows = [r for r in rows if r["table"] == "pd"]
         assert {r["scene"] for r in pd_rows} == {"NPA-like", "clear-sky control"}
-        assert len(pd_rows) == 2 * 4 * len(set(module.QUICK_SNRS) | set(module.QUICK_FRAME_SNRS))
+        assert len(pd_rows) == 2 * 5 * len(set(module.QUICK_SNRS) | set(module.QUICK_FRAME_SNRS))
         methods = {r["method"] for r in pd_rows}
-        assert methods == {"single frame", "DPA g = 0", "DPA g = 1", "DPA tuned"}
+        assert methods == {
+            "single frame",
+            "DPA g = 0",
+            "DPA g = 0, equal gain",
+            "DPA g = 1",
+            "DPA tuned",
+        }
         for r in pd_rows:
             assert 0.0 <= float(r["pd"]) <= 1.0
             assert 0.0 <= float(r["pd_pixel_last"]) <= 1.0
