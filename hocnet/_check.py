@@ -137,16 +137,31 @@ def check_choice(name: str, value: Any, choices: Sequence[str]) -> str:
     return value
 
 
+#: Largest seed ``torch.Generator.manual_seed`` accepts (an unsigned 64-bit integer).
+MAX_SEED = 2**64 - 1
+
+
 def check_seed(name: str, seed: Any) -> int | None:
-    """Validate a seed: ``None`` or a non-negative integer.
+    """Validate a seed: ``None`` or an integer in ``[0, 2**64 - 1]``.
+
+    The upper bound is that of ``torch.Generator.manual_seed``; a larger seed would otherwise fail
+    inside torch with an overflow message that does not name the argument.
+
+    Raises:
+        TypeError: if ``seed`` is not an integer.
+        ValueError: if it is negative or larger than ``2**64 - 1``.
 
     Examples:
         >>> check_seed("seed", 3)
         3
+        >>> check_seed("seed", 2**70)
+        Traceback (most recent call last):
+        ...
+        ValueError: `seed`: expected an integer <= 18446744073709551615, got 1180591620717411303424
     """
     if seed is None:
         return None
-    return check_int(name, seed, minimum=0)
+    return check_int(name, seed, minimum=0, maximum=MAX_SEED)
 
 
 def check_finite(name: str, tensor: torch.Tensor) -> torch.Tensor:
@@ -203,6 +218,8 @@ def as_cube(
                 f"`{name}`: expected a tensor or array of shape (T, H, W) or (B, T, H, W), "
                 f"got {type(value).__name__}"
             ) from None
+    if value.dtype in _WIDE_UNSIGNED:
+        value = _unsigned_to_int64(name, value)
     if value.is_complex() or not (value.is_floating_point() or value.dtype in _INT_DTYPES):
         raise TypeError(f"`{name}`: expected a real or boolean tensor, got dtype {value.dtype}")
     if value.dim() not in (3, 4):
@@ -242,6 +259,30 @@ _INT_DTYPES = (
     torch.int32,
     torch.int64,
 )
+
+
+_WIDE_UNSIGNED = (torch.uint16, torch.uint32, torch.uint64)
+
+_INT64_MAX = 2**63 - 1
+
+
+def _unsigned_to_int64(name: str, value: torch.Tensor) -> torch.Tensor:
+    """Convert a uint16/32/64 tensor to int64, refusing values above ``2**63 - 1``.
+
+    torch has few kernels for the wide unsigned dtypes, and a plain cast of a uint64 above
+    ``2**63 - 1`` wraps to a negative number, so such values are refused, not converted.
+    """
+    if value.dtype == torch.uint64 and value.numel():
+        # no comparison kernels for uint64: test the sign bit of the int64 view instead
+        as_signed = value.view(torch.int64)
+        if bool((as_signed < 0).any()):
+            n_big = int((as_signed < 0).sum())
+            raise ValueError(
+                f"`{name}`: expected integer values that fit in int64 (<= {_INT64_MAX}), got "
+                f"{n_big} uint64 values above it; rescale or convert the data to float64 first"
+            )
+        return as_signed.clone()
+    return value.to(torch.int64)
 
 
 def restore_batch(tensor: torch.Tensor, batched: bool) -> torch.Tensor:

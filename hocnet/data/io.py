@@ -17,8 +17,10 @@ with one track per line.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import re
 import uuid
 import zipfile
 from collections.abc import Callable, Iterable, Mapping
@@ -56,18 +58,57 @@ def _atomic_write(path: Path, write: Callable[[IO[bytes]], None]) -> None:
     if path.is_dir():
         raise ValueError(f"`path`: expected a file name, got the directory '{path}'")
     tmp = directory / f".{path.name}.{uuid.uuid4().hex}.tmp"
-    # O_EXCL: never clobber anything; mode 0o666 lets the umask decide like a plain open().
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        # O_EXCL: never clobber anything; mode 0o666 lets the umask decide like a plain open().
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as err:
+        raise _write_error(path, err) from None
     try:
         with os.fdopen(fd, "wb") as handle:
             write(handle)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)
+    except OSError as err:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise _write_error(path, err) from None
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+# numpy reports a short write (a full disk) as "163840 requested and 159616 written", no errno
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written")
+
+
+def is_disk_full(err: BaseException) -> bool:
+    """Whether an ``OSError`` means the disk is full (``ENOSPC``, ``EDQUOT`` or a short write).
+
+    Examples:
+        >>> is_disk_full(OSError(errno.ENOSPC, "No space left on device"))
+        True
+        >>> is_disk_full(OSError("163840 requested and 159616 written"))
+        True
+        >>> is_disk_full(PermissionError(errno.EACCES, "Permission denied"))
+        False
+    """
+    if not isinstance(err, OSError):
+        return False
+    codes = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}
+    return err.errno in codes or bool(_SHORT_WRITE.search(str(err)))
+
+
+def _write_error(path: Path, err: OSError) -> OSError:
+    """An ``OSError`` naming the user's ``path`` (never the temporary file) and the cause."""
+    if is_disk_full(err):
+        reason, code = "no space left on device", errno.ENOSPC
+    else:
+        reason, code = (err.strerror or str(err) or type(err).__name__), err.errno
+    new = type(err)(f"`path`: could not write '{path}': {reason}")
+    new.errno = code
+    return new
 
 
 def load_cube(
@@ -82,14 +123,16 @@ def load_cube(
 
     Returns:
         The cube as stored, ``(T, H, W)`` or ``(B, T, H, W)``: its own dtype (unsigned integer
-        types wider than 8 bits become ``int64``), or ``bool`` if ``binary``.
+        types wider than 8 bits become ``int64``; values above ``2**63 - 1`` are refused, never
+        wrapped to negative numbers), or ``bool`` if ``binary``.
 
     Raises:
         FileNotFoundError: if ``path`` does not exist.
         TypeError: if ``path`` or ``key`` has the wrong type.
-        ValueError: wrong extension, unreadable file, missing or ambiguous ``key`` (the message
-            lists the archive's keys), wrong rank, NaN/inf, or non-binary values with
-            ``binary=True``. Every message names the path.
+        ValueError: wrong extension, a file that is not a valid .npy / .npz (such as a text
+            file; pickled objects are never loaded), missing or ambiguous ``key`` (the message
+            lists the archive's keys), wrong rank, NaN/inf, unsigned values that do not fit in
+            int64, or non-binary values with ``binary=True``. Every message names the path.
 
     Examples:
         >>> import tempfile, pathlib
@@ -108,11 +151,24 @@ def load_cube(
         raise FileNotFoundError(f"`path`: no such file '{p}'")
     readable = (OSError, ValueError, EOFError, zipfile.BadZipFile)
     try:
+        with open(p, "rb") as handle:
+            magic = handle.read(6)
+    except PermissionError:
+        raise
+    except OSError as err:
+        raise ValueError(f"`path`: could not read '{p}': {err.strerror or err}") from None
+    if not magic.startswith((_NPY_MAGIC, _ZIP_MAGIC)):
+        kind = "a valid .npy file" if suffix == ".npy" else "a valid .npz archive"
+        raise ValueError(
+            f"`path`: '{p}' is not {kind} (it does not start with the {suffix} signature); "
+            "save arrays with numpy.save / numpy.savez or hocnet.data.save_cube"
+        )
+    try:
         loaded = np.load(p, allow_pickle=False)
     except readable as err:
         if isinstance(err, PermissionError):
             raise
-        raise ValueError(f"`path`: could not read '{p}' as {suffix}: {err}") from None
+        raise ValueError(f"`path`: could not read '{p}' as {suffix}: {_why(err)}") from None
     if isinstance(loaded, np.lib.npyio.NpzFile):
         with loaded:
             if suffix == ".npy":
@@ -121,7 +177,9 @@ def load_cube(
             try:
                 array = loaded[key]
             except readable as err:
-                raise ValueError(f"`path`: could not read {key!r} from '{p}': {err}") from None
+                raise ValueError(
+                    f"`path`: could not read {key!r} from '{p}': {_why(err)}"
+                ) from None
     elif suffix == ".npz":
         raise ValueError(f"`path`: expected a .npz archive in '{p}', got a .npy array")
     else:
@@ -131,12 +189,30 @@ def load_cube(
     if not array.dtype.isnative:
         array = array.astype(array.dtype.newbyteorder("="))
     if array.dtype.kind == "u" and array.dtype.itemsize > 1:
+        top = int(array.max()) if array.size else 0
+        if top > np.iinfo(np.int64).max:
+            raise ValueError(
+                f"`path`: '{p}' holds {array.dtype} values up to {top}, above the int64 range "
+                f"(<= {np.iinfo(np.int64).max}); rescale the data or save it as float64"
+            )
         array = array.astype(np.int64)
     try:
         cube, batched = as_cube("cube", torch.as_tensor(array), binary=binary)
     except (TypeError, ValueError, RuntimeError) as err:
         raise ValueError(f"`path`: '{p}' does not hold a valid cube: {err}") from None
     return restore_batch(cube, batched)
+
+
+_NPY_MAGIC = b"\x93NUMPY"
+_ZIP_MAGIC = b"PK"
+
+
+def _why(err: BaseException) -> str:
+    """numpy's reason for a failed load, without its advice to load pickled data unsafely."""
+    text = str(err)
+    if "pickle" in text.lower():
+        return "it holds Python objects (pickled data), which hocnet never loads"
+    return text or type(err).__name__
 
 
 def _pick_key(path: Path, keys: list[str], key: str | None) -> str:
@@ -166,6 +242,8 @@ def save_cube(path: str | os.PathLike, cube: Any, *, key: str = "cube") -> None:
         TypeError: if ``path``, ``cube`` or ``key`` has the wrong type.
         ValueError: wrong extension, wrong rank, NaN/inf.
         FileNotFoundError: if the directory of ``path`` does not exist.
+        OSError: if the write fails; the message names ``path`` (never the temporary file) and
+            says "no space left on device" when the disk is full.
 
     Examples:
         >>> import tempfile, pathlib

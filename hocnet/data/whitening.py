@@ -18,7 +18,9 @@ Conventions:
   their average.
 * Frames are ``(B, T, H, W)`` or ``(T, H, W)``; each frame is filtered independently and the
   output has the input's shape. Floating inputs keep their dtype, integer or boolean inputs are
-  converted to float32. NaN/inf input is an error.
+  converted to float32. NaN/inf input is an error, and so are finite values so large that the
+  filter overflows the dtype (such as 3e38 in float32): the error says so and names ``frames``,
+  instead of handing on infinities that a later check would report as NaN/inf input.
 """
 
 from __future__ import annotations
@@ -118,6 +120,7 @@ def _anti_mean(frames: Any, kernel: torch.Tensor) -> torch.Tensor:
     weight = ring.to(padded.dtype) / -ring.sum().to(padded.dtype)
     weight[r, r] += 1.0
     out = F.conv2d(padded, weight[None, None])
+    _check_overflow("anti-mean", padded, out)
     return restore_batch(out.reshape(shape), batched)
 
 
@@ -132,7 +135,21 @@ def _anti_median(frames: Any, kernel: torch.Tensor) -> torch.Tensor:
         patches = F.unfold(padded[start : start + step], kernel.shape[-1])  # (n', k*k, H*W)
         median[start : start + step] = patches.index_select(1, ring).median(dim=1).values
     out = padded[:, 0, r : r + h, r : r + w] - median.reshape(n, h, w)
+    _check_overflow("anti-median", padded, out)
     return restore_batch(out.reshape(shape), batched)
+
+
+def _check_overflow(what: str, frames: torch.Tensor, out: torch.Tensor) -> None:
+    """Raise if the (finite) input overflowed the dtype inside the filter."""
+    if out.numel() and not bool(torch.isfinite(out).all()):
+        largest = float(frames.abs().max())
+        limit = torch.finfo(out.dtype).max
+        raise ValueError(
+            f"`frames`: values too large for {str(out.dtype).replace('torch.', '')} after "
+            f"{what} whitening (largest |value| {largest:.3g}, the dtype holds up to "
+            f"{limit:.3g}): {int((~torch.isfinite(out)).sum())} whitened values overflowed; "
+            "rescale the frames"
+        )
 
 
 def anti_mean(frames: torch.Tensor, outer: int = 7, inner: int = 3) -> torch.Tensor:
@@ -152,7 +169,7 @@ def anti_mean(frames: torch.Tensor, outer: int = 7, inner: int = 3) -> torch.Ten
     Raises:
         TypeError: non-numeric frames or non-integer sizes.
         ValueError: wrong rank, NaN/inf, even sizes, ``inner >= outer``, window larger than
-            the frame.
+            the frame, or values so large that the filter overflows the dtype.
 
     Examples:
         >>> frames = torch.zeros(2, 9, 9)
@@ -181,7 +198,7 @@ def anti_median(frames: torch.Tensor, outer: int = 7, inner: int = 3) -> torch.T
     Raises:
         TypeError: non-numeric frames or non-integer sizes.
         ValueError: wrong rank, NaN/inf, even sizes, ``inner >= outer``, window larger than
-            the frame.
+            the frame, or values so large that the filter overflows the dtype.
 
     Examples:
         >>> frames = torch.ones(3, 8, 8)

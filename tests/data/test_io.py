@@ -69,21 +69,51 @@ class TestLoadCube:
         with pytest.raises(TypeError, match="`path`"):
             load_cube(3)
 
-    @pytest.mark.parametrize("name", ["bad.npy", "bad.npz"])
-    def test_unreadable(self, tmp_path, name):
+    @pytest.mark.parametrize(
+        ("name", "kind"), [("bad.npy", "a valid .npy file"), ("bad.npz", "a valid .npz archive")]
+    )
+    def test_unreadable(self, tmp_path, name, kind):
         (tmp_path / name).write_bytes(b"definitely not numpy" * 5)
-        with pytest.raises(ValueError, match=rf"`path`: could not read .*{name}"):
+        with pytest.raises(ValueError, match=rf"`path`: '.*{name}' is not {kind}") as info:
             load_cube(tmp_path / name)
+        assert "pickle" not in str(info.value)
+
+    def test_text_file_named_npy_never_suggests_unsafe_loading(self, tmp_path):
+        # issue 9: numpy's own message advises allow_pickle=True for a text file
+        (tmp_path / "t.npy").write_text("1 2 3\n4 5 6\n")
+        with pytest.raises(ValueError, match=r"t\.npy' is not a valid \.npy file") as info:
+            load_cube(tmp_path / "t.npy")
+        assert "pickle" not in str(info.value).lower()
 
     def test_empty_file(self, tmp_path):
         (tmp_path / "e.npy").write_bytes(b"")
-        with pytest.raises(ValueError, match=r"`path`: could not read .*e\.npy"):
+        with pytest.raises(ValueError, match=r"`path`: '.*e\.npy' is not a valid \.npy file"):
             load_cube(tmp_path / "e.npy")
 
     def test_object_array(self, tmp_path):
         np.save(tmp_path / "o.npy", np.array([None, 1], dtype=object), allow_pickle=True)
-        with pytest.raises(ValueError, match=r"`path`: could not read .*o\.npy"):
+        with pytest.raises(ValueError, match=r"`path`: could not read .*o\.npy") as info:
             load_cube(tmp_path / "o.npy")
+        assert "allow_pickle" not in str(info.value)
+        assert "never loads" in str(info.value)
+
+    @pytest.mark.parametrize("dtype", [np.uint16, np.uint32, np.uint64])
+    def test_wide_unsigned_converted_exactly(self, tmp_path, dtype):
+        top = np.iinfo(dtype).max if dtype != np.uint64 else 2**63 - 1
+        array = np.zeros((2, 3, 3), dtype=dtype)
+        array[1, 2, 2] = top
+        np.save(tmp_path / "u.npy", array)
+        cube = load_cube(tmp_path / "u.npy")
+        assert cube.dtype == torch.int64
+        assert int(cube[1, 2, 2]) == int(top) and int(cube.min()) == 0
+
+    def test_uint64_above_int64_refused(self, tmp_path):
+        # issue 9: values above 2**63 loaded as negative numbers and the DPA ran on them
+        array = np.zeros((2, 3, 3), dtype=np.uint64)
+        array[0, 0, 0] = 2**63 + 5
+        np.save(tmp_path / "u.npy", array)
+        with pytest.raises(ValueError, match=r"u\.npy' holds uint64 values up to 9223372036854775813"):
+            load_cube(tmp_path / "u.npy")
 
     def test_format_mismatch(self, tmp_path):
         np.save(tmp_path / "a.npy", np.zeros((2, 3, 3)))
@@ -176,6 +206,28 @@ class TestSaveCube:
         monkeypatch.setattr(io_module.np, "save", broken_save)
         with pytest.raises(OSError, match="disk full"):
             save_cube(tmp_path / "c.npy", torch.zeros(2, 3, 3))
+        assert only_file(tmp_path) == []
+
+    @pytest.mark.parametrize(
+        "error",
+        [
+            OSError(28, "No space left on device"),
+            OSError("163840 requested and 159616 written"),  # numpy's short write
+        ],
+    )
+    def test_disk_full_names_the_path(self, tmp_path, monkeypatch, error):
+        # issue 9: a full disk said "163840 requested and 159616 written" and nothing else
+        def full_disk(handle, array, allow_pickle=False):
+            handle.write(b"\x93NUMPY partial")
+            raise error
+
+        monkeypatch.setattr(io_module.np, "save", full_disk)
+        target = tmp_path / "c.npy"
+        with pytest.raises(OSError, match=r"no space left on device") as info:
+            save_cube(target, torch.zeros(2, 3, 3))
+        assert f"'{target}'" in str(info.value)
+        assert ".tmp" not in str(info.value)
+        assert info.value.errno == 28
         assert only_file(tmp_path) == []
 
     def test_failing_write_keeps_old_file(self, tmp_path, monkeypatch):

@@ -198,6 +198,19 @@ class _WhiteningTests:
     def test_module_exceptions(self):
         with pytest.raises(ValueError, match="`outer`"):
             self.module(8, 3)
+
+    @pytest.mark.parametrize(
+        ("dtype", "big", "name"), [(torch.float32, 3e38, "float32"), (torch.float64, 1.7e308, "float64")]
+    )
+    def test_huge_finite_values_say_overflow(self, dtype, big, name):
+        # issue 9: finite but huge frames were reported later as "got 1848 NaN/inf entries"
+        frames = torch.full((2, 12, 12), -big, dtype=dtype)
+        frames[:, 6, 6] = big  # pixel minus ring estimate = 2 * big
+        assert torch.isfinite(frames).all()
+        with pytest.raises(ValueError, match=rf"`frames`: values too large for {name} after"):
+            self.fn(frames)
+        with pytest.raises(ValueError, match=r"values too large"):
+            self.module()(frames)
         with pytest.raises(ValueError, match="`outer`"):
             self.module(7, 3)(torch.zeros(2, 5, 5))
         with pytest.raises(ValueError, match="`frames`"):
