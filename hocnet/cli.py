@@ -95,11 +95,23 @@ class _Formatter(argparse.RawDescriptionHelpFormatter):
 Writer = Callable[[Path], None]
 
 
-def _check_out_dir(out: Path) -> Path:
+def _out_path(value: Any, flag: str = "--out") -> Path:
+    """The ``--out`` folder as a Path; an empty string (which would mean '.') is refused."""
+    if value is None:
+        raise CLIError(f"{flag}: expected a folder name, got none")
+    text = os.fspath(value)
+    if not str(text).strip():
+        raise CLIError(f"{flag}: expected a folder name, got an empty string {text!r}")
+    return Path(text)
+
+
+def _check_out_dir(out: Path | str) -> Path:
     """Reject an output path that can never become a directory, before any work is done."""
-    out = Path(out)
+    out = _out_path(out)
     if out.exists() and not out.is_dir():
         raise CLIError(f"--out: expected a directory, got the existing file '{out}'")
+    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
+        raise CLIError(f"--out: cannot write into '{out}': it is not writable")
     for parent in out.absolute().parents:
         if parent.exists():
             if not parent.is_dir():
@@ -110,38 +122,125 @@ def _check_out_dir(out: Path) -> Path:
     return out
 
 
-def _write_outputs(out: Path, writers: dict[str, Writer]) -> list[Path]:
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name the same file (real paths, symlinks and hard links resolved)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _check_destinations(
+    out: Path, names: Sequence[str], inputs: dict[str, Path] | None = None
+) -> None:
+    """Check every destination ``out/name`` before anything is written.
+
+    Refuses a destination that is an existing directory, or that is (after resolving real paths,
+    symlinks and hard links) one of the ``inputs`` (label -> path, such as ``CUBE`` or
+    ``--target-free``): no output may ever replace an input file, whatever its name.
+    """
+    out = _check_out_dir(out)
+    for name in names:
+        dest = out / name
+        if dest.is_dir():
+            raise CLIError(
+                f"--out: cannot write '{dest}': a directory of that name exists; "
+                "remove it or choose another --out"
+            )
+        for label, source in (inputs or {}).items():
+            if source is not None and _same_file(dest, Path(source)):
+                raise CLIError(
+                    f"--out: writing '{dest}' would replace the input {label} '{source}'; "
+                    "choose another --out"
+                )
+
+
+def _write_error(dest: Path, staged: Path, err: BaseException) -> CLIError:
+    """A one-line error about writing ``dest`` that never names the staging path."""
+    from hocnet.data.io import is_disk_full
+
+    if is_disk_full(err):
+        reason = "no space left on device"
+    elif isinstance(err, OSError) and err.strerror:
+        reason = err.strerror
+    else:
+        reason = _one_line(str(err) or type(err).__name__)
+        reason = reason.replace(str(staged), str(dest)).replace("`path`: ", "")
+        reason = re.sub(r"'[^']*\.tmp-[0-9a-f]+[^']*'", f"'{dest}'", reason)
+    return CLIError(f"--out: could not write '{dest}': {reason}")
+
+
+def _write_outputs(
+    out: Path, writers: dict[str, Writer], inputs: dict[str, Path] | None = None
+) -> list[Path]:
     """Write files into ``out`` all-or-nothing.
 
-    Each writer is called with its path inside a fresh temporary directory next to ``out``. If
-    every writer succeeds, the temporary directory is renamed to ``out`` (or, if ``out`` already
-    exists, its files are moved in one by one, replacing files of the same names). On failure the
-    temporary directory, and any parent directories created for it, are removed.
+    Every destination is checked first (:func:`_check_destinations`: no directory in the way, no
+    input replaced, the folder writable). Then each writer is called with its path inside a
+    fresh staging directory: next to ``out`` when ``out`` does not exist yet (it is then renamed
+    to ``out``), inside ``out`` otherwise (the same file system, so the renames are atomic). The
+    staged files are moved into ``out`` one by one; files of the same names already there are
+    first moved aside and put back if any step fails. On failure the staging directory and any
+    parent directories created for it are removed, and the error names the user's path.
 
     Returns:
         The final paths, in the order of ``writers``.
     """
     out = _check_out_dir(out)
+    _check_destinations(out, list(writers), inputs)
     created: Path | None = None
     for parent in [out.absolute(), *out.absolute().parents]:
         if parent.exists():
             break
         created = parent
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:12]}"
+    existed = out.is_dir()
+    tag = uuid.uuid4().hex[:12]
+    tmp = out / f".hocnet.tmp-{tag}" if existed else out.parent / f".{out.name}.tmp-{tag}"
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         tmp.mkdir()
+    except OSError as err:
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+        raise _write_error(out, tmp, err) from None
+    moved: list[str] = []
+    aside: list[str] = []
+    backup = tmp / ".previous"
+    try:
         for name, write in writers.items():
-            write(tmp / name)
-        if out.exists():
+            try:
+                write(tmp / name)
+            except (OSError, ValueError, TypeError) as err:
+                raise _write_error(out / name, tmp / name, err) from None
+        if existed:
+            backup.mkdir()
             for name in writers:
-                os.replace(tmp / name, out / name)
-            tmp.rmdir()
+                dest = out / name
+                try:
+                    if dest.exists() or dest.is_symlink():
+                        os.replace(dest, backup / name)
+                        aside.append(name)
+                    os.replace(tmp / name, dest)
+                    moved.append(name)
+                except OSError as err:
+                    raise _write_error(dest, tmp / name, err) from None
+            shutil.rmtree(tmp, ignore_errors=True)
         else:
-            os.rename(tmp, out)
+            try:
+                os.rename(tmp, out)
+            except OSError as err:
+                raise _write_error(out, tmp, err) from None
     except BaseException:
+        for name in moved:  # roll back: new files out, old files back
+            with contextlib.suppress(OSError):
+                os.unlink(out / name)
+        for name in aside:
+            with contextlib.suppress(OSError):
+                os.replace(backup / name, out / name)
         shutil.rmtree(tmp, ignore_errors=True)
-        if created is not None and created != out.absolute():
+        if created is not None:  # the parents made for the staging directory
             shutil.rmtree(created, ignore_errors=True)
         raise
     return [out / name for name in writers]
@@ -255,6 +354,38 @@ def _prepare_hoc(args: argparse.Namespace) -> dict[str, Any]:
 _PROGRESS_BATCH = 8
 
 
+#: Largest (M, M) move table (M = (2v + 1)**2 moves, float64) the command line lets HOC build.
+_MAX_MOVE_TABLE_BYTES = 2**31
+
+
+def _bound_hoc(cube: torch.Tensor, params: dict[str, Any]) -> None:
+    """Refuse at once what cannot work (an order or a velocity window too large for the cube).
+
+    An order k needs 2k + 1 scans; a move larger than the frame leaves it; and the (M, M) move
+    tables of a huge v (M = (2v + 1)**2 moves) would not fit in memory.
+    """
+    n_t, height, width = cube.shape[-3:]
+    order, v = params["order"], params["v"]
+    if 2 * order + 1 > n_t:
+        raise CLIError(
+            f"--order: expected at most (T - 1) // 2 = {(n_t - 1) // 2} for a cube of T = {n_t} "
+            f"scans (order k needs 2k + 1 scans), got {order}"
+        )
+    largest = max(height, width) - 1
+    if v > largest:
+        raise CLIError(
+            f"--v: expected at most max(H, W) - 1 = {largest} for frames of {height} x {width} "
+            f"(a larger move leaves the frame), got {v}"
+        )
+    moves = (2 * v + 1) ** 2
+    if 8 * moves * moves > _MAX_MOVE_TABLE_BYTES:
+        limit = int(((_MAX_MOVE_TABLE_BYTES / 8) ** 0.25 - 1) // 2)
+        raise CLIError(
+            f"--v: expected at most {limit} (the (2v + 1)^4 move tables of v = {v} would need "
+            f"{8 * moves * moves / 2**30:.0f} GiB), got {v}"
+        )
+
+
 def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     """Run :func:`hocnet.hoc.detect`; a large batch goes scene by scene with a progress bar.
 
@@ -266,6 +397,7 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
 
     from hocnet.hoc import HOCResult, detect
 
+    _bound_hoc(cube, params)
     kwargs = {
         "order": params["order"],
         "v": params["v"],
@@ -277,7 +409,10 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     if cube.dim() == 3 or cube.shape[0] < _PROGRESS_BATCH:
         return Detection(result=detect(cube, **kwargs), params=detection_params)
     parts = []
-    for b in _progress(range(cube.shape[0]), desc="hoc", total=cube.shape[0], min_items=0):
+    scenes = range(cube.shape[0])
+    for b in _progress(
+        scenes, desc="hoc", total=len(scenes), enabled=params.get("progress", False)
+    ):
         part = detect(cube[b], **kwargs)
         for track in part.tracks:
             track.batch = b
@@ -294,47 +429,75 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     return Detection(result=result, params=detection_params)
 
 
+def _preset_default(field_name: str, fmt: str = "{}") -> str:
+    """``recommended: X, paper: Y`` for a help text (read from :mod:`hocnet.dpa.presets`)."""
+    from hocnet.dpa.presets import PAPER, RECOMMENDED
+
+    def show(value: Any) -> str:
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        return "EMC" if value == "emc" else fmt.format(value)
+
+    rec, pap = getattr(RECOMMENDED, field_name), getattr(PAPER, field_name)
+    if rec == pap:
+        return f"default: {show(rec)} in both presets"
+    return f"default: {show(rec)} (--preset recommended), {show(pap)} (--preset paper)"
+
+
 def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
+    group.add_argument(
+        "--preset",
+        choices=("recommended", "paper"),
+        default=None,
+        help="the defaults of the DPA options below: 'recommended' = the pipeline our "
+        "experiments measured best for sub-pixel targets (hocnet.dpa.presets.RECOMMENDED), "
+        "'paper' = the settings of [NR08], which the library functions default to "
+        "(hocnet.dpa.presets.PAPER) (default: recommended)",
+    )
     group.add_argument(
         "--g",
         type=float,
         default=None,
         metavar="G",
-        help="sum/max mixing of eq. (11) of [NR08], in [0, 1] (default: 1)",
+        help=f"sum/max mixing of eq. (11) of [NR08], in [0, 1]: 0 = max, 1 = sum "
+        f"({_preset_default('g', '{:g}')}; note: DPA() defaults to 0.5)",
     )
     group.add_argument(
         "--b",
         type=float,
         default=None,
         metavar="B",
-        help="memory factor, >= 0 (default: the effective-memory b of eq. (12)-(14) for g)",
+        help="memory factor, >= 0 (default: the b of the effective-memory criterion (EMC), "
+        "eq. (12)-(14) of [NR08], for g)",
     )
     group.add_argument(
         "--window",
         type=int,
         default=None,
         metavar="K",
-        help="probability-matrix size, odd, at most the frame size (default: 7)",
+        help=f"probability-matrix size, odd, at most the frame size ({_preset_default('window')})",
     )
     group.add_argument(
         "--v-max",
         type=float,
         default=None,
         metavar="V",
-        help="largest target speed in pixels per frame, > 0 (default: 2.5)",
+        help=f"largest target speed in pixels per frame, > 0 ({_preset_default('v_max', '{:g}')})",
     )
     group.add_argument(
         "--equal-gain",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         default=None,
-        help="rescale the direction matrices to one per-step gain (beyond [NR08]; "
-        "recommended for sub-pixel targets that stay in place, see hocnet.dpa.equalize_gain)",
+        help="rescale the direction matrices to one per-step gain (our addition to [NR08], "
+        "for sub-pixel targets that stay in place, see hocnet.dpa.equalize_gain; "
+        f"{_preset_default('equal_gain')})",
     )
     group.add_argument(
         "--whiten",
         choices=("mean", "median", "none"),
         default=None,
-        help="anti-mean / anti-median whitening (7 x 7 ring, 3 x 3 guard) or none (default: mean)",
+        help="anti-mean / anti-median whitening (7 x 7 ring, 3 x 3 guard) or none "
+        f"({_preset_default('whitening')})",
     )
     group.add_argument(
         "--max-targets",
@@ -361,26 +524,35 @@ def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
         "--target-free",
         default=None,
         metavar="FILE",
-        help="target-free frames (.npy/.npz) for a CFAR threshold at --pfa",
+        help="target-free frames (.npy/.npz) for a CFAR (constant false-alarm rate) threshold "
+        "at --pfa",
     )
     group.add_argument(
         "--pfa",
         type=float,
         default=None,
         metavar="P",
-        help="false-alarm probability per pixel of the CFAR threshold (default: 1e-3)",
+        help="false-alarm probability (Pfa) per pixel of the CFAR threshold (default: 1e-3)",
     )
 
 
 def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
-    """Validate the DPA options (flag names in the messages) and fill in defaults."""
-    g = _check_number("--g", 1.0 if args.g is None else args.g, low=0.0, high=1.0)
-    b = None if args.b is None else _check_number("--b", args.b, low=0.0)
-    window = _check_int("--window", 7 if args.window is None else args.window, minimum=1)
+    """Validate the DPA options (flag names in the messages) and fill in the preset's defaults."""
+    from hocnet.dpa.presets import PRESETS
+
+    preset = PRESETS[args.preset or "recommended"]
+    g = _check_number("--g", preset.g if args.g is None else args.g, low=0.0, high=1.0)
+    if args.b is not None:
+        b = _check_number("--b", args.b, low=0.0)
+    else:
+        b = None if preset.b == "emc" else float(preset.b)
+    window = _check_int(
+        "--window", preset.window if args.window is None else args.window, minimum=1
+    )
     if window % 2 == 0:
         raise CLIError(f"--window: expected an odd integer, got {window}")
     v_max = _check_number(
-        "--v-max", 2.5 if args.v_max is None else args.v_max, low=0.0, low_inclusive=False
+        "--v-max", preset.v_max if args.v_max is None else args.v_max, low=0.0, low_inclusive=False
     )
     max_targets = _check_int(
         "--max-targets", 5 if args.max_targets is None else args.max_targets, minimum=1
@@ -408,20 +580,38 @@ def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
         try:
             target_free = load_cube(args.target_free)
         except (ValueError, TypeError, OSError) as err:
-            raise CLIError(str(err).replace("`path`", "--target-free")) from None
+            message = str(err).replace("`path`", "--target-free").replace("`cube`: ", "")
+            raise CLIError(message) from None
     return {
+        "preset": preset.name,
         "g": g,
         "b": b,
         "window": window,
         "v_max": v_max,
-        "whiten": args.whiten or "mean",
-        "equal_gain": bool(args.equal_gain),
+        "p": preset.p,
+        "penalty_step": preset.penalty_step,
+        "whiten": args.whiten or preset.whitening,
+        "equal_gain": preset.equal_gain if args.equal_gain is None else bool(args.equal_gain),
         "max_targets": max_targets,
         "nms_radius": nms_radius,
         "asf_threshold": threshold,
         "pfa": pfa,
         "target_free": target_free,
     }
+
+
+def _check_float32_range(cube: torch.Tensor, label: str) -> None:
+    """Refuse finite values that would become infinite in float32, in which the DPA computes."""
+    import torch
+
+    if cube.is_floating_point() and cube.dtype != torch.float32 and cube.numel():
+        largest = float(cube.abs().max())
+        limit = float(torch.finfo(torch.float32).max)
+        if largest > limit:
+            raise CLIError(
+                f"{label}: values too large for float32, in which the DPA computes (largest "
+                f"|value| {largest:.3g}, float32 holds up to {limit:.3g}); rescale the frames"
+            )
 
 
 def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
@@ -434,6 +624,9 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     from hocnet.dpa.backtrack import detect
     from hocnet.plot import plot_dpa
 
+    _check_float32_range(cube, "CUBE")
+    if params["target_free"] is not None:
+        _check_float32_range(params["target_free"], "--target-free")
     frames = cube.float()
     height, width = frames.shape[-2:]
     window = params["window"]
@@ -457,7 +650,9 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
             return x.float()
 
     white = whitened(frames)
-    weights = probability_matrices(window=window, v_max=params["v_max"])
+    weights = probability_matrices(
+        window=window, v_max=params["v_max"], p=params["p"], penalty_step=params["penalty_step"]
+    )
     if params["equal_gain"]:
         weights = equalize_gain(weights, params["g"])
     b = params["b"]
@@ -520,6 +715,7 @@ _METHODS: dict[str, _Method] = {
         help="dynamic-programming track-before-detect of [NR08] (float frames)",
         add_options=_add_dpa_options,
         option_dests=(
+            "preset",
             "g",
             "b",
             "window",
@@ -699,9 +895,20 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     seed = _check_int("--seed", args.seed, minimum=0)
     density = _check_number("--density", args.density, low=0.0, high=1.0)
     order = _check_int("--order", args.order, minimum=1)
-    out = _check_out_dir(Path(args.out))
+    out = _check_out_dir(args.out)
+    names = [] if args.no_plot else ["demo_before_after.png", "demo_3d.png", "demo_dpa.png"]
+    _check_destinations(out, names)
 
+    stages = _Stages(["scene", "hoc", "dpa", "write"], enabled=_show_progress(args))
+    stages.__enter__()
+    stages.next("simulate the scene")
     scene = paper_scene("table3", density, seed=seed)
+    if 2 * order + 1 > scene.cube.shape[0]:
+        raise CLIError(
+            f"--order: expected at most {(scene.cube.shape[0] - 1) // 2} for the demo's "
+            f"{scene.cube.shape[0]} scans (order k needs 2k + 1 scans), got {order}"
+        )
+    stages.next("hoc")
     start = time.perf_counter()
     result = detect(scene.cube, order=order)
     runtime = time.perf_counter() - start
@@ -761,10 +968,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     )
     print(f"Runtime: {runtime:.2f} s (HOC support + track identification)")
     if not args.no_dpa:
+        stages.next("dpa")
         _demo_dpa(seed, writers, plot=not args.no_plot)
-    if writers:
-        for path in _write_outputs(out, writers):
-            print(f"wrote {path}")
+    stages.next("write")
+    paths = _write_outputs(out, writers) if writers else []
+    stages.__exit__()
+    for path in paths:
+        print(f"wrote {path}")
     return 0
 
 
@@ -780,68 +990,88 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     from hocnet.plot import plot_before_after
 
     method, params = _prepare_method(args)
-    out = _check_out_dir(Path(args.out))
-    try:
-        cube = load_cube(args.cube, key=args.key, binary=method.binary)
-    except (ValueError, TypeError, OSError) as err:
-        message = str(err).replace("`path`", "CUBE").replace("`key`", "--key")
-        raise CLIError(message.replace("`cube`: ", "")) from None
-    batched = cube.dim() == 4
-
-    start = time.perf_counter()
-    detection = method.run(cube, params)
-    runtime = time.perf_counter() - start
-    result = detection.result
-    tracks = list(result.tracks)
-    support, cleaned = result.support, result.cleaned
-
-    points_in, points_support, points_kept = (
-        int(c.sum()) if c.dtype == torch.bool else None for c in (cube, support, cleaned)
-    )
-    meta: dict[str, Any] = {
-        "method": method.name,
-        **detection.params,
-        "input": str(Path(args.cube).resolve()),
-        "input_shape": list(cube.shape),
-    }
-    if method.binary:
-        meta.update(points_in=points_in, points_support=points_support, points_out=points_kept)
-    else:
-        meta["track_pixels"] = points_kept
-    if args.key is not None:
-        meta["key"] = args.key
-    if batched:
-        meta["track_batch"] = [int(tr.batch) for tr in tracks]
-
-    writers: dict[str, Writer] = {
-        "tracks.json": lambda path: save_tracks_json(path, tracks, **meta),
-    }
-    if detection.outputs is not None:
-        writers.update(
-            {
-                k: w
-                for k, w in detection.outputs.items()
-                if not (args.no_plot and k.endswith(".png"))
-            }
-        )
-    else:
-        writers["cleaned.npy"] = lambda path: save_cube(path, cleaned)
-        writers["support.npy"] = lambda path: save_cube(path, support)
-    if detection.outputs is None and not args.no_plot:
-        scenes = range(cube.shape[0]) if batched else [None]
-        progress = _progress(scenes, desc="plotting", total=len(scenes), min_items=8)
-        for b in progress:
-            one = result if b is None else _select(result, b)
-            frames = cube if b is None else cube[b]
-            label = "" if b is None else f" (batch element {b})"
-            fig = plot_before_after(
-                frames,
-                one,
-                title=f"{method.name.upper()} detection in {Path(args.cube).name}{label}",
+    out = _check_out_dir(args.out)
+    inputs = {"CUBE": Path(args.cube)}
+    if getattr(args, "target_free", None) is not None:
+        inputs["--target-free"] = Path(args.target_free)
+    # the fixed names are checked now, before any work; the full list again before writing
+    _check_destinations(out, ["tracks.json", "cleaned.npy", "support.npy", "asf.npy"], inputs)
+    stages = _Stages(["load", method.name, "pictures", "write"], enabled=_show_progress(args))
+    with stages:
+        stages.next("load")
+        try:
+            cube = load_cube(args.cube, key=args.key, binary=method.binary)
+        except (ValueError, TypeError, OSError) as err:
+            message = str(err).replace("`path`", "CUBE").replace("`key`", "--key")
+            raise CLIError(message.replace("`cube`: ", "")) from None
+        batched = cube.dim() == 4
+        if batched and cube.shape[0] == 0:
+            raise CLIError(
+                f"CUBE: '{args.cube}' holds a batch of 0 scenes (shape {tuple(cube.shape)}); "
+                "nothing to detect"
             )
-            writers["detection.png" if b is None else f"detection_{b:03d}.png"] = _png_writer(fig)
 
-    paths = _write_outputs(out, writers)
+        stages.next(f"{method.name} on {' x '.join(map(str, cube.shape))}")
+        start = time.perf_counter()
+        params["progress"] = stages.enabled
+        detection = method.run(cube, params)
+        params.pop("progress", None)
+        detection.params.pop("progress", None)
+        runtime = time.perf_counter() - start
+        result = detection.result
+        tracks = list(result.tracks)
+        support, cleaned = result.support, result.cleaned
+
+        points_in, points_support, points_kept = (
+            int(c.sum()) if c.dtype == torch.bool else None for c in (cube, support, cleaned)
+        )
+        meta: dict[str, Any] = {
+            "method": method.name,
+            **detection.params,
+            "input": str(Path(args.cube).resolve()),
+            "input_shape": list(cube.shape),
+        }
+        if method.binary:
+            meta.update(points_in=points_in, points_support=points_support, points_out=points_kept)
+        else:
+            meta["track_pixels"] = points_kept
+        if args.key is not None:
+            meta["key"] = args.key
+        if batched:
+            meta["track_batch"] = [int(tr.batch) for tr in tracks]
+
+        writers: dict[str, Writer] = {
+            "tracks.json": lambda path: save_tracks_json(path, tracks, **meta),
+        }
+        if detection.outputs is not None:
+            writers.update(
+                {
+                    k: w
+                    for k, w in detection.outputs.items()
+                    if not (args.no_plot and k.endswith(".png"))
+                }
+            )
+        else:
+            writers["cleaned.npy"] = lambda path: save_cube(path, cleaned)
+            writers["support.npy"] = lambda path: save_cube(path, support)
+        if detection.outputs is None and not args.no_plot:
+            stages.next("pictures")
+            scenes = range(cube.shape[0]) if batched else [None]
+            progress = _progress(scenes, desc="pictures", total=len(scenes), enabled=stages.enabled)
+            for b in progress:
+                one = result if b is None else _select(result, b)
+                frames = cube if b is None else cube[b]
+                label = "" if b is None else f" (batch element {b})"
+                fig = plot_before_after(
+                    frames,
+                    one,
+                    title=f"{method.name.upper()} detection in {Path(args.cube).name}{label}",
+                )
+                name = "detection.png" if b is None else f"detection_{b:03d}.png"
+                writers[name] = _png_writer(fig)
+
+        stages.next("write")
+        paths = _write_outputs(out, writers, inputs)
     if detection.summary is not None:
         print(f"{detection.summary} ({runtime:.2f} s)")
     else:
@@ -864,13 +1094,65 @@ def _select(result: Any, b: int) -> Any:
     )
 
 
-def _progress(items: Any, *, desc: str, total: int, min_items: int) -> Any:
-    """A tqdm bar on stderr when there are at least ``min_items`` items, else the items."""
-    if total < min_items:
+#: Seconds a run must last before its progress bar appears ("longer than a few seconds").
+PROGRESS_DELAY = 2.0
+
+
+def _show_progress(args: argparse.Namespace) -> bool:
+    """Progress bars on stderr unless ``--quiet`` or stderr is not a terminal."""
+    if getattr(args, "quiet", False):
+        return False
+    isatty = getattr(sys.stderr, "isatty", None)
+    return bool(isatty and isatty())
+
+
+def _progress(items: Any, *, desc: str, total: int, enabled: bool) -> Any:
+    """A tqdm bar on stderr (shown after :data:`PROGRESS_DELAY` seconds) when ``enabled``."""
+    if not enabled:
         return items
     from tqdm import tqdm
 
-    return tqdm(items, desc=desc, total=total, leave=False, file=sys.stderr)
+    return tqdm(items, desc=desc, total=total, leave=False, file=sys.stderr, delay=PROGRESS_DELAY)
+
+
+class _Stages:
+    """A stage-level progress bar (load, detect, pictures, write) on stderr.
+
+    It appears only when a run lasts longer than :data:`PROGRESS_DELAY` seconds, and never when
+    disabled (``--quiet``, or stderr not a terminal).
+    """
+
+    def __init__(self, names: Sequence[str], *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._total = len(names)
+        self._bar: Any = None
+        self._started = False
+
+    def __enter__(self) -> _Stages:
+        if self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=self._total,
+                leave=False,
+                file=sys.stderr,
+                delay=PROGRESS_DELAY,
+                bar_format="{desc}: stage {n_fmt}/{total_fmt} [{elapsed}]",
+            )
+        return self
+
+    def next(self, desc: str) -> None:
+        """Start the next stage."""
+        if self._bar is None:
+            return
+        if self._started:
+            self._bar.update(1)
+        self._started = True
+        self._bar.set_description_str(desc)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
 
 
 # --------------------------------------------------------------------------------------------
@@ -1006,11 +1288,23 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
             print(f"{file_name}: could not import ({error})", file=sys.stderr)
         return 0
     experiment = _find_experiment(folder, args.name)
-    out_dir = None if args.out is None else _check_out_dir(Path(args.out))
+    if args.out is not None:
+        out_dir = _check_out_dir(args.out)
+    elif args.quick:
+        # a quick (smoke) run never replaces the committed full results in experiments/results/:
+        # it writes to a fresh temporary folder unless --out is given by hand
+        import tempfile
+
+        out_dir = Path(tempfile.mkdtemp(prefix=f"hocnet-{experiment.name}-quick-"))
+    else:
+        out_dir = None
     start = time.perf_counter()
-    written = experiment.run(quick=args.quick, seeds=seeds, out_dir=out_dir, progress=True)
+    written = experiment.run(
+        quick=args.quick, seeds=seeds, out_dir=out_dir, progress=_show_progress(args)
+    )
     runtime = time.perf_counter() - start
-    print(f"{experiment.name}: done in {runtime:.1f} s; results in {written}")
+    note = " (quick run: the committed results were not touched)" if args.quick else ""
+    print(f"{experiment.name}: done in {runtime:.1f} s; results in {written}{note}")
     return 0
 
 
@@ -1019,26 +1313,56 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------
 
 _DETECT_EPILOG = """\
-input:
-  CUBE is a .npy file or a .npz archive (pick the array with --key if it holds several) with a
-  binary cube (bool or 0/1) of shape (T, H, W) = (scans, rows y, columns x), or a batch
-  (B, T, H, W) of such cubes.
+methods:
+  hoc  the modified high-order correlation (HOC) of [LA98] on a BINARY cube: bool or 0/1
+       values, shape (T, H, W) = (scans, rows y, columns x), or a batch (B, T, H, W).
+  dpa  the dynamic-programming track-before-detect (DPA) of [NR08] on INTENSITY frames: real
+       numbers (e.g. an infrared sequence), same shapes. The frames are whitened, the
+       accumulated score function (ASF) is built frame by frame, its last-frame peaks are
+       back-tracked into tracks. Its defaults come from --preset (see below).
 
-outputs (in --out DIR):
+input:
+  CUBE is a .npy file or a .npz archive (pick the array with --key if it holds several).
+  Make one from your own frames with numpy.save("cube.npy", array) or
+  hocnet.data.save_cube("cube.npy", array) (see README, "Your own data").
+
+outputs of --method hoc (in --out DIR):
   tracks.json   the tracks: {"meta": {...}, "tracks": [{"id", "score", "points": [[t, y, x], ...]}]}
                 meta holds the method and its parameters (delta in degrees), the input path and
                 shape, and points_in / points_support / points_out
   cleaned.npy   bool cube of the points on the identified tracks, shaped like the input
   support.npy   bool cube of the points on at least one accepted HOC chain, shaped like the input
   detection.png input points next to the detection
-  Batched (B, T, H, W) input gives ONE set of files with the batch axis: cleaned.npy and
-  support.npy are (B, T, H, W), track ids run over the whole batch and meta["track_batch"][i] is
-  the batch element of the i-th track; one picture per element, detection_000.png, ...
-  (--no-plot skips them). Files of the same names already in DIR are replaced. Nothing is written
-  if the input or an option is invalid.
 
-example:
+outputs of --method dpa (in --out DIR):
+  tracks.json   the back-tracked tracks (one point per frame, score = last-frame ASF value);
+                meta holds the preset and every parameter used (b, threshold_used, cfar)
+  asf.npy       the accumulated score function, float32, shaped like the input
+  detection.png the whitened last frame, the last-frame ASF, and each track with its score
+
+  Batched (B, T, H, W) input gives ONE set of files with the batch axis; track ids run over
+  the whole batch and meta["track_batch"][i] is the batch element of the i-th track; one picture
+  per element, detection_000.png, ... (--no-plot skips them). Files of the same names already in
+  DIR are replaced; an output never replaces an input file (CUBE, --target-free). Nothing is
+  written if the input or an option is invalid, and either every file is written or none.
+
+defaults (--method dpa):
+  The library functions (hocnet.dpa.probability_matrices, accumulate, DPA) default to the
+  settings of [NR08] (hocnet.dpa.presets.PAPER). This command defaults to the pipeline our
+  experiments measured best for sub-pixel targets (hocnet.dpa.presets.RECOMMENDED: 5 x 5
+  matrices, v-max 1, g = 0, EMC b, equal gain, anti-mean whitening); --preset paper switches.
+
+references:
+  [LA98] R.-J. Liou, M. R. Azimi-Sadjadi, Multiple target detection using modified high order
+         correlations, IEEE Trans. Aerospace and Electronic Systems 34(2), 1998.
+  [NR08] O. Nichtern, S. R. Rotman, Parameter adjustment for a dynamic programming
+         track-before-detect-based target detection algorithm, EURASIP J. Adv. Signal
+         Process. 2008.
+
+examples:
   hocnet detect scans.npz --key cube --method hoc --order 2 --v 4 --delta 45 --out results
+  hocnet detect frames.npy --method dpa --out results
+  hocnet detect frames.npy --method dpa --preset paper --g 1 --out results
 """
 
 _REPRODUCE_EPILOG = f"""\
@@ -1052,8 +1376,14 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``hocnet`` argument parser (exposed for documentation and tests)."""
     parser = _Parser(
         prog=PROG,
-        description="Track-before-detect for dim multiple moving targets: modified high-order\n"
-        "correlation (HOC) of [LA98] on binary multi-scan cubes.",
+        description="Track-before-detect for dim multiple moving targets:\n"
+        "  hoc  the modified high-order correlation (HOC) of [LA98] on BINARY multi-scan cubes\n"
+        "       (outputs: tracks.json, cleaned.npy, support.npy, detection.png);\n"
+        "  dpa  the dynamic-programming track-before-detect (DPA) of [NR08] on INTENSITY\n"
+        "       frames such as infrared sequences (outputs: tracks.json, asf.npy,\n"
+        "       detection.png).\n"
+        "[LA98] Liou & Azimi-Sadjadi, IEEE TAES 34(2), 1998; [NR08] Nichtern & Rotman,\n"
+        "EURASIP JASP 2008.",
         epilog="Run 'hocnet COMMAND --help' for the options of each command.",
         formatter_class=_Formatter,
     )
@@ -1091,13 +1421,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--no-plot", action="store_true", help="print the summary only, no PNGs")
     demo.add_argument("--no-dpa", action="store_true", help="skip the DPA part of the demo")
+    demo.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bars (also off when stderr is not a terminal)",
+    )
     demo.set_defaults(func=_cmd_demo)
 
     detect = commands.add_parser(
         "detect",
-        help="detect tracks in your own binary cube (.npy/.npz)",
-        description="Detect the tracks of moving targets in a binary multi-scan cube; write the\n"
-        "tracks (JSON), the cleaned cube, the support cube and a picture.",
+        help="detect tracks in your own data (.npy/.npz): HOC on binary cubes, DPA on frames",
+        description="Detect the tracks of moving targets in your own data: --method hoc (the\n"
+        "default) on a binary multi-scan cube, --method dpa on intensity frames. Writes the\n"
+        "tracks (JSON) and, per method, the cleaned and support cubes (hoc) or the accumulated\n"
+        "score function (dpa), and a picture.",
         epilog=_DETECT_EPILOG,
         formatter_class=_Formatter,
     )
@@ -1123,6 +1461,12 @@ def build_parser() -> argparse.ArgumentParser:
         method.add_options(
             detect.add_argument_group(f"{method.name} options (--method {method.name})")
         )
+    detect.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bars (also off when stderr is not a terminal)",
+    )
     detect.set_defaults(func=_cmd_detect)
 
     reproduce = commands.add_parser(
@@ -1135,7 +1479,10 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("name", nargs="?", metavar="NAME", help="experiment name")
     reproduce.add_argument("--list", action="store_true", help="list the experiments and exit")
     reproduce.add_argument(
-        "--quick", action="store_true", help="small, fast version (fewer scenes / seeds)"
+        "--quick",
+        action="store_true",
+        help="small, fast smoke version (fewer scenes / seeds); writes to a new temporary folder "
+        "unless --out is given, never over the committed experiments/results/",
     )
     reproduce.add_argument(
         "--seeds",
@@ -1145,9 +1492,19 @@ def build_parser() -> argparse.ArgumentParser:
         help="number of seeds (default: the script's)",
     )
     reproduce.add_argument(
-        "--out", default=None, metavar="DIR", help="output folder (default: the script's)"
+        "--out",
+        default=None,
+        metavar="DIR",
+        help="output folder (default: experiments/results/ for a full run, a new temporary "
+        "folder for --quick)",
     )
     reproduce.add_argument("--experiments-dir", default=None, help=argparse.SUPPRESS)
+    reproduce.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bars (also off when stderr is not a terminal)",
+    )
     reproduce.set_defaults(func=_cmd_reproduce)
     return parser
 
@@ -1156,8 +1513,68 @@ def _one_line(message: str) -> str:
     return " ".join(str(message).split()) or "unknown error"
 
 
-def _fail(message: str) -> int:
-    message = re.sub(r"`(--[\w-]+)`", r"\1", _one_line(message))  # `--v`: -> --v:
+# API argument names -> what the user typed, per command (and method). The one place where a
+# library message ("`target_free`: expected ...") becomes a command-line one ("--target-free:").
+_FLAGS_COMMON = {"path": "CUBE", "cube": "CUBE", "frames": "CUBE", "x": "CUBE", "key": "--key"}
+_FLAGS: dict[str, dict[str, str]] = {
+    "hoc": {
+        **_FLAGS_COMMON,
+        "order": "--order",
+        "v": "--v",
+        "delta": "--delta",
+        "threshold": "--threshold",
+        "min_points": "--min-points",
+    },
+    "dpa": {
+        **_FLAGS_COMMON,
+        "g": "--g",
+        "b": "--b",
+        "window": "--window",
+        "v_max": "--v-max",
+        "equal_gain": "--equal-gain",
+        "max_targets": "--max-targets",
+        "nms_radius": "--nms-radius",
+        "threshold": "--asf-threshold",
+        "target_free": "--target-free",
+        "pfa": "--pfa",
+        "weights": "the probability matrices of --window / --v-max",
+    },
+    "demo": {"seed": "--seed", "density": "--density", "order": "--order"},
+    "reproduce": {"seeds": "--seeds", "quick": "--quick", "out_dir": "--out"},
+}
+
+
+def _to_flags(message: str, flags: dict[str, str]) -> str:
+    """Replace the backquoted API names of a library message by the command line's names.
+
+    Examples:
+        >>> _to_flags("`target_free`: expected (T, H, W), got (2, 3)", _FLAGS["dpa"])
+        '--target-free: expected (T, H, W), got (2, 3)'
+        >>> _to_flags("`--v`: expected an integer >= 1, got 0", {})
+        '--v: expected an integer >= 1, got 0'
+    """
+
+    def swap(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if name.startswith("--"):
+            return name
+        base = re.sub(r"\[.*$", "", name)  # tracks[3].id -> tracks
+        return flags.get(base, match.group(0)) if base == name else match.group(0)
+
+    return re.sub(r"`([^`\s]+)`", swap, message)
+
+
+def _flags_of(args: argparse.Namespace | None) -> dict[str, str]:
+    if args is None:
+        return {}
+    command = getattr(args, "command", None)
+    if command == "detect":
+        return _FLAGS.get(getattr(args, "method", "hoc"), {})
+    return _FLAGS.get(command or "", {})
+
+
+def _fail(message: str, flags: dict[str, str] | None = None) -> int:
+    message = _to_flags(_one_line(message), flags or {})
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2
 
@@ -1177,6 +1594,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         2
     """
     parser = build_parser()
+    args = None
     try:
         try:
             args = parser.parse_args(argv)
@@ -1184,11 +1602,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             return exit_.code if isinstance(exit_.code, int) else 0
         return int(args.func(args))
     except CLIError as err:
-        return _fail(str(err))
-    except (ValueError, TypeError, OSError) as err:
+        return _fail(str(err), _flags_of(args))
+    except (ValueError, TypeError, OSError, OverflowError) as err:
         if os.environ.get(DEBUG_ENV):
             raise
-        return _fail(str(err) or type(err).__name__)
+        from hocnet.data.io import is_disk_full
+
+        if is_disk_full(err):
+            where = f" '{err.filename}'" if getattr(err, "filename", None) else ""
+            return _fail(f"no space left on device{where}: {err}", _flags_of(args))
+        return _fail(str(err) or type(err).__name__, _flags_of(args))
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
