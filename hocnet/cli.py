@@ -624,9 +624,9 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     from hocnet.dpa.backtrack import detect
     from hocnet.plot import plot_dpa
 
-    _check_float32_range(cube, "CUBE")
+    _check_float32_range(cube, "`frames`")
     if params["target_free"] is not None:
-        _check_float32_range(params["target_free"], "--target-free")
+        _check_float32_range(params["target_free"], "`target_free`")
     frames = cube.float()
     height, width = frames.shape[-2:]
     window = params["window"]
@@ -660,7 +660,10 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         b = float(effective_memory(weights, params["g"]))
     target_free = params["target_free"]
     if target_free is not None:
-        target_free = whitened(target_free)
+        try:
+            target_free = whitened(target_free)
+        except ValueError as err:  # name the right input
+            raise ValueError(str(err).replace("`frames`", "`target_free`")) from None
     found = detect(
         white,
         weights,
@@ -1569,7 +1572,10 @@ def _flags_of(args: argparse.Namespace | None) -> dict[str, str]:
         return {}
     command = getattr(args, "command", None)
     if command == "detect":
-        return _FLAGS.get(getattr(args, "method", "hoc"), {})
+        flags = dict(_FLAGS.get(getattr(args, "method", "hoc"), {}))
+        for name in ("cube", "frames", "x"):  # the input named with its path
+            flags[name] = f"CUBE '{args.cube}'"
+        return flags
     return _FLAGS.get(command or "", {})
 
 

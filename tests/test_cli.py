@@ -1,3 +1,4 @@
+import io
 import json
 import math
 import os
@@ -341,6 +342,7 @@ class TestDetect:
 
 EXPERIMENT = '''\
 """A fake experiment."""
+import io
 import json
 from pathlib import Path
 
@@ -633,3 +635,270 @@ class TestHelp:
         )
         assert done.returncode == 0, done.stderr
         assert "usage: hocnet" in done.stdout and "reproduce" in done.stdout
+
+
+# --------------------------------------------------------------------------------------------
+# issue 9: a user's data is never lost, every bad input gets a clear answer
+# --------------------------------------------------------------------------------------------
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file under ``folder`` (relative path -> bytes); symlinks by their target."""
+    out = {}
+    for path in sorted(folder.rglob("*")):
+        key = str(path.relative_to(folder))
+        if path.is_symlink():
+            out[key] = b"-> " + os.readlink(path).encode()
+        elif path.is_file():
+            out[key] = path.read_bytes()
+        else:
+            out[key] = b"<dir>"
+    return out
+
+
+class TestNoDataLoss:
+    @pytest.mark.parametrize("name", ["cleaned.npy", "support.npy"])
+    def test_output_never_replaces_the_input(self, tmp_path, capsys, scene, name):
+        # issue 9: `hocnet detect own/cleaned.npy --out own` overwrote the input
+        own = tmp_path / "own"
+        own.mkdir()
+        save_cube(own / name, scene.cube)
+        before = snapshot(tmp_path)
+        code = main(["detect", str(own / name), "--out", str(own)])
+        line = assert_one_line_error(capsys, code, rf"--out: writing '.*{name}' would replace")
+        assert "input CUBE" in line
+        assert snapshot(tmp_path) == before
+
+    def test_output_never_replaces_the_input_through_a_symlink(self, tmp_path, capsys, scene):
+        data = tmp_path / "data"
+        data.mkdir()
+        save_cube(data / "scene.npy", scene.cube)
+        out = tmp_path / "out"
+        out.mkdir()
+        (out / "cleaned.npy").symlink_to(data / "scene.npy")
+        before = snapshot(tmp_path)
+        # the input given through another symlinked folder, too
+        (tmp_path / "alias").symlink_to(data)
+        before["alias"] = b"-> " + str(data).encode()
+        code = main(["detect", str(tmp_path / "alias" / "scene.npy"), "--out", str(out)])
+        assert_one_line_error(capsys, code, r"would replace the input CUBE")
+        assert snapshot(tmp_path) == before
+
+    def test_output_never_replaces_the_target_free_input(
+        self, tmp_path, capsys, frames_file, ir_sequence
+    ):
+        out = tmp_path / "out"
+        out.mkdir()
+        save_cube(out / "asf.npy", ir_sequence.target_free)
+        before = snapshot(tmp_path)
+        args = ["detect", str(frames_file), "--method", "dpa", "--target-free"]
+        code = main([*args, str(out / "asf.npy"), "--out", str(out)])
+        assert_one_line_error(capsys, code, r"would replace the input --target-free")
+        assert snapshot(tmp_path) == before
+
+    def test_all_or_nothing_when_a_destination_is_a_directory(self, tmp_path, capsys, cube_file):
+        # issue 9: tracks.json was overwritten and cleaned/support written before exit 2,
+        # and the message named an internal temporary path
+        part = tmp_path / "part"
+        (part / "detection.png").mkdir(parents=True)
+        (part / "tracks.json").write_text("old")
+        before = snapshot(tmp_path)
+        code = main(["detect", str(cube_file), "--out", str(part)])
+        line = assert_one_line_error(capsys, code, r"--out: cannot write '.*detection\.png'")
+        assert ".tmp" not in line and "a directory of that name exists" in line
+        assert snapshot(tmp_path) == before
+
+    def test_failed_move_rolls_back(self, tmp_path, capsys, cube_file, monkeypatch):
+        out = tmp_path / "out"
+        out.mkdir()
+        for name in ("tracks.json", "cleaned.npy", "support.npy"):
+            (out / name).write_text(f"old {name}")
+        before = snapshot(tmp_path)
+        real_replace = os.replace
+        calls = []
+
+        def flaky_replace(src, dst):
+            calls.append((src, dst))
+            if (
+                Path(dst).name == "support.npy"
+                and ".tmp-" in str(src)
+                and ".previous" not in str(dst)
+            ):
+                raise OSError(5, "Input/output error")
+            return real_replace(src, dst)
+
+        monkeypatch.setattr(cli.os, "replace", flaky_replace)
+        code = main(["detect", str(cube_file), "--out", str(out), "--no-plot"])
+        monkeypatch.undo()
+        line = assert_one_line_error(capsys, code, r"--out: could not write '.*support\.npy'")
+        assert ".tmp" not in line
+        assert snapshot(tmp_path) == before
+
+    @pytest.mark.parametrize(
+        "error",
+        [OSError(28, "No space left on device"), OSError("163840 requested and 159616 written")],
+    )
+    def test_disk_full(self, tmp_path, capsys, cube_file, monkeypatch, error):
+        def full(handle, array, allow_pickle=False):
+            handle.write(b"\x93NUMPY")
+            raise error
+
+        monkeypatch.setattr("hocnet.data.io.np.save", full)
+        out = tmp_path / "out"
+        code = main(["detect", str(cube_file), "--out", str(out), "--no-plot"])
+        line = assert_one_line_error(capsys, code, r"no space left on device")
+        assert f"'{out / 'cleaned.npy'}'" in line and ".tmp" not in line
+        assert not out.exists() and no_leftovers(tmp_path) == []
+
+    @pytest.mark.parametrize("command", ["detect", "demo", "reproduce"])
+    def test_empty_out_is_refused(
+        self, tmp_path, capsys, cube_file, experiments, command, monkeypatch
+    ):
+        monkeypatch.chdir(tmp_path)
+        before = snapshot(tmp_path)
+        argv = {
+            "detect": ["detect", str(cube_file)],
+            "demo": ["demo", "--no-dpa"],
+            "reproduce": ["reproduce", "hoc-table2", "--experiments-dir", str(experiments)],
+        }[command]
+        code = main([*argv, "--out", ""])
+        assert_one_line_error(capsys, code, r"--out: expected a folder name, got an empty string")
+        assert snapshot(tmp_path) == before
+
+    def test_quick_reproduce_never_touches_the_results(self, experiments, capsys):
+        # issue 9: `hocnet reproduce NAME --quick` overwrote experiments/results/ with smoke numbers
+        results = experiments / "results"
+        results.mkdir()
+        (results / "hoc-table2.md").write_text("full run")
+        code = main(["reproduce", "hoc-table2", "--quick", "--experiments-dir", str(experiments)])
+        assert code == 0
+        assert (results / "hoc-table2.md").read_text() == "full run"
+        printed = capsys.readouterr().out
+        written = Path(re.search(r"results in (\S+\.md)", printed).group(1))
+        assert written.is_file() and results not in written.parents
+        assert json.loads(written.read_text())["quick"] is True
+        # asked explicitly: then it does write there
+        args = ["reproduce", "hoc-table2", "--quick", "--out", str(results)]
+        assert main([*args, "--experiments-dir", str(experiments)]) == 0
+        assert json.loads((results / "hoc-table2.md").read_text())["quick"] is True
+
+
+class TestClearMessages:
+    def run_dpa(self, tmp_path, array, *extra):
+        path = tmp_path / "in.npy"
+        np.save(path, array)
+        return main(["detect", str(path), "--method", "dpa", "--out", str(tmp_path / "o"), *extra])
+
+    @pytest.mark.parametrize(
+        ("dtype", "big", "match"),
+        [
+            (np.float32, 3e38, r"CUBE '.*in\.npy': values too large for float32 after anti-mean"),
+            (np.float64, 1e300, r"CUBE '.*in\.npy': values too large for float32, in which"),
+        ],
+    )
+    def test_huge_finite_frames(self, tmp_path, capsys, dtype, big, match):
+        array = np.full((6, 16, 16), -big, dtype=dtype)
+        array[:, 8, 8] = big
+        code = self.run_dpa(tmp_path, array)
+        line = assert_one_line_error(capsys, code, match)
+        assert "NaN/inf" not in line
+        assert not (tmp_path / "o").exists()
+
+    def test_text_file_named_npy(self, tmp_path, capsys):
+        (tmp_path / "t.npy").write_text("1 2 3\n")
+        code = main(["detect", str(tmp_path / "t.npy"), "--out", str(tmp_path / "o")])
+        line = assert_one_line_error(capsys, code, r"CUBE: '.*t\.npy' is not a valid \.npy file")
+        assert "pickle" not in line.lower()
+
+    def test_uint64_above_int64(self, tmp_path, capsys):
+        array = np.zeros((6, 16, 16), dtype=np.uint64)
+        array[2, 3, 4] = 2**63 + 1
+        code = self.run_dpa(tmp_path, array)
+        assert_one_line_error(
+            capsys, code, r"CUBE: .* holds uint64 values up to 9223372036854775809"
+        )
+
+    def test_api_names_become_flags(self, tmp_path, capsys, frames_file):
+        # the library says `pfa` and `target_free`; the command line says --pfa, --target-free
+        free = tmp_path / "free.npy"
+        np.save(free, np.random.default_rng(0).normal(size=(1, 8, 8)).astype(np.float32))
+        args = ["detect", str(frames_file), "--method", "dpa", "--target-free", str(free)]
+        code = main([*args, "--window", "5", "--out", str(tmp_path / "o")])
+        line = assert_one_line_error(capsys, code, r"^hocnet: error: --pfa: ")
+        assert "--target-free" in line and "`" not in line
+
+    def test_translation_table(self):
+        assert cli._to_flags("`target_free`: bad; `pfa`: bad", cli._FLAGS["dpa"]) == (
+            "--target-free: bad; --pfa: bad"
+        )
+        assert cli._to_flags("`threshold`: x", cli._FLAGS["dpa"]) == "--asf-threshold: x"
+        assert cli._to_flags("`threshold`: x", cli._FLAGS["hoc"]) == "--threshold: x"
+        assert cli._to_flags("`cube`: x", cli._FLAGS["hoc"]) == "CUBE: x"
+        assert cli._to_flags("`unknown`: x", cli._FLAGS["hoc"]) == "`unknown`: x"
+
+
+class TestUpFrontBounds:
+    @pytest.mark.parametrize(
+        ("extra", "match"),
+        [
+            (["--v", "1000"], r"--v: expected at most max\(H, W\) - 1 = 23 for frames of 24 x 24"),
+            (["--v", "50"], r"--v: expected at most max\(H, W\) - 1 = 23"),
+            (["--order", "5"], r"--order: expected at most \(T - 1\) // 2 = 4 .* T = 10 scans"),
+        ],
+    )
+    def test_hoc(self, tmp_path, capsys, extra, match):
+        import time
+
+        path = tmp_path / "c.npy"
+        np.save(path, np.zeros((10, 24, 24), dtype=bool))
+        start = time.perf_counter()
+        code = main(["detect", str(path), "--out", str(tmp_path / "o"), *extra])
+        assert time.perf_counter() - start < 5
+        assert_one_line_error(capsys, code, match)
+
+    def test_v_bounded_by_memory(self):
+        params = {"order": 1, "v": 100}
+        with pytest.raises(cli.CLIError, match=r"--v: expected at most 63 .* GiB\), got 100"):
+            cli._bound_hoc(torch.zeros(3, 512, 512, dtype=torch.bool), params)
+
+    def test_empty_batch(self, tmp_path, capsys):
+        path = tmp_path / "z.npy"
+        np.save(path, np.zeros((0, 6, 16, 16), dtype=bool))
+        code = main(["detect", str(path), "--out", str(tmp_path / "o")])
+        assert_one_line_error(capsys, code, r"CUBE: .* holds a batch of 0 scenes")
+        assert not (tmp_path / "o").exists()
+
+
+class _TTY(io.StringIO):
+    def isatty(self):
+        return True
+
+
+class TestProgress:
+    def test_bar_on_a_terminal(self, tmp_path, cube_file, monkeypatch):
+        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        fake = _TTY()
+        monkeypatch.setattr(sys, "stderr", fake)
+        assert main(["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot"]) == 0
+        text = fake.getvalue()
+        assert "stage" in text and "load" in text and "hoc" in text and "write" in text
+
+    def test_quiet(self, tmp_path, cube_file, monkeypatch):
+        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        fake = _TTY()
+        monkeypatch.setattr(sys, "stderr", fake)
+        args = ["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot", "--quiet"]
+        assert main(args) == 0
+        assert fake.getvalue() == ""
+
+    def test_not_a_terminal(self, tmp_path, cube_file, monkeypatch):
+        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        fake = io.StringIO()
+        monkeypatch.setattr(sys, "stderr", fake)
+        assert main(["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot"]) == 0
+        assert fake.getvalue() == ""
+
+    @pytest.mark.parametrize("command", ["demo", "detect", "reproduce"])
+    def test_every_command_has_quiet(self, capsys, command):
+        assert main([command, "--help"]) == 0
+        assert "--quiet" in capsys.readouterr().out
