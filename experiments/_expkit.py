@@ -11,6 +11,7 @@ import contextlib
 import csv
 import math
 import pathlib
+import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any, TypeVar
@@ -62,27 +63,56 @@ def seed_list(base: int, n: int) -> list[int]:
     return [base + i for i in range(n)]
 
 
-def out_dir_of(out_dir: pathlib.Path | str | None) -> pathlib.Path:
-    """The output folder (created if needed): ``out_dir`` or :data:`RESULTS_DIR`."""
-    path = RESULTS_DIR if out_dir is None else pathlib.Path(out_dir)
+def quick_dir(name: str) -> pathlib.Path:
+    """A fresh temporary folder for a quick (smoke) run's outputs."""
+    import tempfile
+
+    return pathlib.Path(tempfile.mkdtemp(prefix=f"hocnet-{name}-quick-"))
+
+
+def out_dir_of(out_dir: pathlib.Path | str | None, *, quick: bool | None = None) -> pathlib.Path:
+    """The output folder (created if needed).
+
+    ``out_dir`` if given (also ``experiments/results`` given by hand); else :data:`RESULTS_DIR`
+    for a full run, and a fresh temporary folder for a quick run, so that smoke numbers never
+    replace the committed full results. ``quick=None`` reads the calling ``run``'s own ``quick``
+    argument (the experiment scripts call ``out_dir_of(out_dir)`` from ``run(quick=...)``).
+
+    Examples:
+        >>> out_dir_of(None, quick=True) != RESULTS_DIR
+        True
+    """
+    if out_dir is not None:
+        if not str(out_dir).strip():
+            raise ValueError(f"`out_dir`: expected a folder name, got {str(out_dir)!r}")
+        path = pathlib.Path(out_dir)
+    else:
+        if quick is None:
+            caller = sys._getframe(1).f_locals.get("quick")
+            quick = caller if isinstance(caller, bool) else False
+        path = quick_dir("experiment") if quick else RESULTS_DIR
     path.mkdir(parents=True, exist_ok=True)
     return path
 
 
 def mean_std(values: Iterable[float], digits: int = 3, scale: float = 1.0) -> str:
-    """Format ``mean ± std`` (sample std, ``ddof = 1``; ``± 0`` for one value).
+    """Format ``mean ± std`` (sample std, ``ddof = 1``); one value alone, with ``(n = 1)``.
+
+    A single value has no spread to report, so it is printed without a misleading ``± 0``.
 
     Examples:
         >>> mean_std([1.0, 2.0, 3.0], digits=2)
         '2.00 ± 1.00'
         >>> mean_std([0.5], digits=1, scale=100)
-        '50.0 ± 0.0'
+        '50.0 (n = 1)'
     """
     xs = [float(v) * scale for v in values]
     if not xs:
         return "n/a"
     m = sum(xs) / len(xs)
-    s = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1)) if len(xs) > 1 else 0.0
+    if len(xs) == 1:
+        return f"{m:.{digits}f} (n = 1)"
+    s = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
     return f"{m:.{digits}f} ± {s:.{digits}f}"
 
 
@@ -232,11 +262,20 @@ def main_for(
     parser.add_argument("--quick", action="store_true", help="small smoke run (2 seeds)")
     parser.add_argument("--seeds", type=int, default=None, help="scenes per setting")
     parser.add_argument(
-        "--out", type=pathlib.Path, default=None, help=f"output folder (default {RESULTS_DIR})"
+        "--out",
+        default=None,
+        help=f"output folder (default: {RESULTS_DIR} for a full run, a new temporary folder "
+        "for --quick; give the results folder by hand to overwrite it with a quick run)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
-    return run(quick=args.quick, seeds=args.seeds, out_dir=args.out, progress=not args.no_progress)
+    if args.out is not None and not str(args.out).strip():
+        parser.error("--out: expected a folder name, got an empty string")
+    out = args.out
+    if out is None and args.quick:
+        out = quick_dir(name)  # never over the committed full results
+        print(f"{name}: quick run, writing to {out}", file=sys.stderr)
+    return run(quick=args.quick, seeds=args.seeds, out_dir=out, progress=not args.no_progress)
 
 
 # ----------------------------------------------------------------------------- HOC evaluation
