@@ -691,6 +691,7 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
             white if i is None else white[i],
             asf if i is None else asf[i],
             [tr.positions for tr in one],
+            scores=[tr.score for tr in one],
             title="DPA detection" + ("" if i is None else f" (batch element {i})"),
         )
         outputs["detection.png" if i is None else f"detection_{i:03d}.png"] = _png_writer(fig)
@@ -883,6 +884,7 @@ def _demo_dpa(seed: int, writers: dict[str, Writer], *, plot: bool) -> None:
             white,
             found.state.asf,
             [tr.positions for tr in found.tracks],
+            scores=[tr.score for tr in found.tracks],
             truth=truth,
             title=f"hocnet demo: DPA of [NR08], {snr_db:g} dB target, seed {seed}",
         )
@@ -941,6 +943,8 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         fig = plot_cube_3d(
             scene.cube,
             labels=scene.labels,
+            true_tracks=scene.tracks,  # the legend counts agree with the printed table
+            track_labels=scene.track_labels,
             title=f"Input scans: {int(scene.cube.sum())} points "
             f"(clutter density {density:g}, seed {seed})",
         )

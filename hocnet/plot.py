@@ -6,7 +6,7 @@ figures alive in a global figure manager. Each function returns the figure (or t
 ``ax`` it was given) and, when ``path`` is set, also saves it there (the format follows the
 extension, e.g. ``.png``).
 
-Conventions (``DESIGN.md`` section 2): cubes are ``(T, H, W)`` (``T`` scans, ``H`` rows ``y``,
+Conventions (those of the whole package): cubes are ``(T, H, W)`` (``T`` scans, ``H`` rows ``y``,
 ``W`` columns ``x``); a track is an ``(N, 3)`` array of ``(t, y, x)`` rows. Image panels show
 ``x`` to the right and ``y`` *down*, like the image itself, with pixel units on both axes.
 
@@ -44,6 +44,10 @@ _CLUTTER_COLOR = "0.6"
 _SUPPORT_COLOR = "0.55"
 #: More identified tracks than this and the legend shows one generic entry instead of one per track.
 _MAX_LEGEND_TRACKS = 12
+#: More input points than this and :func:`plot_before_after` draws the input as a density image
+#: (points per pixel over the scans) instead of one marker per point, which at real sizes
+#: (328k points in 512 x 640 x 100) would merge into one solid block.
+MAX_SCATTER_POINTS = 20_000
 
 PathLike = str | os.PathLike
 
@@ -305,6 +309,8 @@ def plot_cube_3d(
     cube: torch.Tensor | np.ndarray,
     *,
     labels: torch.Tensor | np.ndarray | None = None,
+    true_tracks: Sequence[Any] | None = None,
+    track_labels: Sequence[int] | None = None,
     ax: Axes | None = None,
     title: str | None = None,
     path: PathLike | None = None,
@@ -314,10 +320,18 @@ def plot_cube_3d(
     With ``labels`` (ground truth, ``0`` = clutter) clutter points are small and grey and each
     target label gets its own colour; without labels every point is coloured by its scan.
 
+    With ``true_tracks`` the legend counts each true track's own points (a point shared by two
+    crossing tracks counts for both, as in the tables of ``hocnet demo``), and clutter is every
+    point on no true track; with ``labels`` alone a shared point counts once, for the label it
+    carries.
+
     Args:
         cube: ``(T, H, W)`` binary cube (bool or 0/1; a ``(1, T, H, W)`` batch of one is accepted).
         labels: integer cube shaped like ``cube`` (``0`` clutter/empty, ``k >= 1`` target ``k``),
             e.g. :attr:`hocnet.data.binary.BinaryScene.labels`, or ``None``.
+        true_tracks: ground-truth tracks, each ``(N, 3)`` points of ``(t, y, x)``
+            (e.g. :attr:`~hocnet.data.binary.BinaryScene.tracks`), or ``None``.
+        track_labels: the name of each true track in the legend (default ``1, 2, ...``).
         ax: a 3-D axes to draw into (``projection="3d"``); ``None`` makes a new figure.
         title: axes title; ``None`` gives a summary such as ``"Input: 553 points in 10 scans"``.
         path: if given, save the figure there.
@@ -339,7 +353,71 @@ def plot_cube_3d(
     fig = ax.figure
     t, y, x = (a.numpy() for a in torch.nonzero(points, as_tuple=True))
     handles: list[Any] = []
-    if lab is None:
+    truth = _track_list("true_tracks", true_tracks)
+    if truth:
+        names = list(track_labels) if track_labels is not None else list(range(1, len(truth) + 1))
+        if len(names) != len(truth):
+            raise ValueError(
+                f"`track_labels`: expected one label per true track ({len(truth)}), "
+                f"got {len(names)}"
+            )
+        lab = torch.zeros(points.shape, dtype=torch.int64)
+        members = []
+        for k, (pts, _, _) in enumerate(truth):
+            idx = torch.as_tensor(pts, dtype=torch.int64).reshape(-1, 3)
+            inside = (
+                (idx >= 0).all(dim=1)
+                & (idx[:, 0] < n_scans)
+                & (idx[:, 1] < height)
+                & (idx[:, 2] < width)
+            )
+            idx = idx[inside]
+            idx = idx[points[idx[:, 0], idx[:, 1], idx[:, 2]]]  # on-points only
+            members.append(torch.unique(idx, dim=0))
+            lab[idx[:, 0], idx[:, 1], idx[:, 2]] = k + 1
+        on_track = lab[points].numpy() > 0
+        ax.scatter(
+            x[~on_track],
+            y[~on_track],
+            t[~on_track],
+            s=3,
+            color=_CLUTTER_COLOR,
+            alpha=0.5,
+            depthshade=False,
+        )
+        handles.append(
+            Line2D(
+                [],
+                [],
+                ls="",
+                marker="o",
+                ms=3,
+                color=_CLUTTER_COLOR,
+                label=f"clutter ({int((~on_track).sum())})",
+            )
+        )
+        for k, idx in enumerate(members):
+            color = _TRACK_COLORS[k % len(_TRACK_COLORS)]
+            tt, yy, xx = (idx[:, i].numpy() for i in range(3))
+            ax.scatter(
+                xx, yy, tt, s=26, color=color, edgecolors="black", linewidths=0.4, depthshade=False
+            )
+            order = np.argsort(tt, kind="stable")
+            ax.plot(xx[order], yy[order], tt[order], color=color, lw=1.0, alpha=0.8)
+            handles.append(
+                Line2D(
+                    [],
+                    [],
+                    lw=1.0,
+                    marker="o",
+                    ms=6,
+                    color=color,
+                    mec="black",
+                    mew=0.4,
+                    label=f"target {names[k]} ({len(idx)})",
+                )
+            )
+    elif lab is None:
         ax.scatter(x, y, t, c=t, cmap=_SCAN_CMAP, norm=_scan_norm(n_scans), s=9, depthshade=False)
         _scan_colorbar(fig, ax, n_scans, shrink=0.6, pad=0.08)
     else:
@@ -422,7 +500,8 @@ def plot_before_after(
 ) -> Figure:
     """Show the input points next to a detection, in the image plane.
 
-    Left: every input point, coloured by scan (with ``labels``, target points get a black ring).
+    Left: every input point, coloured by scan (with ``labels``, target points get a black ring);
+    above :data:`MAX_SCATTER_POINTS` points, the number of input points per pixel as an image.
     Right: the detection. For a detection result (anything with ``.tracks``, such as
     :class:`hocnet.hoc.HOCResult`) the support points that are on no accepted track are faint
     grey, each identified track is a coloured line with its id at its first point, and the true
@@ -477,11 +556,27 @@ def plot_before_after(
 
     # input
     t, y, x = (a.numpy() for a in torch.nonzero(points, as_tuple=True))
-    left.scatter(x, y, c=t, cmap=_SCAN_CMAP, norm=norm, s=10, zorder=2)
-    left_handles: list[Any] = []
     n_in = len(t)
+    dense = n_in > MAX_SCATTER_POINTS
+    if dense:
+        counts = points.sum(dim=0).numpy()
+        shown = left.imshow(
+            np.ma.masked_equal(counts, 0),
+            cmap="magma_r",
+            origin="upper",
+            interpolation="nearest",
+            vmin=1,
+            vmax=max(int(counts.max()), 2),
+        )
+        bar = fig.colorbar(shown, ax=left, location="left", shrink=0.8, pad=0.02)
+        bar.set_label(f"input points per pixel (of {n_scans} scans)")
+    else:
+        left.scatter(x, y, c=t, cmap=_SCAN_CMAP, norm=norm, s=10, zorder=2)
+    left_handles: list[Any] = []
     if lab is not None:
         on_target = lab[points].numpy() > 0
+        if dense and int(on_target.sum()) > MAX_SCATTER_POINTS:
+            on_target = on_target & (np.arange(n_in) % (int(on_target.sum()) // 5000 + 1) == 0)
         left.scatter(
             x[on_target],
             y[on_target],
@@ -503,12 +598,15 @@ def plot_before_after(
                 label=f"target point ({int(on_target.sum())})",
             )
         )
+        n_target = int((lab[points] > 0).sum())
         left.set_title(
             f"Input: {n_in} points in {n_scans} scans "
-            f"({int((~on_target).sum())} clutter, {int(on_target.sum())} target)"
+            f"({n_in - n_target} clutter, {n_target} target)"
         )
     else:
         left.set_title(f"Input: {n_in} points in {n_scans} scans")
+    if dense:
+        left.set_title(left.get_title() + "\n(density: too many points to draw one by one)")
     _image_axes(left, height, width)
     if left_handles:
         left.legend(
@@ -530,7 +628,9 @@ def plot_before_after(
         if support is not None:
             faint = support & ~cleaned if cleaned is not None else support
             st, sy, sx = (a.numpy() for a in torch.nonzero(faint, as_tuple=True))
-            right.scatter(sx, sy, s=9, color=_SUPPORT_COLOR, alpha=0.45, zorder=1)
+            if len(st) > MAX_SCATTER_POINTS:  # draw each pixel once, not each (scan, pixel)
+                sy, sx = (a.numpy() for a in torch.nonzero(faint.any(dim=0), as_tuple=True))
+            right.scatter(sx, sy, s=9, color=_SUPPORT_COLOR, alpha=0.45, zorder=1, rasterized=True)
             right_handles.append(
                 Line2D(
                     [],
@@ -552,7 +652,8 @@ def plot_before_after(
     _image_axes(right, height, width)
     right.yaxis.set_tick_params(labelleft=True)
     _legend(right, right_handles)
-    _scan_colorbar(fig, left, n_scans, location="left", shrink=0.8, pad=0.02)
+    if not dense:
+        _scan_colorbar(fig, left, n_scans, location="left", shrink=0.8, pad=0.02)
     if title is not None:
         fig.suptitle(title)
     _save(fig, path)
@@ -666,16 +767,23 @@ def plot_dpa(
     asf: torch.Tensor | np.ndarray,
     tracks: Sequence[torch.Tensor] = (),
     *,
+    scores: Sequence[float] | None = None,
     truth: torch.Tensor | np.ndarray | None = None,
     title: str | None = None,
     path: PathLike | None = None,
 ) -> Figure:
     """DPA result at a glance: the last frame with back-tracked tracks, and the last ASF map.
 
+    Every track is drawn (line and a dot per frame, so a track that stays in one pixel is
+    visible too, and a circle at its last position on both panels) and listed in the legend,
+    with its score when ``scores`` is given, so that a weak (possibly false) track is not
+    mistaken for a strong one.
+
     Args:
         frames: ``(T, H, W)`` (whitened) frames; the last one is shown.
         asf: ``(T, H, W)`` accumulated score function; the last frame is shown.
         tracks: back-tracked trajectories, each ``(T, 2)`` as ``(x, y)`` per frame.
+        scores: one score per track (e.g. :attr:`hocnet.dpa.DPATrack.score`), or ``None``.
         truth: optional true positions ``(N, T, 2)`` or ``(T, 2)`` as ``(x, y)`` (dashed).
         title: figure title.
         path: if given, save the figure there.
@@ -707,11 +815,24 @@ def plot_dpa(
         ax.set_title(name)
         ax.set_xlabel("x (pixels)")
         ax.set_ylabel("y (pixels)")
+    if scores is not None:
+        scores = [float(v) for v in scores]
+        if len(scores) != len(tracks):
+            raise ValueError(
+                f"`scores`: expected one score per track ({len(tracks)}), got {len(scores)}"
+            )
     colours = _colours(len(tracks))
     for i, tr in enumerate(tracks):
-        xy = np.asarray(torch.as_tensor(tr).detach().cpu().float())
-        ax_frame.plot(xy[:, 0], xy[:, 1], "-", color=colours[i], lw=1.8, label=f"track {i + 1}")
-        ax_frame.plot(xy[-1, 0], xy[-1, 1], "o", color=colours[i], mfc="none", ms=10)
+        xy = np.asarray(torch.as_tensor(tr).detach().cpu().float()).reshape(-1, 2)
+        label = f"track {i + 1}"
+        if scores is not None:
+            label += f": score {scores[i]:.3g}"
+        if len(xy) == 0:
+            continue
+        ax_frame.plot(
+            xy[:, 0], xy[:, 1], "-o", color=colours[i], lw=1.8, ms=2.5, label=label, zorder=3
+        )
+        ax_frame.plot(xy[-1, 0], xy[-1, 1], "o", color=colours[i], mfc="none", ms=10, zorder=3)
         ax_asf.plot(xy[-1, 0], xy[-1, 1], "o", color=colours[i], mfc="none", ms=10)
     if truth is not None:
         true_np = np.asarray(torch.as_tensor(truth).detach().cpu().float())
@@ -720,7 +841,10 @@ def plot_dpa(
                 xy[:, 0], xy[:, 1], "--", color="cyan", lw=1.2, label="truth" if k == 0 else None
             )
     if tracks or truth is not None:
-        ax_frame.legend(loc="upper right", fontsize=8)
+        handles, labels = ax_frame.get_legend_handles_labels()
+        fig.legend(
+            handles, labels, loc="outside lower center", ncols=min(4, len(labels)), fontsize=8
+        )
     if title:
         fig.suptitle(title)
     if path is not None:

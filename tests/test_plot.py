@@ -256,3 +256,115 @@ class TestPlotDPA:
 
         with pytest.raises(ValueError, match="`asf`"):
             plot_dpa(torch.zeros(3, 4, 4), torch.zeros(2, 4, 4))
+
+
+# --------------------------------------------------------------------------------------------
+# issue 9: pictures at real sizes, scores in the DPA legend, 3-D legend counts
+# --------------------------------------------------------------------------------------------
+
+
+def scatter_offsets(ax):
+    """Number of markers drawn by the scatter plots of ``ax``."""
+    from matplotlib.collections import PathCollection
+
+    return sum(len(c.get_offsets()) for c in ax.collections if isinstance(c, PathCollection))
+
+
+class TestRealSizes:
+    def test_large_input_is_a_density_image(self, tmp_path):
+        # issue 9: on 512 x 640 x 100 the left panel was one solid block of 328k points
+        g = torch.Generator().manual_seed(0)
+        cube = torch.rand(100, 512, 640, generator=g) < 0.01
+        assert int(cube.sum()) > 300_000
+        empty = argparse_result(cube)
+        fig = plot_before_after(cube, empty, path=tmp_path / "big.png")
+        left = fig.axes[0]
+        assert scatter_offsets(left) <= 20_000
+        images = left.get_images()
+        assert len(images) == 1
+        counts = images[0].get_array()
+        assert counts.shape == (512, 640) and int(counts.sum()) == int(cube.sum())
+        assert "density" in left.get_title() and f"{int(cube.sum())} points" in left.get_title()
+        assert_png(tmp_path / "big.png")
+
+    def test_small_input_keeps_one_marker_per_point(self, scene, result):
+        fig = plot_before_after(scene.cube, result)
+        assert scatter_offsets(fig.axes[0]) == int(scene.cube.sum())
+        assert fig.axes[0].get_images() == []
+
+
+def argparse_result(cube):
+    from types import SimpleNamespace
+
+    none = torch.zeros_like(cube)
+    return SimpleNamespace(support=none, cleaned=none, tracks=[])
+
+
+class TestDPALegend:
+    def test_every_track_listed_with_its_score_and_drawn(self):
+        from hocnet.plot import plot_dpa
+
+        frames = torch.zeros(5, 16, 16)
+        tracks = [
+            torch.tensor([[1, 1], [2, 2], [3, 3], [4, 4], [5, 5]]),
+            torch.tensor([[9, 9]] * 5),  # stays in one pixel: must still be visible
+            torch.tensor([[12, 3], [12, 4], [13, 5], [13, 6], [14, 7]]),
+        ]
+        fig = plot_dpa(frames, frames, tracks, scores=[7.5, 0.25, 3.0])
+        texts = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert texts == ["track 1: score 7.5", "track 2: score 0.25", "track 3: score 3"]
+        ax = fig.axes[0]
+        drawn = {line.get_label(): line for line in ax.get_lines()}
+        for text, tr in zip(texts, tracks):
+            line = drawn[text]
+            assert line.get_marker() not in (None, "None", "", " ")  # a point shows up
+            np.testing.assert_array_equal(line.get_xdata(), tr[:, 0].numpy())
+            x0, x1 = sorted(ax.get_xlim())
+            assert ((line.get_xdata() >= x0) & (line.get_xdata() <= x1)).all()
+
+    def test_scores_must_match_tracks(self):
+        from hocnet.plot import plot_dpa
+
+        with pytest.raises(ValueError, match="`scores`"):
+            plot_dpa(torch.zeros(3, 4, 4), torch.zeros(3, 4, 4), [torch.zeros(3, 2)], scores=[])
+
+
+class TestCube3dCounts:
+    def test_legend_counts_agree_with_the_demo_table(self):
+        # issue 9: demo_3d.png's legend counts disagreed with the printed table (shared points)
+        from hocnet.data.binary import paper_scene
+
+        scene = paper_scene("table3", 0.014, seed=0)
+        fig = plot_cube_3d(
+            scene.cube,
+            labels=scene.labels,
+            true_tracks=scene.tracks,
+            track_labels=scene.track_labels,
+        )
+        texts = legend_texts(fig)
+        track_points = [{tuple(p) for p in tr.tolist()} for tr in scene.tracks]
+        on_any = set().union(*track_points)
+        clutter = int(scene.cube.sum()) - len(on_any)
+        assert clutter == int(scene.n_clutter_points)
+        expected = [f"clutter ({clutter})"] + [
+            f"target {label} ({len(points)})"
+            for label, points in zip(scene.track_labels, track_points)
+        ]
+        assert texts == expected
+        # the demo table's "points" column counts the same sets
+        assert any(a & b for i, a in enumerate(track_points) for b in track_points[i + 1 :])
+
+    def test_demo_passes_the_true_tracks(self, tmp_path, monkeypatch):
+        import hocnet.plot
+        from hocnet.cli import main
+
+        seen = {}
+        real = hocnet.plot.plot_cube_3d
+
+        def spy(*args, **kwargs):
+            seen.update(kwargs)
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(hocnet.plot, "plot_cube_3d", spy)
+        assert main(["demo", "--no-dpa", "--out", str(tmp_path / "d"), "--quiet"]) == 0
+        assert seen["true_tracks"] is not None and seen["track_labels"] is not None
