@@ -624,6 +624,28 @@ class TestHelp:
             assert word in out
         assert "--experiments-dir" not in out
 
+    def test_help_describes_both_methods_and_their_outputs(self, capsys):
+        # issue 9: `hocnet --help` described only HOC, `detect --help` only HOC's outputs
+        assert main(["--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for word in ("(HOC) of [LA98]", "BINARY", "(DPA) of [NR08]", "INTENSITY", "asf.npy"):
+            assert word in text, word
+        assert main(["detect", "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        for word in (
+            "outputs of --method hoc",
+            "outputs of --method dpa",
+            "cleaned.npy",
+            "support.npy",
+            "asf.npy",
+            "each track with its score",
+            "[LA98] R.-J. Liou",
+            "[NR08] O. Nichtern",
+            "hocnet.data.save_cube",
+        ):
+            assert word in text, word
+        assert "DESIGN" not in text
+
     def test_no_command(self, capsys):
         assert_one_line_error(capsys, main([]), "required: COMMAND")
 
