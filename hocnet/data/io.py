@@ -208,7 +208,7 @@ _ZIP_MAGIC = b"PK"
 
 
 def _why(err: BaseException) -> str:
-    """numpy's reason for a failed load, without its advice to load pickled data unsafely."""
+    """Why numpy failed to load a file, without its advice to load pickled data unsafely."""
     text = str(err)
     if "pickle" in text.lower():
         return "it holds Python objects (pickled data), which hocnet never loads"

@@ -112,7 +112,9 @@ class TestLoadCube:
         array = np.zeros((2, 3, 3), dtype=np.uint64)
         array[0, 0, 0] = 2**63 + 5
         np.save(tmp_path / "u.npy", array)
-        with pytest.raises(ValueError, match=r"u\.npy' holds uint64 values up to 9223372036854775813"):
+        with pytest.raises(
+            ValueError, match=r"u\.npy' holds uint64 values up to 9223372036854775813"
+        ):
             load_cube(tmp_path / "u.npy")
 
     def test_format_mismatch(self, tmp_path):

@@ -200,7 +200,8 @@ class _WhiteningTests:
             self.module(8, 3)
 
     @pytest.mark.parametrize(
-        ("dtype", "big", "name"), [(torch.float32, 3e38, "float32"), (torch.float64, 1.7e308, "float64")]
+        ("dtype", "big", "name"),
+        [(torch.float32, 3e38, "float32"), (torch.float64, 1.7e308, "float64")],
     )
     def test_huge_finite_values_say_overflow(self, dtype, big, name):
         # issue 9: finite but huge frames were reported later as "got 1848 NaN/inf entries"
