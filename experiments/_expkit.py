@@ -110,9 +110,21 @@ def mean_std(values: Iterable[float], digits: int = 3, scale: float = 1.0) -> st
     if not xs:
         return "n/a"
     m = sum(xs) / len(xs)
-    if len(xs) == 1:
+    s = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1)) if len(xs) > 1 else 0.0
+    return format_mean_std(m, s, len(xs), digits)
+
+
+def format_mean_std(m: float, s: float, n: int, digits: int = 3) -> str:
+    """Format an already computed mean and std of ``n`` values (``n = 1``: the value alone).
+
+    Examples:
+        >>> format_mean_std(2.0, 0.5, 3, 2), format_mean_std(2.0, 0.0, 1, 2)
+        ('2.00 ± 0.50', '2.00 (n = 1)')
+    """
+    if n < 1:
+        return "n/a"
+    if n == 1:
         return f"{m:.{digits}f} (n = 1)"
-    s = math.sqrt(sum((x - m) ** 2 for x in xs) / (len(xs) - 1))
     return f"{m:.{digits}f} ± {s:.{digits}f}"
 
 
