@@ -291,6 +291,7 @@ class _Method:
     prepare: Callable[[argparse.Namespace], dict[str, Any]]
     run: Callable[[torch.Tensor, dict[str, Any]], Detection]
     binary: bool = True
+    output_names: tuple[str, ...] = ("tracks.json",)
 
 
 def _add_hoc_options(group: argparse._ArgumentGroup) -> None:
@@ -713,6 +714,7 @@ _METHODS: dict[str, _Method] = {
         option_dests=("order", "v", "delta", "threshold", "min_points"),
         prepare=_prepare_hoc,
         run=_run_hoc,
+        output_names=("tracks.json", "cleaned.npy", "support.npy"),
     ),
     "dpa": _Method(
         name="dpa",
@@ -735,6 +737,7 @@ _METHODS: dict[str, _Method] = {
         prepare=_prepare_dpa,
         run=_run_dpa,
         binary=False,
+        output_names=("tracks.json", "asf.npy"),
     ),
 }
 
@@ -905,81 +908,80 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     _check_destinations(out, names)
 
     stages = _Stages(["scene", "hoc", "dpa", "write"], enabled=_show_progress(args))
-    stages.__enter__()
-    stages.next("simulate the scene")
-    scene = paper_scene("table3", density, seed=seed)
-    if 2 * order + 1 > scene.cube.shape[0]:
-        raise CLIError(
-            f"--order: expected at most {(scene.cube.shape[0] - 1) // 2} for the demo's "
-            f"{scene.cube.shape[0]} scans (order k needs 2k + 1 scans), got {order}"
-        )
-    stages.next("hoc")
-    start = time.perf_counter()
-    result = detect(scene.cube, order=order)
-    runtime = time.perf_counter() - start
+    with stages:
+        stages.next("simulate the scene")
+        scene = paper_scene("table3", density, seed=seed)
+        if 2 * order + 1 > scene.cube.shape[0]:
+            raise CLIError(
+                f"--order: expected at most {(scene.cube.shape[0] - 1) // 2} for the demo's "
+                f"{scene.cube.shape[0]} scans (order k needs 2k + 1 scans), got {order}"
+            )
+        stages.next("hoc")
+        start = time.perf_counter()
+        result = detect(scene.cube, order=order)
+        runtime = time.perf_counter() - start
 
-    n_t, n_h, n_w = scene.cube.shape
-    true_table, found_table, n_false = _match_tables(scene, result.tracks)
-    mask = scene.target_mask
-    c_in, t_in = int(scene.n_clutter_points), int(scene.n_target_points)
-    c_support, c_tracks = (
-        int((scene.clutter_mask & o).sum()) for o in (result.support, result.cleaned)
-    )
-    rejection_support = clutter_rejection(scene.cube, result.support, mask)
-    rejection_tracks = clutter_rejection(scene.cube, result.cleaned, mask)
-    lost_support = target_points_lost(scene.cube, result.support, mask)
-    lost_tracks = target_points_lost(scene.cube, result.cleaned, mask)
-
-    title = (
-        f"hocnet demo: Table-III-like scene of [LA98], clutter density {density:g}, seed {seed}, "
-        f"HOC order {order}"
-    )
-    writers: dict[str, Writer] = {}
-    if not args.no_plot:
-        fig = plot_before_after(
-            scene.cube, result, labels=scene.labels, true_tracks=scene.tracks, title=title
+        n_t, n_h, n_w = scene.cube.shape
+        true_table, found_table, n_false = _match_tables(scene, result.tracks)
+        mask = scene.target_mask
+        c_in, t_in = int(scene.n_clutter_points), int(scene.n_target_points)
+        c_support, c_tracks = (
+            int((scene.clutter_mask & o).sum()) for o in (result.support, result.cleaned)
         )
-        writers["demo_before_after.png"] = _png_writer(fig)
-        fig = plot_cube_3d(
-            scene.cube,
-            labels=scene.labels,
-            true_tracks=scene.tracks,  # the legend counts agree with the printed table
-            track_labels=scene.track_labels,
-            title=f"Input scans: {int(scene.cube.sum())} points "
-            f"(clutter density {density:g}, seed {seed})",
-        )
-        writers["demo_3d.png"] = _png_writer(fig)
+        rejection_support = clutter_rejection(scene.cube, result.support, mask)
+        rejection_tracks = clutter_rejection(scene.cube, result.cleaned, mask)
+        lost_support = target_points_lost(scene.cube, result.support, mask)
+        lost_tracks = target_points_lost(scene.cube, result.cleaned, mask)
 
-    print(
-        f"Scene: Table-III-like scene of [LA98], {n_t} scans of {n_h} x {n_w} pixels, "
-        f"clutter density {density:g}, seed {seed}: {len(scene.tracks)} true tracks, "
-        f"{t_in} target points, {c_in} clutter points"
-    )
-    print(f"Detector: modified HOC, order {order}, v = 4, delta = 45 deg, threshold 2.5\n")
-    print("True tracks (each covered by the found track sharing most of its points):")
-    print(true_table)
-    print(f"\nFound tracks: {len(result.tracks)} ({n_false} false):")
-    print(found_table if result.tracks else "  (none)")
-    print()
-    print(
-        f"Clutter rejection after HOC support:           {100 * rejection_support:.1f} % "
-        f"({c_support} of {c_in} clutter points left)"
-    )
-    print(
-        f"Clutter rejection after track identification: {100 * rejection_tracks:.1f} % "
-        f"({c_tracks} left)"
-    )
-    print(
-        f"Target points lost: {lost_support} of {t_in} after HOC support, "
-        f"{lost_tracks} after track identification"
-    )
-    print(f"Runtime: {runtime:.2f} s (HOC support + track identification)")
-    if not args.no_dpa:
-        stages.next("dpa")
-        _demo_dpa(seed, writers, plot=not args.no_plot)
-    stages.next("write")
-    paths = _write_outputs(out, writers) if writers else []
-    stages.__exit__()
+        title = (
+            f"hocnet demo: Table-III-like scene of [LA98], clutter density {density:g}, "
+            f"seed {seed}, HOC order {order}"
+        )
+        writers: dict[str, Writer] = {}
+        if not args.no_plot:
+            fig = plot_before_after(
+                scene.cube, result, labels=scene.labels, true_tracks=scene.tracks, title=title
+            )
+            writers["demo_before_after.png"] = _png_writer(fig)
+            fig = plot_cube_3d(
+                scene.cube,
+                labels=scene.labels,
+                true_tracks=scene.tracks,  # the legend counts agree with the printed table
+                track_labels=scene.track_labels,
+                title=f"Input scans: {int(scene.cube.sum())} points "
+                f"(clutter density {density:g}, seed {seed})",
+            )
+            writers["demo_3d.png"] = _png_writer(fig)
+
+        print(
+            f"Scene: Table-III-like scene of [LA98], {n_t} scans of {n_h} x {n_w} pixels, "
+            f"clutter density {density:g}, seed {seed}: {len(scene.tracks)} true tracks, "
+            f"{t_in} target points, {c_in} clutter points"
+        )
+        print(f"Detector: modified HOC, order {order}, v = 4, delta = 45 deg, threshold 2.5\n")
+        print("True tracks (each covered by the found track sharing most of its points):")
+        print(true_table)
+        print(f"\nFound tracks: {len(result.tracks)} ({n_false} false):")
+        print(found_table if result.tracks else "  (none)")
+        print()
+        print(
+            f"Clutter rejection after HOC support:           {100 * rejection_support:.1f} % "
+            f"({c_support} of {c_in} clutter points left)"
+        )
+        print(
+            f"Clutter rejection after track identification: {100 * rejection_tracks:.1f} % "
+            f"({c_tracks} left)"
+        )
+        print(
+            f"Target points lost: {lost_support} of {t_in} after HOC support, "
+            f"{lost_tracks} after track identification"
+        )
+        print(f"Runtime: {runtime:.2f} s (HOC support + track identification)")
+        if not args.no_dpa:
+            stages.next("dpa")
+            _demo_dpa(seed, writers, plot=not args.no_plot)
+        stages.next("write")
+        paths = _write_outputs(out, writers) if writers else []
     for path in paths:
         print(f"wrote {path}")
     return 0
@@ -1002,7 +1004,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
     # the fixed names are checked now, before any work; the full list again before writing
-    _check_destinations(out, ["tracks.json", "cleaned.npy", "support.npy", "asf.npy"], inputs)
+    _check_destinations(out, list(method.output_names), inputs)
     stages = _Stages(["load", method.name, "pictures", "write"], enabled=_show_progress(args))
     with stages:
         stages.next("load")
