@@ -20,7 +20,7 @@ Two networks, each with two interchangeable implementations that give bit-identi
 limiters; kernels from :mod:`hocnet.hoc.kernels`); ``method="sparse"`` evaluates the same sums
 only at the points that are on (neighbour gathers and the allowed-move table for eq. 5-6, a
 summed-area table for eq. 4); ``method="auto"`` picks ``"sparse"`` when at most
-``SPARSE_DENSITY`` of the pixels are on and the estimated cost allows it.
+``SPARSE_DENSITY`` of the pixels are on (always for eq. 4) and the estimated cost allows it.
 
 Forward layers read scans ``t + 1 (, t + 2)``; backward layers (eq. 10) read ``t - 1 (, t - 2)``.
 ``Y^(k)(t)`` is 0 wherever it cannot be evaluated: forward ``t > T - 1 - 2k`` (modified) or
@@ -713,7 +713,8 @@ def _plan(method: str, cube: torch.Tensor, v: int, delta: float | None) -> str:
     n_on = int(cube.sum()) if cube.numel() else 0
     density = n_on / max(1, cube.numel())
     if method == "auto":
-        first = "sparse" if density <= SPARSE_DENSITY else "conv"
+        # eq. (4) on the sparse path is a summed-area table: O(cube) whatever the density or v
+        first = "sparse" if density <= SPARSE_DENSITY or delta is None else "conv"
         order = (first, "conv" if first == "sparse" else "sparse")
     else:
         order = (method,)
@@ -925,7 +926,8 @@ def original_hoc(
         v: velocity window half-width (``>= 1``; clamped to :func:`effective_v`).
         direction: ``"forward"`` or ``"backward"``.
         method: ``"conv"`` (window convolution), ``"sparse"`` (summed-area table at the
-            on-points) or ``"auto"``. Results are identical.
+            on-points) or ``"auto"`` (``"sparse"``, the cheaper at any density). Results are
+            identical.
 
     Returns:
         bool cube shaped like ``frames``.
@@ -1028,12 +1030,9 @@ def support_from_levels(
         delta = check_number("delta", delta, low=0.0, high=math.pi, low_inclusive=False)
     _, _, h, w = levels[0].shape
     v = effective_v(v, h, w)
-    top = len(levels) - 1
-    while top > 0 and not levels[top].any():
-        top -= 1
-    if top == 0 or len(levels) == 1:
-        return levels[-1].clone() if len(levels) == 1 else torch.zeros_like(levels[0])
-    if top < len(levels) - 1:  # the top level is empty: nothing is marked
+    if len(levels) == 1:
+        return levels[0].clone()
+    if not levels[-1].any():  # the top level is empty: nothing is marked
         return torch.zeros_like(levels[0])
     path = _plan(method, levels[0], v, delta)
     if path == "sparse":
@@ -1127,7 +1126,10 @@ def density_bound(
     window ("if the curvature constraint is chosen to be delta = pi/4, this window size is 1/4
     of the entire velocity window"), so the bound grows by ``pi / delta``:
     ``pi / (delta (2v + 1)^2)``, ``4/81 = 4.94 %`` for ``v = 4, delta = pi/4``. The paper prints
-    ``(1/81) x 4 = 4.92 %``: it multiplied the rounded ``1.23 %`` by 4.
+    ``(1/81) x 4 = 4.92 %``: it multiplied the rounded ``1.23 %`` by 4. The factor
+    ``pi / delta`` for other ``delta`` is our reading of the paper's "1/4" (it gives only
+    ``delta = pi/4``); the discrete table of :func:`~hocnet.hoc.kernels.allowed_moves` allows
+    28.4 % of the window at ``v = 4, delta = pi/4`` (moves at exactly 45 degrees included).
 
     Args:
         kind: ``"modified"`` (eq. 5-6) or ``"original"`` (eq. 4).
