@@ -29,8 +29,8 @@ outside the cube count as empty, as do out-of-image neighbours (zero padding, no
 
 Bounded cost (our addition): a move longer than the frame can never match, so every function
 clamps the velocity window to ``v_eff = min(v, max(H, W) - 1)`` (results unchanged); before
-allocating, the peak memory and the multiply-adds of the chosen path are estimated and a
-``ValueError`` naming ``v`` is raised when they exceed ``MEMORY_BUDGET`` / ``WORK_BUDGET``;
+allocating, the peak memory and the time of the chosen path are estimated and a
+``ValueError`` naming ``v`` is raised when they exceed ``MEMORY_BUDGET`` / ``TIME_BUDGET``;
 orders that need more scans than the cube holds answer at once with zeros; the sparse path
 processes its points in bounded chunks.
 """
@@ -56,7 +56,7 @@ from hocnet.hoc.kernels import (
 __all__ = [
     "MEMORY_BUDGET",
     "SPARSE_DENSITY",
-    "WORK_BUDGET",
+    "TIME_BUDGET",
     "chain_support",
     "density_bound",
     "density_warning",
@@ -85,9 +85,9 @@ MEMORY_BUDGET = 1 << 30
 """Largest estimated peak allocation (bytes) of one HOC call; above it a ``ValueError`` names
 ``v`` (raise it, e.g. ``hocnet.hoc.functional.MEMORY_BUDGET = 8 << 30``, to allow more)."""
 
-WORK_BUDGET = 2e10
-"""Largest estimated number of multiply-adds of one HOC layer; above it a ``ValueError`` names
-``v`` (about 10-20 s on one CPU core)."""
+TIME_BUDGET = 60.0
+"""Largest estimated time (seconds on one CPU core) of one HOC layer; above it a ``ValueError``
+names ``v``. Estimates use throughputs measured on the development machine."""
 
 _CHUNK_ELEMENTS = 1 << 24  # cap on (frames x channels x H x W) per convolution call
 _SPARSE_CHUNK = 1 << 24  # cap on gathered neighbours (points x moves) per sparse step
@@ -683,10 +683,17 @@ def _gib(n_bytes: float) -> str:
     return f"{n_bytes / 2**30:.2g} GiB"
 
 
+# Throughputs of one CPU core, measured on the 2-core development machine (torch 2, float32):
+_CONV_RATE = 2.5e9  # multiply-adds per second of conv2d with M channels
+_MATMUL_RATE = 1.5e10  # flops per second of the (N, M) x (M, M) products of the sparse path
+_GATHER_RATE = 1e8  # gathered neighbours (or summed-area lookups) per second
+_SLOT_RATE = 2e7  # expanded move pairs per second
+
+
 def _cost(
     path: str, shape: tuple[int, ...], n_on: int, v: int, delta: float | None
 ) -> tuple[float, float]:
-    """Estimated (peak bytes, multiply-adds per layer) of one layer on ``path``."""
+    """Estimated (peak bytes, seconds on one core) of one layer on ``path``."""
     b, n_t, h, w = shape
     frames = b * n_t
     m = (2 * v + 1) ** 2
@@ -694,42 +701,56 @@ def _cost(
     if delta is None:  # eq. (4): one window kernel, or a summed-area table
         if path == "conv":
             chunk = min(cube, _CHUNK_ELEMENTS) + _CHUNK_ELEMENTS
-            return 4.0 * (6 * cube + 2 * chunk), float(cube) * m
-        return 4.0 * 2 * cube + 64.0 * n_on + cube, float(cube + n_on)
+            return 4.0 * (6 * cube + 2 * chunk), float(cube) * m / _CONV_RATE
+        return 4.0 * 2 * cube + 64.0 * n_on + cube, float(cube + n_on) / _GATHER_RATE
     # allowed table (bool + float64 turn angles and temporaries) and the two kernel banks
     tables = 60.0 * m * m
     if path == "conv":
         chunk = min(cube * m, _CHUNK_ELEMENTS)
-        return tables + 4.0 * (6 * cube + 4 * chunk), 2.0 * cube * m * m
+        return tables + 4.0 * (6 * cube + 4 * chunk), 2.0 * cube * m * m / _CONV_RATE
     vol = 4.0 * b * (n_t + 2) * (h + 2 * v) * (w + 2 * v)
     steps = 24.0 * min(n_on * m, _SPARSE_CHUNK) + 48.0 * min(n_on * m, _SLOT_CHUNK)
-    return tables + vol + 2.0 * n_on * m + steps + 64.0 * n_on, 2.0 * n_on * m * m
+    mem = tables + vol + 2.0 * n_on * m + steps + 64.0 * n_on
+    density = n_on / max(1, cube)
+    pairs = n_on * (m * density) ** 2  # expected move pairs of uniform clutter
+    seconds = 3.0 * n_on * m / _GATHER_RATE + min(
+        2.0 * n_on * m * m / _MATMUL_RATE, pairs / _SLOT_RATE
+    )
+    return mem, seconds
 
 
 def _plan(method: str, cube: torch.Tensor, v: int, delta: float | None) -> str:
-    """Resolve ``method`` and check the estimated cost against the budgets (names ``v``)."""
+    """Resolve ``method`` and check the estimated cost against the budgets (names ``v``).
+
+    ``"auto"`` prefers the sparse path up to ``SPARSE_DENSITY`` (always for eq. 4, whose sparse
+    path is a summed-area table) and the conv path above, but takes the other one when the
+    preferred path does not fit the budgets or is estimated 4x slower.
+    """
     check_choice("method", method, ("auto", "conv", "sparse"))
     shape = tuple(cube.shape)
     n_on = int(cube.sum()) if cube.numel() else 0
     density = n_on / max(1, cube.numel())
+    costs = {path: _cost(path, shape, n_on, v, delta) for path in ("conv", "sparse")}
     if method == "auto":
-        # eq. (4) on the sparse path is a summed-area table: O(cube) whatever the density or v
         first = "sparse" if density <= SPARSE_DENSITY or delta is None else "conv"
-        order = (first, "conv" if first == "sparse" else "sparse")
+        other = "conv" if first == "sparse" else "sparse"
+        order = (first, other)
+        if costs[first][1] > 4 * costs[other][1]:
+            order = (other, first)
     else:
         order = (method,)
     for path in order:
-        mem, work = _cost(path, shape, n_on, v, delta)
-        if mem <= MEMORY_BUDGET and work <= WORK_BUDGET:
+        mem, seconds = costs[path]
+        if mem <= MEMORY_BUDGET and seconds <= TIME_BUDGET:
             return path
     path = order[0]
-    mem, work = _cost(path, shape, n_on, v, delta)
+    mem, seconds = costs[path]
     _, n_t, h, w = shape
     raise ValueError(
         f"`v`: expected a velocity window small enough for this {n_t} x {h} x {w} cube "
         f"({100 * density:.3g} % on), got v={v} (after clamping to the frame): "
-        f"method={path!r} needs about {_gib(mem)} and {work:.2g} multiply-adds per layer "
-        f"(budgets: MEMORY_BUDGET = {_gib(MEMORY_BUDGET)}, WORK_BUDGET = {WORK_BUDGET:.2g}, "
+        f"method={path!r} needs about {_gib(mem)} and {seconds:.2g} s per layer "
+        f"(budgets: MEMORY_BUDGET = {_gib(MEMORY_BUDGET)}, TIME_BUDGET = {TIME_BUDGET:g} s, "
         "in hocnet.hoc.functional); use a smaller `v` or a sparser cube"
     )
 
@@ -807,7 +828,7 @@ def hoc_levels(
 
     Raises:
         ValueError: bad ``order``, ``v``, ``delta``, ``direction`` or ``method``; ``v`` whose
-            estimated cost exceeds ``MEMORY_BUDGET`` or ``WORK_BUDGET``.
+            estimated cost exceeds ``MEMORY_BUDGET`` or ``TIME_BUDGET``.
 
     Examples:
         >>> f = torch.ones(1, 4, 3, 3, dtype=torch.bool)
@@ -884,7 +905,7 @@ def modified_hoc(
     Raises:
         ValueError: wrong rank, non-binary values, ``order < 1``, ``v < 1``, ``delta`` outside
             ``(0, pi]``, unknown ``direction`` or ``method``, or a ``v`` whose estimated cost
-            exceeds ``MEMORY_BUDGET`` / ``WORK_BUDGET``.
+            exceeds ``MEMORY_BUDGET`` / ``TIME_BUDGET``.
 
     Examples:
         >>> f = torch.zeros(5, 9, 9, dtype=torch.bool)
