@@ -5,9 +5,13 @@ A move is ``(i, j) = (dx, dy)`` in pixels per scan, ``|i|, |j| <= v``; the veloc
 ``m = (j + v) * (2v + 1) + (i + v)``. The zero move has index ``M // 2``.
 
 The turn between two moves is the wrapped absolute difference of their bearings ``atan2(j, i)``
-in ``[0, pi]``; a turn involving a zero move is 0 (DESIGN section 2). A second move ``m2`` is
-*allowed* after a first move ``m1`` when ``turn(m1, m2) <= delta + 1e-9`` (modified HOC, eq. 5-6)
-or when ``m2 == m1`` (original HOC, eq. 4).
+in ``[0, pi]`` (eq. 6 and 9b of [LA98]); a turn involving a zero move is 0 (our reading: the
+bearing of a zero move is undefined in eq. 6). A second move ``m2`` is *allowed* after a first
+move ``m1`` when ``turn(m1, m2) <= delta + 1e-9`` (modified HOC, eq. 5-6); ``delta=None`` means no
+curvature constraint (every pair allowed).
+
+The original HOC of eq. (4) has no second move: its layer correlates two scans through the whole
+``(2v + 1) x (2v + 1)`` window, the :func:`get_window_kernel`.
 
 Every builder is pure and takes ``device=`` / ``dtype=``; the layers register the results as
 buffers (kornia style).
@@ -26,6 +30,7 @@ __all__ = [
     "allowed_moves",
     "get_direction_mask_kernels",
     "get_shift_kernels",
+    "get_window_kernel",
     "move_offsets",
     "turn_angles",
 ]
@@ -102,24 +107,24 @@ def allowed_moves(
 
     Args:
         v: velocity window half-width.
-        delta: curvature limit in radians, in ``(0, pi]`` (modified HOC, eq. 5-6), or ``None`` for
-            the original HOC of eq. (4), where the second move must equal the first.
+        delta: curvature limit in radians, in ``(0, pi]`` (modified HOC, eq. 5-6), or ``None``
+            for no curvature constraint (every pair allowed, like ``delta=pi``).
         device: device of the result.
 
     Returns:
-        ``(M, M)`` bool tensor ``A[m1, m2]``.
+        ``(M, M)`` bool tensor ``A[m1, m2]``, ``M = (2v + 1) ** 2``.
 
     Examples:
         >>> a = allowed_moves(4, math.pi / 4)
         >>> moving = torch.arange(81) != 40  # first moves other than the zero move
         >>> a.shape, round(a[moving].float().mean().item(), 3)  # about a quarter of the window
         (torch.Size([81, 81]), 0.284)
-        >>> bool((allowed_moves(2, None) == torch.eye(25, dtype=torch.bool)).all())
+        >>> bool(allowed_moves(2, None).all())
         True
     """
     moves = move_offsets(v, device=device)
     if delta is None:
-        return torch.eye(moves.shape[0], dtype=torch.bool, device=device)
+        return torch.ones(moves.shape[0], moves.shape[0], dtype=torch.bool, device=device)
     delta = _check_delta(delta)
     turns = turn_angles(moves[:, None, :], moves[None, :, :])
     return turns <= delta + TURN_TOLERANCE
@@ -139,7 +144,7 @@ def get_direction_mask_kernels(
 
     Args:
         v: velocity window half-width.
-        delta: curvature limit (radians) or ``None`` for the original HOC.
+        delta: curvature limit (radians) or ``None`` (no curvature constraint).
         device: device of the result.
         dtype: dtype of the result.
 
@@ -185,3 +190,31 @@ def get_shift_kernels(
     side = 2 * v + 1
     eye = torch.eye(side * side, device=device, dtype=dtype)
     return eye.reshape(1, side * side, side, side)
+
+
+def get_window_kernel(
+    v: int,
+    *,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> torch.Tensor:
+    """The velocity-window kernel of the original HOC, eq. (2) and (4) of [LA98].
+
+    Used as ``conv2d(Y_{t+1}, K, padding=v)``: the output at ``p`` is
+    ``sum_{|i|, |j| <= v} Y_{t+1}(p + (i, j))``, the inner sum of eq. (4).
+
+    Args:
+        v: velocity window half-width.
+        device: device of the result.
+        dtype: dtype of the result.
+
+    Returns:
+        ``(1, 1, 2v + 1, 2v + 1)`` kernel of ones.
+
+    Examples:
+        >>> get_window_kernel(1)[0, 0].int().tolist()
+        [[1, 1, 1], [1, 1, 1], [1, 1, 1]]
+    """
+    v = _check_v(v)
+    side = 2 * v + 1
+    return torch.ones(1, 1, side, side, device=device, dtype=dtype)

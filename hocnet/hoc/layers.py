@@ -1,8 +1,11 @@
-"""Thin ``nn.Module`` wrappers of the HOC network of [LA98].
+"""Thin ``nn.Module`` wrappers of the HOC networks of [LA98].
 
-Each layer registers its direction-masked and shift kernels as buffers (fixed network) or, with
-``learnable=True``, as parameters initialised from the fixed kernels (or at random); its
-``forward`` calls :func:`hocnet.hoc.functional.hoc_layer`. ``HOCNet`` stacks ``order`` layers.
+:class:`ModifiedHOCLayer` (eq. 5-6, Fig. 2) registers its direction-masked and shift kernels and
+:class:`HOCLayer` (original HOC, eq. 4) its window kernel as buffers (fixed network) or, with
+``learnable=True``, as parameters initialised from the fixed kernels (or at random); their
+``forward`` calls :func:`hocnet.hoc.functional.hoc_layer` /
+:func:`hocnet.hoc.functional.original_hoc_layer`. :class:`HOCNet` stacks ``order`` layers;
+:class:`MHOCImage` combines a forward and a backward stack into the MHOC image of section III-B.
 """
 
 from __future__ import annotations
@@ -14,10 +17,18 @@ import torch
 from torch import nn
 
 from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
-from hocnet.hoc.functional import Direction, hard_limiter, hoc_layer
-from hocnet.hoc.kernels import get_direction_mask_kernels, get_shift_kernels
+from hocnet.hoc import functional as _fn
+from hocnet.hoc.functional import Direction, hard_limiter, hoc_layer, original_hoc_layer
+from hocnet.hoc.kernels import get_direction_mask_kernels, get_shift_kernels, get_window_kernel
 
-__all__ = ["HOCLayer", "HOCNet", "ModifiedHOCLayer", "relaxed_limiter", "ste_limiter"]
+__all__ = [
+    "HOCLayer",
+    "HOCNet",
+    "MHOCImage",
+    "ModifiedHOCLayer",
+    "relaxed_limiter",
+    "ste_limiter",
+]
 
 
 def relaxed_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
@@ -48,12 +59,23 @@ def ste_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
 _RELAX = {"sigmoid": relaxed_limiter, "ste": ste_limiter}
 
 
+def _check_kernel_bytes(v: int, n_bytes: float) -> None:
+    """Refuse kernel banks larger than ``MEMORY_BUDGET`` before allocating them."""
+    if n_bytes > _fn.MEMORY_BUDGET:
+        raise ValueError(
+            f"`v`: expected a velocity window whose kernels fit MEMORY_BUDGET "
+            f"({_fn.MEMORY_BUDGET / 2**30:.2g} GiB), got v={v} (about {n_bytes / 2**30:.2g} GiB)"
+        )
+
+
 class ModifiedHOCLayer(nn.Module):
-    """One modified-HOC layer (eq. 5-6 of [LA98]) as fixed-weight convolutions.
+    """One modified-HOC layer (eq. 5-6 of [LA98], Fig. 2) as fixed-weight convolutions.
 
     Args:
-        v: velocity window half-width (pixels per scan).
-        delta: curvature limit in radians, ``(0, pi]``; ``None`` gives the original HOC (eq. 4).
+        v: velocity window half-width (pixels per scan); the kernel banks hold
+            ``(2v + 1)^4`` values, refused above ``MEMORY_BUDGET`` (``ValueError`` naming ``v``).
+        delta: curvature limit in radians, ``(0, pi]``; ``None``: no curvature constraint (a
+            three-scan correlation; the original HOC of eq. 4 is :class:`HOCLayer`).
         direction: ``"forward"`` or ``"backward"``.
         learnable: register the kernels as ``nn.Parameter`` instead of buffers.
         init: ``"fixed"`` (start from the paper's masks) or ``"random"`` (uniform in [0, 1)),
@@ -101,6 +123,7 @@ class ModifiedHOCLayer(nn.Module):
         check_choice("init", init, ("fixed", "random"))
         self.relax = check_choice("relax", relax, tuple(_RELAX))
         self.steepness = check_number("steepness", steepness, low=0.0, low_inclusive=False)
+        _check_kernel_bytes(self.v, 68.0 * (2 * self.v + 1) ** 4)
         masks = get_direction_mask_kernels(self.v, self.delta)
         shifts = get_shift_kernels(self.v)
         if self.learnable:
@@ -141,18 +164,77 @@ class ModifiedHOCLayer(nn.Module):
         )
 
 
-class HOCLayer(ModifiedHOCLayer):
-    """One original-HOC layer (eq. 4 of [LA98]): the second move must equal the first.
+class HOCLayer(nn.Module):
+    """One original-HOC layer, eq. (4) of [LA98]: a two-scan window correlation.
 
-    Same arguments as :class:`ModifiedHOCLayer` without ``delta``.
+    ``Y^(k)_t = Y^(k-1)_t * g(conv2d(Y^(k-1)_{t+1}, K_window))`` with the ``(2v + 1)^2``
+    window kernel of ones (:func:`~hocnet.hoc.kernels.get_window_kernel`); no curvature or
+    velocity-change constraint.
+
+    Args:
+        v: velocity window half-width (pixels per scan).
+        direction: ``"forward"`` (scan ``t + 1``) or ``"backward"`` (scan ``t - 1``).
+        learnable: register the kernel as ``nn.Parameter`` instead of a buffer.
+        init: ``"fixed"`` (the paper's window) or ``"random"`` (only with ``learnable=True``).
+        relax: limiter used in training mode when learnable: ``"sigmoid"`` or ``"ste"``.
+        steepness: slope of the relaxed limiter.
+        seed: seed of the random initialisation.
+
+    Shape:
+        - Input: ``(B, T, H, W)`` float 0/1 cube ``Y^(k-1)``.
+        - Output: ``(B, T, H, W)`` cube ``Y^(k)``.
 
     Examples:
-        >>> HOCLayer(v=2).mask_kernels.shape
-        torch.Size([25, 1, 5, 5])
+        >>> layer = HOCLayer(v=2)
+        >>> layer.window_kernel.shape
+        torch.Size([1, 1, 5, 5])
+        >>> f = torch.zeros(1, 2, 5, 5)
+        >>> f[0, 0, 0, 0] = f[0, 1, 2, 2] = 1.0
+        >>> layer(f)[0, :, 0, 0].tolist()
+        [1.0, 0.0]
     """
 
-    def __init__(self, v: int = 4, direction: Direction = "forward", **kwargs) -> None:
-        super().__init__(v, None, direction, **kwargs)
+    def __init__(
+        self,
+        v: int = 4,
+        direction: Direction = "forward",
+        *,
+        learnable: bool = False,
+        init: str = "fixed",
+        relax: str = "sigmoid",
+        steepness: float = 8.0,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        self.v = check_int("v", v, minimum=1)
+        self.direction = check_choice("direction", direction, ("forward", "backward"))
+        self.learnable = bool(learnable)
+        check_choice("init", init, ("fixed", "random"))
+        self.relax = check_choice("relax", relax, tuple(_RELAX))
+        self.steepness = check_number("steepness", steepness, low=0.0, low_inclusive=False)
+        _check_kernel_bytes(self.v, 4.0 * (2 * self.v + 1) ** 2)
+        window = get_window_kernel(self.v)
+        if self.learnable:
+            if init == "random":
+                gen = torch.Generator().manual_seed(0 if seed is None else int(seed))
+                window = torch.rand(window.shape, generator=gen)
+            self.window_kernel = nn.Parameter(window)
+        else:
+            if init != "fixed":
+                raise ValueError("`init`: expected 'fixed' for a fixed layer, got 'random'")
+            self.register_buffer("window_kernel", window)
+
+    activation = ModifiedHOCLayer.activation
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        """Apply the layer to a ``(B, T, H, W)`` float cube."""
+        return original_hoc_layer(
+            y, self.window_kernel, direction=self.direction, activation=self.activation()
+        )
+
+    def extra_repr(self) -> str:
+        """Settings shown by ``repr``."""
+        return f"v={self.v}, direction={self.direction!r}, learnable={self.learnable}"
 
 
 class HOCNet(nn.Module):
@@ -160,15 +242,18 @@ class HOCNet(nn.Module):
 
     Args:
         order: number of layers ``k >= 1``; a surviving point starts (forward) or ends
-            (backward) a ``(2k + 1)``-scan chain.
+            (backward) a ``(2k + 1)``-scan chain (modified) or a ``(k + 1)``-scan chain
+            (original).
         v: velocity window half-width.
-        delta: curvature limit in ``(0, pi]``, or ``None`` for the original HOC.
+        delta: curvature limit in ``(0, pi]`` (:class:`ModifiedHOCLayer`, eq. 5-6), or ``None``
+            for the original HOC (:class:`HOCLayer`, eq. 4).
         direction: ``"forward"`` or ``"backward"``.
         learnable: learnable kernels (see :class:`ModifiedHOCLayer`).
         **kwargs: passed to each layer (``init``, ``relax``, ``steepness``, ``seed``).
 
     Shape:
-        - Input: ``(B, T, H, W)`` or ``(T, H, W)``, bool or 0/1 float.
+        - Input: ``(B, T, H, W)`` or ``(T, H, W)``, bool or 0/1 float; ``B = 0`` gives an
+          empty output.
         - Output: float cube of the same shape, ``Y^(order)``.
 
     Examples:
@@ -193,17 +278,31 @@ class HOCNet(nn.Module):
         super().__init__()
         self.order = check_int("order", order, minimum=1)
         seed = kwargs.pop("seed", None)
-        self.layers = nn.ModuleList(
-            ModifiedHOCLayer(
-                v,
-                delta,
-                direction,
-                learnable=learnable,
-                seed=None if seed is None else seed + i,
-                **kwargs,
+        self.delta = delta
+        if delta is None:
+            layers = (
+                HOCLayer(
+                    v,
+                    direction,
+                    learnable=learnable,
+                    seed=None if seed is None else seed + i,
+                    **kwargs,
+                )
+                for i in range(self.order)
             )
-            for i in range(self.order)
-        )
+        else:
+            layers = (
+                ModifiedHOCLayer(
+                    v,
+                    delta,
+                    direction,
+                    learnable=learnable,
+                    seed=None if seed is None else seed + i,
+                    **kwargs,
+                )
+                for i in range(self.order)
+            )
+        self.layers = nn.ModuleList(layers)
 
     def forward(self, frames: torch.Tensor, *, return_levels: bool = False):
         """Run the stack; with ``return_levels`` also return ``[F, Y^(1), ..., Y^(k)]``."""
@@ -216,3 +315,48 @@ class HOCNet(nn.Module):
         if return_levels:
             return out, [restore_batch(level, batched) for level in levels]
         return out
+
+
+class MHOCImage(nn.Module):
+    """The MHOC image of [LA98] section III-B: forward ``Y^(k)`` OR backward ``Y^(k)``.
+
+    Two :class:`HOCNet` stacks (eq. 5 forward, eq. 10 backward) whose outputs are combined by a
+    logical OR (``maximum`` of the 0/1 outputs). For ``T >= 4k`` scans every scan holds output
+    (forward ``t <= T - 1 - 2k``, backward ``t >= 2k``). See
+    :func:`hocnet.hoc.functional.mhoc_image`.
+
+    Args:
+        order: HOC order ``k >= 1``.
+        v: velocity window half-width.
+        delta: curvature limit in ``(0, pi]``, or ``None`` for the original HOC (eq. 4).
+        learnable: learnable kernels (see :class:`ModifiedHOCLayer`).
+        **kwargs: passed to each layer (``init``, ``relax``, ``steepness``, ``seed``).
+
+    Shape:
+        - Input: ``(B, T, H, W)`` or ``(T, H, W)``, bool or 0/1 float.
+        - Output: float cube of the same shape.
+
+    Examples:
+        >>> f = torch.zeros(10, 12, 12)
+        >>> for t in range(10):
+        ...     f[t, 5, 1 + t] = 1.0
+        >>> int(MHOCImage(order=2, v=1)(f).sum())
+        10
+    """
+
+    def __init__(
+        self,
+        order: int = 2,
+        v: int = 4,
+        delta: float | None = math.pi / 4,
+        *,
+        learnable: bool = False,
+        **kwargs,
+    ) -> None:
+        super().__init__()
+        self.forward_net = HOCNet(order, v, delta, "forward", learnable=learnable, **kwargs)
+        self.backward_net = HOCNet(order, v, delta, "backward", learnable=learnable, **kwargs)
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        """Forward ``Y^(k)`` OR backward ``Y^(k)`` of a ``(B, T, H, W)`` / ``(T, H, W)`` cube."""
+        return torch.maximum(self.forward_net(frames), self.backward_net(frames))

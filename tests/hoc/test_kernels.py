@@ -7,6 +7,7 @@ from hocnet.hoc.kernels import (
     allowed_moves,
     get_direction_mask_kernels,
     get_shift_kernels,
+    get_window_kernel,
     move_offsets,
     turn_angles,
 )
@@ -72,8 +73,8 @@ class TestAllowedMoves:
     def test_pi_allows_everything(self):
         assert allowed_moves(2, math.pi).all()
 
-    def test_original_is_identity(self):
-        assert torch.equal(allowed_moves(3, None), torch.eye(49, dtype=torch.bool))
+    def test_none_is_no_curvature_constraint(self):
+        assert torch.equal(allowed_moves(3, None), allowed_moves(3, math.pi))
 
     def test_quarter_of_window(self):
         a = allowed_moves(4, math.pi / 4)
@@ -106,3 +107,15 @@ class TestKernels:
 
     def test_device_dtype(self):
         assert get_shift_kernels(1, dtype=torch.float16).dtype == torch.float16
+
+    def test_window_kernel_sums_the_window(self):
+        k = get_window_kernel(2, dtype=torch.float64)
+        assert k.shape == (1, 1, 5, 5) and k.dtype == torch.float64 and bool((k == 1).all())
+        x = torch.zeros(1, 1, 9, 9, dtype=torch.float64)
+        x[0, 0, 4, 4] = 1.0
+        out = torch.nn.functional.conv2d(x, k, padding=2)[0, 0]
+        assert out.sum().item() == 25 and bool((out[2:7, 2:7] == 1).all())
+
+    def test_window_kernel_bad_v(self):
+        with pytest.raises(ValueError, match="`v`"):
+            get_window_kernel(0)

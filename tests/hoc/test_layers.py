@@ -3,7 +3,15 @@ import math
 import pytest
 import torch
 
-from hocnet.hoc import HOCLayer, HOCNet, ModifiedHOCLayer, modified_hoc, original_hoc
+from hocnet.hoc import (
+    HOCLayer,
+    HOCNet,
+    MHOCImage,
+    ModifiedHOCLayer,
+    mhoc_image,
+    modified_hoc,
+    original_hoc,
+)
 from hocnet.hoc.layers import relaxed_limiter, ste_limiter
 
 
@@ -58,10 +66,33 @@ class TestModifiedHOCLayer:
 
 
 class TestHOCLayer:
-    def test_is_original_hoc(self):
-        cube = random_cube(2, (1, 7, 9, 9), 0.35)
-        out = HOCLayer(v=2)(cube.float())
-        assert torch.equal(out > 0, original_hoc(cube, 1, 2))
+    @pytest.mark.parametrize("direction", ["forward", "backward"])
+    def test_is_original_hoc(self, direction):
+        cube = random_cube(2, (1, 7, 9, 9), 0.1)
+        out = HOCLayer(v=2, direction=direction)(cube.float())
+        assert torch.equal(out > 0, original_hoc(cube, 1, 2, direction))
+
+    def test_window_kernel_buffer(self):
+        layer = HOCLayer(v=3)
+        assert list(layer.parameters()) == []
+        assert layer.window_kernel.shape == (1, 1, 7, 7) and bool((layer.window_kernel == 1).all())
+        assert "window_kernel" in layer.state_dict()
+
+    def test_learnable(self):
+        layer = HOCLayer(v=1, learnable=True).train()
+        assert [n for n, _ in layer.named_parameters()] == ["window_kernel"]
+        layer(random_cube(0, (1, 5, 6, 6), 0.4).float()).sum().backward()
+        assert layer.window_kernel.grad.abs().sum() > 0
+        a = HOCLayer(v=1, learnable=True, init="random", seed=2)
+        b = HOCLayer(v=1, learnable=True, init="random", seed=2)
+        assert torch.equal(a.window_kernel, b.window_kernel)
+        with pytest.raises(ValueError, match="`init`"):
+            HOCLayer(v=1, init="random")
+
+    def test_v_larger_than_frame(self):
+        cube = random_cube(3, (1, 5, 4, 6), 0.2)
+        out = HOCLayer(v=50)(cube.float())
+        assert torch.equal(out > 0, original_hoc(cube, 1, 5))
 
 
 class TestHOCNet:
@@ -93,6 +124,38 @@ class TestHOCNet:
     def test_bad_order(self):
         with pytest.raises(ValueError, match="`order`"):
             HOCNet(order=0)
+
+    def test_original_stacks_hoc_layers(self):
+        net = HOCNet(order=2, v=1, delta=None)
+        assert all(isinstance(layer, HOCLayer) for layer in net.layers)
+
+    @pytest.mark.parametrize("delta", [math.pi / 4, None])
+    def test_empty_batch(self, delta):
+        cube = torch.zeros(0, 6, 8, 8)
+        assert HOCNet(order=2, v=2, delta=delta)(cube).shape == (0, 6, 8, 8)
+        assert MHOCImage(order=2, v=2, delta=delta)(cube).shape == (0, 6, 8, 8)
+
+    def test_huge_v_kernels_refused_at_once(self):
+        with pytest.raises(ValueError, match="`v`"):
+            ModifiedHOCLayer(v=100)
+        with pytest.raises(ValueError, match="`v`"):
+            HOCNet(order=2, v=1000)
+
+    def test_v_larger_than_frame(self):
+        cube = random_cube(6, (1, 6, 5, 5), 0.3)
+        assert torch.equal(HOCNet(2, v=9)(cube) > 0, modified_hoc(cube, 2, 4))
+
+
+class TestMHOCImage:
+    @pytest.mark.parametrize("delta", [math.pi / 4, None])
+    def test_module_equals_function(self, delta):
+        cube = random_cube(7, (2, 10, 11, 12), 0.1)
+        out = MHOCImage(order=2, v=2, delta=delta)(cube)
+        assert torch.equal(out > 0, mhoc_image(cube, 2, 2, delta))
+
+    def test_unbatched(self):
+        cube = random_cube(8, (10, 9, 9), 0.1)
+        assert MHOCImage(order=2, v=2)(cube).shape == (10, 9, 9)
 
 
 class TestLimiters:
