@@ -22,6 +22,7 @@ from hocnet.dpa.matrices import (
     IN_PLACE,
     N_DIRECTIONS,
     PAPER_PSF,
+    PENALTY_TOP,
     _combine,
     _penalty_turns,
     _window,
@@ -35,6 +36,8 @@ from hocnet.dpa.matrices import (
 __all__ = ["DPA"]
 
 LEARNABLE = ("b", "g", "p", "penalty")
+#: Largest penalty step ``x`` (the paper's 3: the opposite side gets ``12 - 4x = 0``).
+_X_MAX = PENALTY_TOP / 4
 #: Distance kept from the boundary of a constrained parameter when it is initialised on it.
 _MARGIN = 1e-6
 
@@ -60,9 +63,9 @@ class DPA(nn.Module):
         ``directional=False`` uses the single matrix ``W(9) = W_basic`` (no direction step,
         ``D = 1``). Learnable parameters are stored unconstrained: ``g = sigmoid(g_raw)`` and
         ``p = sigmoid(p_raw)`` in ``[0, 1]``, ``b = softplus(b_raw) >= 0`` and
-        ``penalty_step = softplus(penalty_raw) >= 0``; a learnable value initialised on its
-        bound (``g`` or ``p`` in {0, 1}, ``b = 0``, ``penalty_step = 0``) starts ``1e-6`` inside
-        it.
+        ``penalty_step = 3 sigmoid(penalty_raw)`` in ``[0, 3]``; a learnable value initialised on
+        its bound (``g`` or ``p`` in {0, 1}, ``b = 0``, ``penalty_step`` in {0, 3}, so the paper's
+        ``x = 3``) starts ``1e-6`` inside it.
 
     Args:
         weights: ``(D, k, k)`` probability matrices (``D`` in {1, 9}); ``None`` builds them with
@@ -75,7 +78,7 @@ class DPA(nn.Module):
         jitter: half-width of the uniform per-axis jitter in pixels.
         psf: FWHM of the Gaussian target spread of W_basic in pixels.
         p: mixing weight of W_basic in eq. (5), in ``[0, 1]``.
-        penalty_step: the penalty ``x`` per 45 degrees of turn (Figure 2), ``>= 0``.
+        penalty_step: the penalty ``x`` per 45 degrees of turn (Figure 2), in ``[0, 3]``.
         directional: 9 direction-dependent matrices (``True``) or one matrix (``False``).
         learnable: subset of ``("b", "g", "p", "penalty")`` to make ``nn.Parameter``\ s; ``"p"``
             and ``"penalty"`` need ``weights=None`` and ``directional=True``.
@@ -141,7 +144,7 @@ class DPA(nn.Module):
         memory_direction = check_int("memory_direction", memory_direction, minimum=1, maximum=9)
         g = check_number("g", g, low=0.0, high=1.0)
         p = check_number("p", p, low=0.0, high=1.0)
-        penalty_step = check_number("penalty_step", penalty_step, low=0.0)
+        penalty_step = check_number("penalty_step", penalty_step, low=0.0, high=_X_MAX)
         if b is not None:
             b = check_number("b", b, low=0.0)
         memory = check_number("memory", memory, low=0.0, low_inclusive=False)
@@ -188,7 +191,7 @@ class DPA(nn.Module):
 
         self._store("g", g, lambda x: math.log(x / (1 - x)), 0.0, 1.0)
         self._store("p", p, lambda x: math.log(x / (1 - x)), 0.0, 1.0)
-        self._store("penalty", penalty_step, _inverse_softplus, 0.0, None)
+        self._store("penalty", penalty_step, lambda x: math.log(x / (_X_MAX - x)), 0.0, _X_MAX)
         if b is None:
             with torch.no_grad():
                 w = self.weights.double()
@@ -224,9 +227,9 @@ class DPA(nn.Module):
 
     @property
     def penalty_step(self) -> torch.Tensor:
-        """The penalty ``x >= 0`` per 45 degrees of turn, Figure 2 (0-dim tensor)."""
+        """The penalty ``x`` in ``[0, 3]`` per 45 degrees of turn, Figure 2 (0-dim tensor)."""
         if "penalty" in self.learnable:
-            return F.softplus(self.penalty_raw)
+            return _X_MAX * torch.sigmoid(self.penalty_raw)
         return self.penalty_value
 
     @property

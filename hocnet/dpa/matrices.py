@@ -324,13 +324,13 @@ def frame_matrix(
 def _penalty_step_tensor(
     penalty_step: float | torch.Tensor, device: torch.device | str | None, dtype: torch.dtype
 ) -> torch.Tensor:
-    check_number("penalty_step", penalty_step, low=0.0)
+    check_number("penalty_step", penalty_step, low=0.0, high=PENALTY_TOP / 4)
     return torch.as_tensor(penalty_step).to(device=device, dtype=dtype)
 
 
 def _penalty(turns: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
-    """``max(12 - step * turn, 0)``: the penalty values of Figure 2 (differentiable in ``step``)."""
-    return torch.clamp_min(PENALTY_TOP - step * turns, 0.0)
+    """``12 - step * turn``: the penalty values of Figure 2 (differentiable in ``step``)."""
+    return PENALTY_TOP - step * turns
 
 
 def penalty_matrices(
@@ -346,8 +346,9 @@ def penalty_matrices(
     ``x = penalty_step`` ("a turn of 45 degrees leads to penalty of -x, 90 degrees to -2x"), so
     with ``x = 3`` the opposite side gets 0. The turn of an offset is measured along its square
     ring of the window, linearly along each ring side (corners and side midpoints at multiples
-    of 45 degrees), and the centre gets 12 (as printed in Figure 2). Values below 0 (only for
-    ``x > 3``) are set to 0.
+    of 45 degrees), and the centre gets 12 (as printed in Figure 2). ``x`` lies in ``[0, 3]``
+    (our reading: 3, the paper's value, is the largest step that keeps the opposite side at
+    ``12 - 4x >= 0``, a valid probability; 0 removes the direction preference).
 
     Notes:
         Figure 2 prints direction 1 (arrow ``->``, 0 degrees, 7 x 7, ``x = 3``) as the rows
@@ -361,7 +362,7 @@ def penalty_matrices(
 
     Args:
         window: odd window size ``k``.
-        penalty_step: the penalty ``x`` per 45 degrees of turn, ``>= 0`` (float or 0-dim
+        penalty_step: the penalty ``x`` per 45 degrees of turn, in ``[0, 3]`` (float or 0-dim
             tensor); the paper takes ``x = 3``.
         device: device of the result.
         dtype: floating dtype of the result (default: torch's default dtype).
@@ -426,7 +427,7 @@ def _combine(
         frame: ``(k, k)`` W_frame (0/1).
         turns: ``(8, k, k)`` turns from :func:`_penalty_turns` (in ``basic``'s dtype).
         p: 0-dim mixing weight in ``[0, 1]``.
-        penalty_step: 0-dim step ``x >= 0``.
+        penalty_step: 0-dim step ``x`` in ``[0, 3]``.
 
     Returns:
         ``(9, k, k)``, each matrix summing to 1. Differentiable in ``p`` and ``penalty_step``.
@@ -466,8 +467,8 @@ def probability_matrices(
         jitter: half-width of the uniform per-axis jitter in pixels, ``>= 0``.
         psf: FWHM of the Gaussian target spread in pixels, ``>= 0`` (:func:`basic_matrix`).
         p: mixing weight of W_basic in ``[0, 1]`` (float or 0-dim tensor; differentiable).
-        penalty_step: the penalty ``x`` per 45 degrees of turn, ``>= 0`` (float or 0-dim tensor;
-            differentiable).
+        penalty_step: the penalty ``x`` per 45 degrees of turn, in ``[0, 3]`` (float or 0-dim
+            tensor; differentiable).
         device: device of the result.
         dtype: floating dtype of the result (default: torch's default dtype).
 
@@ -632,7 +633,7 @@ def effective_memory(
         >>> round(effective_memory(w, 0.0), 2), round(effective_memory(w, 1.0), 2)
         (4.67, 0.8)
         >>> round(effective_memory(w, 0.0, direction=1), 2)
-        7.57
+        7.58
     """
     w = _pick(_memory_weights(weights), direction)
     target = check_number("target", target, low=0.0, low_inclusive=False)
@@ -660,7 +661,7 @@ def effective_memories(
 
     Examples:
         >>> effective_memories(probability_matrices(), 0.0).round(decimals=2)
-        tensor([7.5700, 7.5700, 7.5700, 7.5700, 7.5700, 7.5700, 7.5700, 7.5700, 4.6700])
+        tensor([7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 4.6700])
     """
     w = _memory_weights(weights)
     target = check_number("target", target, low=0.0, low_inclusive=False)
@@ -783,8 +784,8 @@ def memory_line(
         and ``1/b = 1.035 g + 0.214`` for direction 9. The default matrices
         (:func:`probability_matrices`: 7 x 7, 0-2 px/frame + 0.5 jitter, ``p = 0.5``, ``x = 3``,
         W_basic spread fitted to direction 9's intercept) give, measured:
-        directions 1-8 ``1/b = 1.1180 g + 0.1320`` (``b_{g=0} = 7.57``, paper 7.63) and
-        direction 9 ``1/b = 1.0360 g + 0.2140`` (``b_{g=0} = 4.67``, paper "close to 4.65").
+        directions 1-8 ``1/b = 1.1180 g + 0.1320`` (``b_{g=0} = 7.576``, paper 7.63) and
+        direction 9 ``1/b = 1.0360 g + 0.2140`` (``b_{g=0} = 4.673``, paper "close to 4.65").
         Directions 1-8 are an independent check (only direction 9's intercept is fitted): both
         constants within 1 %. (The paper's pairs sum to 1.249, not 1.25: rounding.)
 
