@@ -132,12 +132,13 @@ def accumulate_reference(
                         # eq. (7)-(8): the source pixel and the direction of the current pixel
                         best, src = None, (0, 0)
                         for i, j in window:
-                            w_basic = float(w[8, h + j, h + i])
+                            w_basic = w[8, h + j, h + i]
                             if w_basic <= 0:
                                 continue
                             d_q = direction[bi, n - 1, y + j, x + i]
-                            var = v[d_q, _move_direction(-j, -i)]
-                            score = float(prev[y + j, x + i]) * w_basic * var
+                            var = dt(v[d_q, _move_direction(-j, -i)])
+                            # in the frames' dtype: (w_basic * Var) * ASF, rounded as the fast path
+                            score = (w_basic * var) * prev[y + j, x + i]
                             if best is None or score > best:
                                 best, src = score, (i, j)
                         d_p = _move_direction(-src[1], -src[0])

@@ -4,6 +4,8 @@ import math
 import numpy as np
 import pytest
 import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hocnet.dpa.functional import DPAState, accumulate
 from hocnet.dpa.matrices import probability_matrices, var_table
@@ -407,3 +409,42 @@ class TestEmptyAndMemoryRange:
         frames[:, 4, 4] += 5.0
         with pytest.raises(ValueError, match="`b`: the accumulated score overflowed"):
             accumulate(frames, probability_matrices(), 9.4, 0.0, direction_step=step)
+
+
+class TestReferenceProperty:
+    @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(
+        seed=st.integers(0, 2**31 - 1),
+        bsz=st.integers(1, 2),
+        t=st.integers(1, 4),
+        h=st.integers(3, 7),
+        w=st.integers(3, 7),
+        k=st.sampled_from([1, 3, 5]),
+        d=st.sampled_from([1, 9]),
+        b=st.floats(0.0, 1.0),
+        g=st.sampled_from([0.0, 0.25, 1.0]),
+        double=st.booleans(),
+        transposed=st.booleans(),
+        step=st.sampled_from(STEPS),
+        kind=st.sampled_from(["probability", "random"]),
+    )
+    def test_fast_path_equals_reference(
+        self, seed, bsz, t, h, w, k, d, b, g, double, transposed, step, kind
+    ):
+        k = min(k, h, w) if min(k, h, w) % 2 else min(k, h, w) - 1
+        gen = torch.Generator().manual_seed(seed)
+        dtype = F64 if double else torch.float32
+        if kind == "probability" and k > 1:
+            weights = probability_matrices(k, v_max=1.0, dtype=dtype)
+            weights = weights if d == 9 else weights[8:9].contiguous()
+        else:
+            weights = _weights("random", d, k, dtype, gen)
+        table = _random_var_table(gen) if d == 9 and seed % 2 else None
+        frames = torch.randn(bsz, t, w, h, generator=gen, dtype=dtype).transpose(-1, -2)
+        if transposed:  # non-contiguous frames and weights
+            weights = weights.transpose(-1, -2)
+        else:
+            frames = frames.contiguous()
+        state = accumulate(frames, weights, b, g, var_table=table, direction_step=step)
+        expected = accumulate_reference(frames, weights, b, g, table, direction_step=step)
+        _assert_equal_to_reference(state, expected)
