@@ -13,9 +13,11 @@ run:
   ``F.unfold(x.reshape(B*T, 1, H, W), k, padding=k // 2).max(1)``: the least any windowed
   max over every frame can cost.
 
-The weights are ``probability_matrices(window=k, v_max=...)`` (``v_max`` 2.5 for 7 x 7, 1.0 for
-5 x 5): all nine for ``D = 9``, the "in place" matrix alone for ``D = 1``; ``g = 0.5`` and ``b``
-from ``effective_memory(weights, g)`` (effective memory 0.8). The peak memory of fwd+bwd is
+The weights are ``probability_matrices(window=k, v_max=...)`` (``v_max`` 2 for 7 x 7, 1 for
+5 x 5, plus the default 0.5 px jitter): all nine for ``D = 9``, the "in place" matrix alone for
+``D = 1``; ``g = 0.5`` and ``b`` from ``effective_memory(weights, g)`` (effective memory 0.8 in
+direction 9). ``D = 9`` is timed with both direction steps of ``accumulate`` ("paper", the
+default, and "source"). The peak memory of fwd+bwd is
 measured once per configuration in a fresh forkserver child (see ``benchmarks/_common.py``).
 
 Run::
@@ -63,7 +65,7 @@ from hocnet.dpa.reference import accumulate_reference
 
 G = 0.5  # sum/max mixing of every run
 EMC = 0.8  # effective memory that sets b
-V_MAX = {5: 1.0, 7: 2.5}  # largest speed (px/frame) of the matrices of each window
+V_MAX = {5: 1.0, 7: 2.0}  # largest speed (px/frame, + 0.5 jitter) of the matrices of each window
 
 TINY = (12, 4)  # (frame size, frames) of the configurations with the loop reference
 SIZES = (64, 128, 256)
@@ -71,6 +73,7 @@ QUICK_SIZES = (64,)
 FRAMES = (10, 25)
 WINDOWS = (5, 7)
 DS = (1, 9)
+STEPS = ("paper", "source")  # direction steps timed for D = 9 (D = 1 has none: "paper" only)
 
 MIN_RUNS = 3  # a time is the min over at least this many runs ...
 MIN_TIME_S = 1.0  # ... and more (up to MAX_RUNS) while less than this was spent on the item
@@ -78,7 +81,7 @@ MAX_RUNS = 30
 QUICK_MIN_TIME_S = 0.15
 
 # the targets of the issue, for 25 frames of 256 x 256, 7 x 7, D = 9
-TARGET = (256, 25, 7, 9)
+TARGET = (256, 25, 7, 9, "paper")
 TARGET_FLOOR_RATIO = 4.0  # forward within this factor of the floor
 TARGET_BACKWARD_RATIO = 3.0  # forward + backward within this factor of forward
 TARGET_MEMORY_MB = 2048.0  # peak memory of forward + backward
@@ -96,6 +99,7 @@ class Row:
     frames: int
     window: int
     d: int
+    step: str
     reference_s: float | None
     forward_s: float
     forward_runs: int
@@ -125,12 +129,14 @@ def make_inputs(
     return frames, weights, float(effective_memory(weights, G, EMC))
 
 
-def forward(frames: torch.Tensor, weights: torch.Tensor, b: float) -> torch.Tensor:
+def forward(frames: torch.Tensor, weights: torch.Tensor, b: float, step: str) -> torch.Tensor:
     """The forward item: the ASF of ``accumulate`` (inputs not requiring grad)."""
-    return accumulate(frames, weights, b, G).asf
+    return accumulate(frames, weights, b, G, direction_step=step).asf
 
 
-def forward_backward(frames: torch.Tensor, weights: torch.Tensor, b: float) -> torch.Tensor:
+def forward_backward(
+    frames: torch.Tensor, weights: torch.Tensor, b: float, step: str
+) -> torch.Tensor:
     """The fwd+bwd item: ``accumulate`` with every input requiring grad, then ``backward``.
 
     Fresh leaves are made from the inputs (a cheap copy, part of the timed item) so that every
@@ -140,7 +146,7 @@ def forward_backward(frames: torch.Tensor, weights: torch.Tensor, b: float) -> t
     w = weights.detach().clone().requires_grad_(True)
     b_t = torch.tensor(b, requires_grad=True)
     g_t = torch.tensor(G, requires_grad=True)
-    asf = accumulate(x, w, b_t, g_t).asf
+    asf = accumulate(x, w, b_t, g_t, direction_step=step).asf
     asf.sum().backward()
     return asf.detach()
 
@@ -152,30 +158,32 @@ def floor(frames: torch.Tensor, window: int) -> torch.Tensor:
     return cols.max(1).values
 
 
-def _memory_item(size: int, n_frames: int, window: int, d: int, seed: int) -> None:
+def _memory_item(size: int, n_frames: int, window: int, d: int, step: str, seed: int) -> None:
     """What the memory child runs: build the inputs, then one fwd+bwd item."""
     frames, weights, b = make_inputs(size, n_frames, window, d, seed)
-    forward_backward(frames, weights, b)
+    forward_backward(frames, weights, b, step)
 
 
 def _warm_up() -> None:
     """One tiny call of each item (one-time runtime setup, not timed or counted)."""
     for d in DS:
-        frames, weights, b = make_inputs(12, 3, 5, d, 0)
-        forward(frames, weights, b)
-        forward_backward(frames, weights, b)
-        floor(frames, 5)
+        for step in STEPS:
+            frames, weights, b = make_inputs(12, 3, 5, d, 0)
+            forward(frames, weights, b, step)
+            forward_backward(frames, weights, b, step)
+            floor(frames, 5)
 
 
 def check_reference(
-    frames: torch.Tensor, weights: torch.Tensor, b: float, quick: bool
+    frames: torch.Tensor, weights: torch.Tensor, b: float, step: str, quick: bool
 ) -> tuple[float, bool]:
     """Time the loop reference and compare ``accumulate`` with it (ASF, direction, origin)."""
     kwargs = {"min_runs": 1, "min_time": 0.0} if quick else {"min_time": 0.0}
     ref_s, _, (r_asf, r_dir, r_org) = timed(
-        lambda: accumulate_reference(frames.numpy(), weights.numpy(), b, G), **kwargs
+        lambda: accumulate_reference(frames.numpy(), weights.numpy(), b, G, direction_step=step),
+        **kwargs,
     )
-    state = accumulate(frames, weights, b, G)
+    state = accumulate(frames, weights, b, G, direction_step=step)
     ok = (
         np.allclose(state.asf.numpy(), r_asf, rtol=RTOL, atol=ATOL)
         and np.array_equal(state.direction.numpy(), r_dir)
@@ -185,7 +193,7 @@ def check_reference(
 
 
 def run_config(
-    size: int, n_frames: int, window: int, d: int, seed: int, threads: int, quick: bool
+    size: int, n_frames: int, window: int, d: int, step: str, seed: int, threads: int, quick: bool
 ) -> Row:
     """Time one configuration and measure its fwd+bwd peak memory."""
     frames, weights, b = make_inputs(size, n_frames, window, d, seed)
@@ -195,8 +203,8 @@ def run_config(
         "max_runs": MAX_RUNS,
     }
     with torch.no_grad():
-        fwd_s, fwd_runs, asf = timed(lambda: forward(frames, weights, b), **opts)
-    fb_s, fb_runs, asf_fb = timed(lambda: forward_backward(frames, weights, b), **opts)
+        fwd_s, fwd_runs, asf = timed(lambda: forward(frames, weights, b, step), **opts)
+    fb_s, fb_runs, asf_fb = timed(lambda: forward_backward(frames, weights, b, step), **opts)
     floor_s, _, _ = timed(lambda: floor(frames, window), **opts)
     if not torch.equal(asf, asf_fb):
         raise AssertionError(f"forward and fwd+bwd ASF differ at {size}, {n_frames}, {window}")
@@ -204,16 +212,16 @@ def run_config(
     reference_s: float | None = None
     matches: bool | None = None
     if (size, n_frames) == TINY:
-        reference_s, matches = check_reference(frames, weights, b, quick)
+        reference_s, matches = check_reference(frames, weights, b, step, quick)
         if not matches:
             raise AssertionError(
                 f"accumulate differs from the loop reference at {size}x{size}, T={n_frames}, "
-                f"{window}x{window}, D={d}"
+                f"{window}x{window}, D={d}, direction_step={step}"
             )
 
     peak_mb, peak_abs_mb = peak_memory_mb(
         _memory_item,
-        (size, n_frames, window, d, seed),
+        (size, n_frames, window, d, step, seed),
         _warm_up,
         threads,
         preload=("torch", "hocnet.dpa.functional"),
@@ -223,6 +231,7 @@ def run_config(
         frames=n_frames,
         window=window,
         d=d,
+        step=step,
         reference_s=reference_s,
         forward_s=fwd_s,
         forward_runs=fwd_runs,
@@ -246,6 +255,7 @@ COLUMNS = (
     "T",
     "window",
     "D",
+    "direction step",
     "reference s",
     "forward s",
     "fwd+bwd s",
@@ -266,6 +276,7 @@ def markdown_table(rows: list[Row]) -> list[str]:
             str(r.frames),
             f"{r.window}x{r.window}",
             str(r.d),
+            r.step if r.d == 9 else "—",
             fmt_s(r.reference_s),
             fmt_s(r.forward_s),
             fmt_s(r.fwd_bwd_s),
@@ -281,9 +292,9 @@ def markdown_table(rows: list[Row]) -> list[str]:
 
 def headline(rows: list[Row]) -> list[str]:
     """The headline for 25 frames of 256 x 256, 7 x 7, D = 9, with PASS/FAIL per target."""
-    size, n_frames, window, d = TARGET
-    what = f"{n_frames} frames of {size}x{size}, {window}x{window}, D = {d}"
-    hit = [r for r in rows if (r.size, r.frames, r.window, r.d) == TARGET]
+    size, n_frames, window, d, step = TARGET
+    what = f"{n_frames} frames of {size}x{size}, {window}x{window}, D = {d}, {step} step"
+    hit = [r for r in rows if (r.size, r.frames, r.window, r.d, r.step) == TARGET]
     if not hit:
         return [f"Headline ({what}): not run in this mode."]
     r = hit[0]
@@ -324,7 +335,9 @@ def header_lines(
         f"(torch.Generator seed {args.seed}); weights `probability_matrices(window=k, "
         f"v_max=...)` (v_max {V_MAX[7]:g} for 7x7, {V_MAX[5]:g} for 5x5), all nine for D = 9, "
         f"the in-place matrix `[8:9]` for D = 1; g = {G:g}, b = "
-        f"`effective_memory(weights, g, {EMC:g})`; hard max, no var_table.",
+        f"`effective_memory(weights, g, {EMC:g})` (direction 9); hard max, default var_table; "
+        "D = 9 timed with both direction steps (`direction_step='paper'`, eq. (6)-(8) of "
+        "[NR08], the default, and `'source'`); D = 1 has no direction step.",
         f"- Times are wall seconds, the min over >= {MIN_RUNS} runs (more, up to {MAX_RUNS}, "
         f"while under {min_time:g} s were spent on the item).",
         f"- reference: the Python loop oracle `accumulate_reference`, only for {tiny_t} frames "
@@ -381,14 +394,25 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average (1 min) at the start: {load_before:.2f}", file=sys.stderr, flush=True)
     _warm_up()
     tiny, tiny_t = TINY
-    configs = [(tiny, tiny_t, k, d) for k in WINDOWS for d in DS]
-    configs += [(s, t, k, d) for s in sizes for t in FRAMES for k in WINDOWS for d in DS]
+
+    def steps(d: int) -> tuple[str, ...]:
+        return STEPS if d == 9 else STEPS[:1]
+
+    configs = [(tiny, tiny_t, k, d, st) for k in WINDOWS for d in DS for st in steps(d)]
+    configs += [
+        (s, t, k, d, st)
+        for s in sizes
+        for t in FRAMES
+        for k in WINDOWS
+        for d in DS
+        for st in steps(d)
+    ]
     rows: list[Row] = []
-    for i, (size, n_frames, window, d) in enumerate(configs, 1):
-        row = run_config(size, n_frames, window, d, args.seed, args.threads, args.quick)
+    for i, (size, n_frames, window, d, step) in enumerate(configs, 1):
+        row = run_config(size, n_frames, window, d, step, args.seed, args.threads, args.quick)
         rows.append(row)
         print(
-            f"[{i}/{len(configs)}] {size}x{size} T={n_frames} {window}x{window} D={d}: "
+            f"[{i}/{len(configs)}] {size}x{size} T={n_frames} {window}x{window} D={d} {step}: "
             f"forward {row.forward_s:.3g} s, fwd+bwd {row.fwd_bwd_s:.3g} s, "
             f"floor {row.floor_s:.3g} s, peak {row.peak_mb:.0f} MB",
             file=sys.stderr,

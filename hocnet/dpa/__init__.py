@@ -5,13 +5,19 @@ target detection algorithm", EURASIP J. Adv. Signal Process., 2008.
 """
 
 from hocnet.dpa.backtrack import DPADetection, DPATrack, backtrack, cfar_threshold, detect
-from hocnet.dpa.functional import DPAState, accumulate
+from hocnet.dpa.functional import DIRECTION_STEPS, DPAState, accumulate
 from hocnet.dpa.layers import DPA
 from hocnet.dpa.matrices import (
+    PAPER_PSF,
+    PAPER_SIGMA,
+    b_limit,
     b_versus_g,
     basic_matrix,
+    effective_memories,
     effective_memory,
     equalize_gain,
+    figure3_matrices,
+    fit_basic_sigma,
     frame_matrix,
     memory_line,
     penalty_matrices,
@@ -29,12 +35,16 @@ from hocnet.dpa.metrics import (
 )
 
 __all__ = [
+    "DIRECTION_STEPS",
     "DPA",
+    "PAPER_PSF",
+    "PAPER_SIGMA",
     "DPADetection",
     "DPAState",
     "DPATrack",
     "accumulate",
     "algorithm_score",
+    "b_limit",
     "b_versus_g",
     "backtrack",
     "basic_matrix",
@@ -42,8 +52,11 @@ __all__ = [
     "cfar_threshold",
     "detect",
     "detection_probability",
+    "effective_memories",
     "effective_memory",
     "equalize_gain",
+    "figure3_matrices",
+    "fit_basic_sigma",
     "frame_matrix",
     "frame_thresholds",
     "frames_to_reach",

@@ -3,7 +3,9 @@
 The recursion of eq. (11),
 
 ``ASF_n(p) = WF_n(p) + b * (g * sum_q term(q) + (1 - g) * max_q term(q))``, with
-``term(q) = W[d_{n-1}(q)][p - q] * ASF_{n-1}(q)``,
+``term(q) = W[d_n(p)][q - p] * ASF_{n-1}(q)`` (eq. (6), the paper's direction step: the
+direction ``d_n(p)`` of the pixel is estimated first, by eq. (7)-(8)) or, optionally,
+``term(q) = W[d_{n-1}(q)][q - p] * ASF_{n-1}(q)`` (each source's own previous direction),
 
 runs as a Python loop over the frames; each step is vectorised over the batch and the pixels.
 The window terms are never gathered per pixel: the source-side products ``W[d(q)][o] * ASF(q)``
@@ -14,6 +16,13 @@ max/argmax is reduced over the same view. Each step is one custom autograd funct
 pass of the sum is a correlation of the incoming gradient with the matrices (two small matrix
 products per frame), that of the hard max a scatter onto the selected terms; the smooth
 (log-sum-exp) max recomputes the window terms in its backward pass instead of storing them.
+In the paper's direction step, the argmax of eq. (7)-(8) runs on the same source-side buffer
+(with ``W_basic * Var`` in place of ``W``) and the weighted sum and max then read a strided view
+of the padded ``ASF_{n-1}`` multiplied by each pixel's own matrix ``W[d_n(p)]``.
+
+The public matrices follow the paper's index convention (:mod:`hocnet.dpa.matrices`); they are
+flipped once per call to the move convention ``[h + dy, h + dx]``, ``(dx, dy) = p - q``, used
+internally.
 """
 
 from __future__ import annotations
@@ -26,10 +35,14 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.function import once_differentiable
 
-from hocnet._check import as_cube, check_finite, check_number
-from hocnet.dpa.matrices import IN_PLACE, N_DIRECTIONS, _sector
+from hocnet._check import as_cube, check_choice, check_finite, check_number
+from hocnet.dpa.matrices import IN_PLACE, N_DIRECTIONS, _sector, b_limit
+from hocnet.dpa.matrices import var_table as default_var_table
 
-__all__ = ["DPAState", "accumulate"]
+__all__ = ["DIRECTION_STEPS", "DPAState", "accumulate"]
+
+#: The two readings of the direction step: eq. (6)-(8) of [NR08], or each source's own direction.
+DIRECTION_STEPS = ("paper", "source")
 
 
 @dataclass
@@ -42,9 +55,11 @@ class DPAState:
 
     Attributes:
         asf: accumulated score function ``(B, T, H, W)`` in the frames' float dtype.
-        direction: ``(B, T, H, W)`` int64 in ``0 .. D - 1``, the index into ``weights`` used by
-            each pixel in the next step; for ``D = 9`` index ``d - 1`` is direction ``d`` and index
-            8 is direction 9 ("in place"); for ``D = 1`` all zeros.
+        direction: ``(B, T, H, W)`` int64 in ``0 .. D - 1``, each pixel's direction in frame
+            ``n`` (the group of Figure 4 its source pixel lies in); for ``D = 9`` index ``d - 1``
+            is direction ``d`` and index 8 is direction 9 ("in place"); for ``D = 1`` all zeros.
+            With ``direction_step="paper"`` it is the matrix index that weighted the pixel's
+            window in frame ``n``; with ``"source"`` the one its window uses in frame ``n + 1``.
         origin: ``(B, T, H, W)`` int64 tracking matrix (eq. 8): the flat index ``y * W + x`` of
             each pixel's source pixel in the previous frame; ``-1`` in frame 0.
         batched: whether the input (and so these tensors) had a batch axis.
@@ -152,14 +167,15 @@ class _Window:
     The border holds 0 (for the sum) or ``-inf`` (for the max).
     """
 
-    def __init__(self, weights: torch.Tensor, batch: int, height: int, width: int) -> None:
+    def __init__(
+        self, weights: torch.Tensor, batch: int, height: int, width: int, hc: int | None = None
+    ) -> None:
         d, k, _ = weights.shape
         h = k // 2
         device, dtype = weights.device, weights.dtype
         w = weights.detach()
-        support = (w > 0).any(dim=0)
-        dy, dx = torch.nonzero(support, as_tuple=True)
-        hc = int(torch.maximum((dy - h).abs(), (dx - h).abs()).max()) if dy.numel() else 0
+        if hc is None:
+            hc = _support_radius(w)
         kc = 2 * hc + 1
         kk = kc * kc
         self.d, self.k, self.h, self.kk_full = d, k, h, k * k
@@ -265,6 +281,70 @@ class _Window:
         return zbuf.as_strided((self.kc, self.kc, *self.shape), strides, offset)
 
 
+def _support_radius(weights: torch.Tensor) -> int:
+    """Half-width of the smallest centred square holding every positive weight of ``(D, k, k)``."""
+    h = weights.shape[-1] // 2
+    support = (weights > 0).any(dim=0)
+    dy, dx = torch.nonzero(support, as_tuple=True)
+    return int(torch.maximum((dy - h).abs(), (dx - h).abs()).max()) if dy.numel() else 0
+
+
+class _DestWindow:
+    """Windows of ``ASF_{n-1}`` weighted by each destination pixel's own matrix ``W[d_n(p)]``.
+
+    A zero-padded copy ``(B, H + 2 hc, W + 2 hc)`` of the previous ASF and its zero-copy strided
+    view ``(kc, kc, B, H, W)``, which holds at ``[iy, ix, b, y, x]`` the ASF of the candidate
+    ``q = p + (iy - hc, ix - hc)`` of ``p = (y, x)``; the channel order and the tables are those
+    of :class:`_Window` with the same ``hc``.
+    """
+
+    def __init__(self, window: _Window) -> None:
+        bsz, height, width = window.shape
+        hc, kc = window.hc, window.kc
+        self.window = window
+        self.shape, self.hc, self.kc, self.kk = window.shape, hc, kc, window.kk
+        self.d, self.k, self.h = window.d, window.k, window.h
+        hp, wp = height + 2 * hc, width + 2 * hc
+        dtype, device = window.buf.dtype, window.buf.device
+        self.buf = torch.zeros(bsz, hp, wp, dtype=dtype, device=device)
+        self.interior = self.buf[:, hc : hc + height, hc : hc + width]
+        self.view = self.buf.as_strided((kc, kc, bsz, height, width), (wp, 1, hp * wp, wp, 1), 0)
+        iy = torch.arange(kc, device=device).view(kc, 1, 1, 1)
+        ix = torch.arange(kc, device=device).view(1, kc, 1, 1)
+        y = torch.arange(height, device=device).view(1, 1, height, 1) + iy - hc
+        x = torch.arange(width, device=device).view(1, 1, 1, width) + ix - hc
+        inside = (y >= 0) & (y < height) & (x >= 0) & (x < width)  # (kc, kc, H, W)
+        self.outside = (~inside).unsqueeze(2)  # (kc, kc, 1, H, W)
+        self.any_outside = bool(self.outside.any())
+
+    def table(self, weights: torch.Tensor) -> torch.Tensor:
+        """``(kk, D)``: column ``d`` holds ``W[d]`` at the move of each channel."""
+        h, hc = self.h, self.hc
+        crop = weights[:, h - hc : h + hc + 1, h - hc : h + hc + 1]
+        return crop.flip(-2, -1).reshape(self.d, self.kk).t()
+
+    def per_pixel(self, table: torch.Tensor, direction: torch.Tensor) -> torch.Tensor:
+        """``(kc, kc, B, H, W)``: the weight of each candidate under the pixel's own matrix."""
+        return table[:, direction.reshape(-1)].view(self.kc, self.kc, *self.shape)
+
+    def terms(self, asf: torch.Tensor, wp: torch.Tensor) -> torch.Tensor:
+        """``W[d(p)][move] * ASF(q)`` for every candidate (0 outside the frame), materialised."""
+        self.interior.copy_(asf.detach())
+        out = torch.empty(wp.shape, dtype=wp.dtype, device=wp.device)
+        return torch.mul(self.view, wp, out=out)
+
+    def exclude(self, terms: torch.Tensor, wp: torch.Tensor) -> torch.Tensor:
+        """Set the terms of out-of-frame candidates and impossible moves (weight 0) to ``-inf``."""
+        if self.any_outside:
+            terms.masked_fill_(self.outside, -math.inf)
+        terms.masked_fill_(wp <= 0, -math.inf)
+        return terms
+
+    def to_sources(self, dest: torch.Tensor) -> torch.Tensor:
+        """Sum over channels of ``dest[c, q - u_c]``: per-candidate values moved to the sources."""
+        return self.window.to_sources(dest).sum(dim=(0, 1))
+
+
 def _one_hot_asf(asf: torch.Tensor, direction: torch.Tensor, d: int) -> torch.Tensor:
     """``(B, D, H * W)``: the ASF placed in the channel of each pixel's direction."""
     flat = asf.reshape(asf.shape[0], 1, -1)
@@ -363,6 +443,133 @@ class _Step(torch.autograd.Function):
         return grad_asf, grad_w, None, None, None, None
 
 
+class _DestStep(torch.autograd.Function):
+    """One step of eq. (11) with the pixel's own matrix ``W[d_n(p)]`` (eq. 6): sum and max."""
+
+    @staticmethod
+    def forward(
+        ctx: Any,
+        asf: torch.Tensor,
+        weights: torch.Tensor,
+        direction: torch.Tensor,
+        window: _DestWindow,
+        tau: float | None,
+        need_sum: bool,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        table = window.table(weights.detach())
+        wp = window.per_pixel(table, direction)
+        terms = window.terms(asf, wp)
+        total = terms.sum(dim=(0, 1)) if need_sum else torch.zeros_like(asf)
+        terms = window.exclude(terms, wp).view(window.kk, *window.shape)
+        if tau is None:
+            peak, chan = terms.max(dim=0)
+            empty = peak == -math.inf
+            peak = peak.masked_fill(empty, 0.0)
+            ctx.save_for_backward(asf, weights, direction, chan, empty)
+        else:
+            peak = tau * torch.logsumexp(terms / tau, dim=0)
+            peak = peak.masked_fill(peak == -math.inf, 0.0)
+            ctx.save_for_backward(asf, weights, direction, peak)
+        ctx.window, ctx.tau, ctx.need_sum = window, tau, need_sum
+        return total, peak
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx: Any, grad_total: torch.Tensor, grad_peak: torch.Tensor) -> tuple[Any, ...]:
+        window, tau = ctx.window, ctx.tau
+        asf, weights, direction = ctx.saved_tensors[:3]
+        bsz = asf.shape[0]
+        d, kk, kc, hc, h = window.d, window.kk, window.kc, window.hc, window.h
+        want_asf, want_w = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+        grad_asf = asf.new_zeros(asf.shape) if want_asf else None
+        grad_w = weights.new_zeros(weights.shape) if want_w else None
+        table = window.table(weights.detach())
+        wp = window.per_pixel(table, direction)
+        coef = None  # (kc, kc, B, H, W): d output / d term of each candidate
+        if ctx.need_sum and grad_total is not None:
+            coef = grad_total.expand(kc, kc, *window.shape)
+        if grad_peak is not None and tau is not None:
+            peak = ctx.saved_tensors[3]
+            terms = window.exclude(window.terms(asf, wp), wp)
+            prob = torch.exp((terms - peak) / tau)  # softmax weights, 0 for non-candidates
+            coef = prob * grad_peak if coef is None else coef + prob * grad_peak
+        if coef is not None:
+            if want_asf:
+                grad_asf += window.to_sources(coef * wp)
+            if want_w:
+                window.interior.copy_(asf.detach())
+                prod = torch.empty(coef.shape, dtype=coef.dtype, device=coef.device)
+                prod = torch.mul(window.view, coef, out=prod).view(kk, -1)  # (kk, B * H * W)
+                onehot = torch.zeros(prod.shape[1], d, dtype=prod.dtype, device=prod.device)
+                onehot.scatter_(1, direction.reshape(-1, 1), 1.0)
+                per_dir = (prod @ onehot).t().reshape(d, kc, kc).flip(-2, -1)
+                grad_w[:, h - hc : h + hc + 1, h - hc : h + hc + 1] += per_dir
+        if grad_peak is not None and tau is None:
+            chan, empty = ctx.saved_tensors[3:5]
+            g_peak = grad_peak.masked_fill(empty, 0.0)
+            src = (window.window.flat + window.window.shift[chan]).reshape(bsz, -1)
+            w_index = window.window.full_index[chan] + direction * (window.k * window.k)
+            if want_asf:
+                w_sel = weights.reshape(-1)[w_index]
+                grad_asf.view(bsz, -1).scatter_add_(1, src, (g_peak * w_sel).view(bsz, -1))
+            if want_w:
+                a_src = asf.reshape(bsz, -1).gather(1, src).view_as(asf)
+                grad_w.view(-1).index_add_(0, w_index.reshape(-1), (g_peak * a_src).reshape(-1))
+        return grad_asf, grad_w, None, None, None, None
+
+
+def _eq7_weights(weights: torch.Tensor, var_table: torch.Tensor) -> torch.Tensor:
+    """``(9, k, k)`` in the move convention: ``W_basic[move] * Var[d_source, dir(move)]`` (eq. 7).
+
+    ``W_basic`` is ``W(9)`` (eq. 5 of [NR08]); index ``d`` of the result is the previous direction
+    of the source pixel, so the source-side buffer of :class:`_Window` evaluates eq. (7).
+    """
+    k = weights.shape[-1]
+    h = k // 2
+    r = torch.arange(-h, h + 1, device=weights.device)
+    dy, dx = torch.meshgrid(r, r, indexing="ij")
+    move_dir = _sector(dy, dx)  # (k, k) direction of the move p - q at [h + dy, h + dx]
+    v = var_table.to(device=weights.device, dtype=weights.dtype)
+    basic = weights[IN_PLACE].detach()
+    return basic.unsqueeze(0) * v[:, move_dir.reshape(-1)].view(N_DIRECTIONS, k, k)
+
+
+def _check_var_positive(var_table: torch.Tensor) -> torch.Tensor:
+    """The paper's direction step multiplies by Var (eq. 7): require positive entries."""
+    if not isinstance(var_table, torch.Tensor):
+        var_table = torch.as_tensor(var_table)
+    v = var_table.detach().to("cpu", torch.float64)
+    if bool((v <= 0).any()):
+        raise ValueError(
+            "`var_table`: expected positive values with direction_step='paper' (eq. (7) "
+            f"multiplies the score by Var), got min {float(v.min()):g}"
+        )
+    return v
+
+
+def _check_memory(b_t: torch.Tensor, g_t: torch.Tensor, weights: torch.Tensor) -> None:
+    """``b`` within the memory range of eq. (12)-(14) (:func:`~hocnet.dpa.matrices.b_limit`)."""
+    limit = b_limit(weights.detach(), float(g_t.detach()))
+    b = float(b_t.detach())
+    if b > limit * (1 + 1e-9):
+        raise ValueError(
+            f"`b`: expected a value in [0, {limit:.6g}] (the memory range of eq. (12)-(14) of "
+            f"[NR08] at g = {float(g_t.detach()):g}: above it the effective memory coefficient "
+            f"b * (g sum W + (1 - g) max W) exceeds 1 in every direction and the recursion "
+            f"grows without bound), got {b:g}"
+        )
+
+
+def _check_overflow(asf: torch.Tensor, n: int, b_t: torch.Tensor, g_t: torch.Tensor) -> None:
+    if not bool(torch.isfinite(asf).all()):
+        raise ValueError(
+            f"`b`: the accumulated score overflowed to inf/NaN at frame {n} although the frames "
+            f"are finite: b = {float(b_t.detach()):g} at g = {float(g_t.detach()):g} makes the "
+            f"recursion grow geometrically (effective memory coefficient above 1 in some "
+            f"direction, eq. (12)-(14) of [NR08]); use a smaller b, fewer frames or float64"
+        )
+
+
 def accumulate(
     frames: torch.Tensor,
     weights: torch.Tensor,
@@ -371,56 +578,76 @@ def accumulate(
     *,
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
+    direction_step: str = "paper",
 ) -> DPAState:
-    r"""Accumulate the score function of the DPA over the frames, eq. (11) of [NR08].
+    r"""Accumulate the score function of the DPA over the frames, eq. (2)-(11) of [NR08].
 
-    ``ASF_0 = WF_0``; for ``n >= 1`` and every pixel ``p``:
+    ``ASF_0 = WF_0``; for ``n >= 1`` and every pixel ``p = (x, y)``, eq. (11) with eq. (6):
 
     ``ASF_n(p) = WF_n(p) + b * (g * sum_q term(q) + (1 - g) * max_q term(q))``,
-    ``term(q) = W[d_{n-1}(q)][p - q] * ASF_{n-1}(q)``,
+    ``term(q) = w[j, i] * ASF_{n-1}(q)`` for the candidates ``q = (x + i, y + j)``
 
-    the probability-weighted score of a target at ``q`` in frame ``n - 1`` moving to ``p``. The
-    candidates ``q`` are the pixels of the ``k x k`` window centred on ``p`` that lie inside the
-    frame (out-of-frame neighbours are excluded, never padded with 0, as whitened scores are often
-    negative). ``origin_n(p)`` (the tracking matrix, eq. 8) is the flat index ``y * W + x`` of
-    the ``q`` with the largest term, and ``d_n(p)`` the direction estimated from that move.
+    of the ``k x k`` window centred on ``p`` that lie inside the frame (out-of-frame neighbours
+    are excluded, never padded with 0, as whitened scores are often negative), with ``w`` the
+    probability matrix of a direction (eq. 5):
+
+    * ``direction_step="paper"`` (default, section 2.2.3-2.2.4): the pixel's direction is
+      estimated first. Eq. (7): ``S(q) = ASF_{n-1}(q) * w_basic[j, i] * Var(q)``, with
+      ``w_basic = W(9)`` (``weights[8]``) and ``Var(q) = var_table[d_{n-1}(q), dir(p - q)]``
+      (the previous direction of ``q`` against the direction of the move from ``q`` to ``p``,
+      the groups of Figure 4); eq. (8): the tracking matrix records ``origin_n(p) =
+      argmax_q S(q)`` and ``d_n(p)`` is the direction of the move ``p - origin_n(p)``
+      (direction 9 for no move); then ``w = W(d_n(p))`` weights the whole window of ``p``.
+    * ``direction_step="source"`` (our earlier reading, kept as an option): each source's own
+      previous direction picks its weight, ``w = W(d_{n-1}(q))``; ``origin_n(p)`` is the
+      argmax of the terms and ``d_n(p)`` the direction of the move ``p - origin_n(p)``,
+      combined with ``var_table`` when one is given (see Notes).
 
     Notes:
         Our reading of [NR08]:
 
+        * **Index convention.** ``weights[d - 1, h + j, h + i]`` weights
+          ``ASF_{n-1}(x + i, y + j)`` (eq. 6; rows ``y``, columns ``x``), as
+          :func:`~hocnet.dpa.matrices.probability_matrices` builds them.
         * **Candidates of the max.** An offset whose weight is 0 (outside ``W_frame``) is an
           impossible move: it is not a candidate of the max, the argmax or the smooth max (a 0
           term would otherwise win over negative scores, like a padded zero). It adds 0 to the
-          sum either way. If a pixel has no candidate at all (only possible with custom weights
-          whose centre is 0), its max term is the centre's, 0, and its origin is itself.
-        * **Ties** of the argmax go to the first candidate in row-major window order (smallest
+          sum either way. The candidates of eq. (7) are the in-frame offsets with
+          ``w_basic > 0``. If a pixel has no candidate at all (only possible with custom
+          weights whose centre is 0), its max term is 0 and its origin is itself.
+        * **Ties** of every argmax go to the first candidate in row-major window order (smallest
           row ``y`` of ``q``, then smallest column ``x``).
-        * **Direction estimation (section 2.2.3, eq. 7).** The direction of the move is the
-          compass sector (8 sectors of 45 degrees centred on 0, 45, ..., 315 degrees, bearing
-          ``atan2(dy, dx)``, see :mod:`hocnet.dpa.matrices` for the axes) of ``p - origin_n(p)``,
-          or direction 9 ("in place") for a zero move. Without ``var_table`` that is ``d_n(p)``.
-          With ``var_table`` ``V``, it is combined with the origin's previous direction:
+        * **Var.** ``var_table=None`` means :func:`~hocnet.dpa.matrices.var_table` (6 for the
+          same direction, minus 1 per 45 degrees, 4 between direction 9 and a moving one) with
+          the paper's step, and no table with ``"source"``. With ``"source"`` and a table ``V``,
           ``d_n(p) = argmax_d (V[d, s] + V[d, d_{n-1}(origin)])`` with ``s`` the move's
-          direction; ties go to ``s``, then to the lowest index. (With the default
-          :func:`~hocnet.dpa.matrices.var_table`, ``6 - distance`` is maximised on the whole
-          arc between ``s`` and ``d_{n-1}``, so the rule returns ``s``: the table only matters
-          for custom tables.)
+          direction; ties go to ``s``, then to the lowest index (with the default table the rule
+          returns ``s``).
         * Frame 0: every pixel has direction 9 (index 8) for ``D = 9``, 0 for ``D = 1``.
-          ``D = 1``: no direction step; every pixel uses ``weights[0]``.
+          ``D = 1``: no direction step (both readings agree); every pixel uses ``weights[0]``
+          and the origin is the argmax of the terms.
+        * **Memory range.** ``b`` must lie in ``[0, b_max]`` with ``b_max`` from
+          :func:`~hocnet.dpa.matrices.b_limit` (eq. (12)-(14): above it every direction's
+          effective memory coefficient exceeds 1); and if the recursion still overflows (a long
+          sequence with an EMC above 1 in some direction) a ``ValueError`` naming ``b`` is
+          raised: the output never holds NaN/inf.
         * ``smooth = tau`` replaces the max by ``tau * logsumexp(term / tau)`` over the
           candidates (``tau -> 0`` gives the hard max); origin and direction still use the
           hard argmax.
+        * An empty batch (``B = 0``) gives an empty state.
 
     Args:
         frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``, finite, float (integer
             input is converted to the default float dtype).
         weights: probability matrices ``(D, k, k)``, ``D`` in {1, 9}, ``k`` odd and
-            ``<= min(H, W)``, non-negative, indexed ``[d, h + dy, h + dx]`` for the move
-            ``(dx, dy) = p - q`` (see :func:`~hocnet.dpa.matrices.probability_matrices`).
-        b: memory factor ``>= 0`` (float or one-element tensor; gradients flow to it).
+            ``<= min(H, W)``, non-negative, paper index convention (see Notes).
+        b: memory factor in ``[0, b_limit(weights, g)]`` (float or one-element tensor;
+            gradients flow to it).
         g: sum/max mixing in ``[0, 1]`` (float or one-element tensor; gradients flow to it).
-        var_table: optional ``(9, 9)`` direction-similarity table (only with ``D = 9``).
+        var_table: optional ``(9, 9)`` direction-similarity table (only with ``D = 9``; positive
+            entries with ``direction_step="paper"``).
         smooth: temperature ``tau > 0`` of a log-sum-exp max, or ``None`` for the hard max.
+        direction_step: ``"paper"`` (eq. (6)-(8)) or ``"source"``.
 
     Returns:
         :class:`DPAState` with ``asf``, ``direction`` and ``origin`` shaped like ``frames``
@@ -429,7 +656,8 @@ def accumulate(
 
     Raises:
         TypeError: if an argument has the wrong type.
-        ValueError: on wrong shapes, out-of-range values or non-finite input.
+        ValueError: on wrong shapes, out-of-range values (``b`` above the memory range),
+            non-finite input, or an overflow of the recursion (naming ``b``).
 
     Examples:
         >>> frames = torch.zeros(4, 9, 9)
@@ -448,8 +676,10 @@ def accumulate(
     b_t = _check_scalar("b", b, 0.0, None, dtype, device)
     g_t = _check_scalar("g", g, 0.0, 1.0, dtype, device)
     tau = None if smooth is None else check_number("smooth", smooth, low=0.0, low_inclusive=False)
+    mode = check_choice("direction_step", direction_step, DIRECTION_STEPS)
     d = weights.shape[0]
     combo = None
+    v_paper = None
     if var_table is not None:
         if d != N_DIRECTIONS:
             raise ValueError(
@@ -457,8 +687,21 @@ def accumulate(
                 f"got a table of shape {tuple(torch.as_tensor(var_table).shape)}"
             )
         combo = _combination_table(var_table, device)
+    if mode == "paper" and d == N_DIRECTIONS:
+        v_paper = _check_var_positive(default_var_table() if var_table is None else var_table)
+    _check_memory(b_t, g_t, weights)
+    if bsz == 0:
+        empty = cube.new_zeros(cube.shape)
+        index = torch.zeros(cube.shape, dtype=torch.int64, device=device)
+        state = DPAState(empty + 0 * b_t + 0 * g_t, index, index - 1, True)
+        return state if batched else DPAState(state.asf[0], index[0], index[0] - 1, False)
 
-    window = _Window(weights, bsz, height, width)
+    w_int = weights.flip(-2, -1)  # paper convention [h + j, h + i] -> moves [h + dy, h + dx]
+    window = _Window(w_int, bsz, height, width)
+    dest = eq7 = None
+    if v_paper is not None:
+        eq7 = _Window(_eq7_weights(w_int, v_paper), bsz, height, width, hc=window.hc)
+        dest = _DestWindow(window)
     need_sum = g_t.requires_grad or float(g_t) != 0.0
     one_minus_g = 1 - g_t
 
@@ -467,18 +710,25 @@ def accumulate(
     origin = [torch.full((bsz, height, width), -1, device=device, dtype=torch.int64)]
     for n in range(1, n_frames):
         prev, d_prev = asf[-1], direction[-1]
-        total, peak, chan = _Step.apply(prev, weights, d_prev, window, tau, need_sum)
+        if dest is not None:
+            chan = eq7.argmax(eq7.candidates(prev, d_prev))  # eq. (7)-(8)
+            move = window.chan_dir[chan]
+            total, peak = _DestStep.apply(prev, w_int, move, dest, tau, need_sum)
+        else:
+            total, peak, chan = _Step.apply(prev, w_int, d_prev, window, tau, need_sum)
+            move = window.chan_dir[chan]
         mixed = one_minus_g * peak
         if need_sum:
             mixed = g_t * total + mixed
-        asf.append(cube[:, n] + b_t * mixed)
+        current = cube[:, n] + b_t * mixed
+        _check_overflow(current.detach(), n, b_t, g_t)
+        asf.append(current)
         src = window.flat + window.shift[chan]  # (B, H, W) flat index of the origin
         origin.append(src)
         if d == 1:
             direction.append(d_prev)
             continue
-        move = window.chan_dir[chan]
-        if combo is not None:
+        if dest is None and combo is not None:
             d_src = d_prev.reshape(bsz, -1).gather(1, src.reshape(bsz, -1)).view_as(src)
             move = combo[move * N_DIRECTIONS + d_src]
         direction.append(move)

@@ -1,9 +1,9 @@
 """The DPA [NR08] as an ``nn.Module``: a thin wrapper of :func:`~hocnet.dpa.functional.accumulate`.
 
 Parameters are fixed by default (the probability matrices are a buffer). Any of ``b``, ``g``,
-``p`` and ``penalty`` can be made learnable; they are then stored unconstrained and mapped to their
-valid ranges in the property accessors, and the matrices are rebuilt differentiably from ``p`` and
-``penalty_step`` at every forward pass.
+``p`` and ``penalty`` (the penalty step ``x`` of Figure 2) can be made learnable; they are then
+stored unconstrained and mapped to their valid ranges in the property accessors, and the matrices
+are rebuilt differentiably from ``p`` and ``penalty_step`` (eq. 5) at every forward pass.
 """
 
 from __future__ import annotations
@@ -16,23 +16,28 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from hocnet._check import check_choice, check_number
-from hocnet.dpa.functional import DPAState, _check_weights, accumulate
+from hocnet._check import check_choice, check_int, check_number
+from hocnet.dpa.functional import DIRECTION_STEPS, DPAState, _check_weights, accumulate
 from hocnet.dpa.matrices import (
     IN_PLACE,
     N_DIRECTIONS,
-    _base_matrix,
+    PAPER_PSF,
+    PENALTY_TOP,
     _combine,
-    _turn_steps,
+    _penalty_turns,
     _window,
+    basic_matrix,
     effective_memory,
     equalize_gain,
+    frame_matrix,
     probability_matrices,
 )
 
 __all__ = ["DPA"]
 
 LEARNABLE = ("b", "g", "p", "penalty")
+#: Largest penalty step ``x`` (the paper's 3: the opposite side gets ``12 - 4x = 0``).
+_X_MAX = PENALTY_TOP / 4
 #: Distance kept from the boundary of a constrained parameter when it is initialised on it.
 _MARGIN = 1e-6
 
@@ -49,26 +54,31 @@ class DPA(nn.Module):
     smooth=...)``, see :func:`~hocnet.dpa.functional.accumulate`.
 
     Notes:
-        Our reading of [NR08] for the defaults: ``b = None`` picks ``b`` from the effective memory
-        coefficient ``memory`` (0.8) by :func:`~hocnet.dpa.matrices.effective_memory`.
-        ``directional=False`` uses the single "in place" matrix ``W(9) = normalise(W_frame *
-        W_basic)`` (no direction step, ``D = 1``). Learnable parameters are stored unconstrained:
-        ``g = sigmoid(g_raw)`` in ``[0, 1]``, ``b = softplus(b_raw) >= 0``,
-        ``p = softplus(p_raw) >= 0`` and ``penalty_step = 1 + softplus(penalty_raw) > 1``;
-        a learnable value initialised on its bound (``g`` in {0, 1}, ``b = 0``, ``p = 0``,
-        ``penalty_step = 1``) starts ``1e-6`` inside it.
+        The defaults are the paper's settings: ``g = 0`` (the max recursion, section 3), the
+        7 x 7 matrices of eq. (5) for 0-2 px/frame plus 0.5 px jitter with ``p = 0.5`` and the
+        penalty step ``x = 3`` (section 2.2.2, Figure 2), the direction step of eq. (6)-(8)
+        (``direction_step="paper"``), and ``b = None``, which picks ``b`` from the effective
+        memory coefficient ``memory`` (0.8) of direction ``memory_direction`` (9, as the paper
+        tunes it: ``b = 4.67`` at ``g = 0``) by :func:`~hocnet.dpa.matrices.effective_memory`.
+        ``directional=False`` uses the single matrix ``W(9) = W_basic`` (no direction step,
+        ``D = 1``). Learnable parameters are stored unconstrained: ``g = sigmoid(g_raw)`` and
+        ``p = sigmoid(p_raw)`` in ``[0, 1]``, ``b = softplus(b_raw) >= 0`` and
+        ``penalty_step = 3 sigmoid(penalty_raw)`` in ``[0, 3]``; a learnable value initialised on
+        its bound (``g`` or ``p`` in {0, 1}, ``b = 0``, ``penalty_step`` in {0, 3}, so the paper's
+        ``x = 3``) starts ``1e-6`` inside it.
 
     Args:
         weights: ``(D, k, k)`` probability matrices (``D`` in {1, 9}); ``None`` builds them with
             :func:`~hocnet.dpa.matrices.probability_matrices` from the keyword arguments.
-        b: memory factor ``>= 0``, or ``None`` for the value giving effective memory ``memory``.
-        g: sum/max mixing in ``[0, 1]``.
+        b: memory factor ``>= 0``, or ``None`` for the value giving effective memory ``memory``
+            in direction ``memory_direction``.
+        g: sum/max mixing in ``[0, 1]`` (paper default 0).
         window: odd window size ``k`` (when ``weights`` is ``None``).
-        v_max: largest target speed in pixels per frame.
+        v_max: largest target speed in pixels per frame, without the jitter (W_frame).
         jitter: half-width of the uniform per-axis jitter in pixels.
-        psf: FWHM of the Gaussian PSF in pixels.
-        p: exponent of the turn penalty, ``>= 0``.
-        penalty_step: turn penalty factor per 45 degrees, ``>= 1``.
+        psf: FWHM of the Gaussian target spread of W_basic in pixels.
+        p: mixing weight of W_basic in eq. (5), in ``[0, 1]``.
+        penalty_step: the penalty ``x`` per 45 degrees of turn (Figure 2), in ``[0, 3]``.
         directional: 9 direction-dependent matrices (``True``) or one matrix (``False``).
         learnable: subset of ``("b", "g", "p", "penalty")`` to make ``nn.Parameter``\ s; ``"p"``
             and ``"penalty"`` need ``weights=None`` and ``directional=True``.
@@ -79,9 +89,12 @@ class DPA(nn.Module):
             current ``g`` (:func:`~hocnet.dpa.matrices.equalize_gain`, beyond [NR08]: gives
             slow targets, which stay in place, the memory ``b`` was chosen for). Only with
             ``directional=True``; recomputed at every forward pass when ``g`` is learnable.
+        direction_step: ``"paper"`` (eq. (6)-(8)) or ``"source"`` (our earlier reading), see
+            :func:`~hocnet.dpa.functional.accumulate`.
+        memory_direction: the direction 1..9 whose EMC sets ``b`` when ``b`` is ``None``.
 
     Examples:
-        >>> dpa = DPA(window=5, g=0.5, learnable=("b", "g"))
+        >>> dpa = DPA(window=5, v_max=1.0, g=0.5, learnable=("b", "g"))
         >>> state = dpa(torch.randn(2, 4, 16, 16))
         >>> state.asf.shape, sorted(name for name, _ in dpa.named_parameters())
         (torch.Size([2, 4, 16, 16]), ['b_raw', 'g_raw'])
@@ -93,12 +106,12 @@ class DPA(nn.Module):
         self,
         weights: torch.Tensor | None = None,
         b: float | None = None,
-        g: float = 0.5,
+        g: float = 0.0,
         *,
         window: int = 7,
-        v_max: float = 1.0,
+        v_max: float = 2.0,
         jitter: float = 0.5,
-        psf: float = 3.0,
+        psf: float = PAPER_PSF,
         p: float = 0.5,
         penalty_step: float = 3.0,
         directional: bool = True,
@@ -107,6 +120,8 @@ class DPA(nn.Module):
         var_table: torch.Tensor | None = None,
         memory: float = 0.8,
         equal_gain: bool = False,
+        direction_step: str = "paper",
+        memory_direction: int = 9,
     ) -> None:
         super().__init__()
         if isinstance(learnable, str):
@@ -125,9 +140,11 @@ class DPA(nn.Module):
         if equal_gain and not directional:
             raise ValueError("`equal_gain`: expected False with directional=False (one matrix)")
         self.equal_gain = equal_gain
+        self.direction_step = check_choice("direction_step", direction_step, DIRECTION_STEPS)
+        memory_direction = check_int("memory_direction", memory_direction, minimum=1, maximum=9)
         g = check_number("g", g, low=0.0, high=1.0)
-        p = check_number("p", p, low=0.0)
-        penalty_step = check_number("penalty_step", penalty_step, low=1.0)
+        p = check_number("p", p, low=0.0, high=1.0)
+        penalty_step = check_number("penalty_step", penalty_step, low=0.0, high=_X_MAX)
         if b is not None:
             b = check_number("b", b, low=0.0)
         memory = check_number("memory", memory, low=0.0, low_inclusive=False)
@@ -157,8 +174,9 @@ class DPA(nn.Module):
                 )
             k = _window("window", window)
             dtype = torch.get_default_dtype()
-            self.register_buffer("base", _base_matrix(k, v_max, jitter, psf, None, dtype))
-            self.register_buffer("turn_steps", _turn_steps(k).to(dtype))
+            self.register_buffer("basic", basic_matrix(k, 0.0, jitter, psf, dtype=dtype))
+            self.register_buffer("frame", frame_matrix(k, v_max, jitter, dtype=dtype))
+            self.register_buffer("turns", _penalty_turns(k).to(dtype))
             self.register_buffer("fixed_weights", None)
         else:
             built = probability_matrices(window, v_max, jitter, psf, p, penalty_step)
@@ -172,11 +190,12 @@ class DPA(nn.Module):
             self.register_buffer("var_table", None)
 
         self._store("g", g, lambda x: math.log(x / (1 - x)), 0.0, 1.0)
-        self._store("p", p, _inverse_softplus, 0.0, None)
-        self._store("penalty", penalty_step, lambda x: _inverse_softplus(x - 1), 1.0, None)
+        self._store("p", p, lambda x: math.log(x / (1 - x)), 0.0, 1.0)
+        self._store("penalty", penalty_step, lambda x: math.log(x / (_X_MAX - x)), 0.0, _X_MAX)
         if b is None:
             with torch.no_grad():
-                b = float(effective_memory(self.weights.double(), g, memory))
+                w = self.weights.double()
+                b = float(effective_memory(w, g, memory, direction=memory_direction))
         self._store("b", b, _inverse_softplus, 0.0, None)
 
     def _store(self, name: str, value: float, inverse: Any, low: float, high: float | None) -> None:
@@ -203,14 +222,14 @@ class DPA(nn.Module):
 
     @property
     def p(self) -> torch.Tensor:
-        """Exponent of the turn penalty ``p >= 0`` (0-dim tensor)."""
-        return F.softplus(self.p_raw) if "p" in self.learnable else self.p_value
+        """Mixing weight ``p`` of W_basic in eq. (5), in ``[0, 1]`` (0-dim tensor)."""
+        return torch.sigmoid(self.p_raw) if "p" in self.learnable else self.p_value
 
     @property
     def penalty_step(self) -> torch.Tensor:
-        """Turn penalty factor per 45 degrees, ``> 1`` when learnable (0-dim tensor)."""
+        """The penalty ``x`` in ``[0, 3]`` per 45 degrees of turn, Figure 2 (0-dim tensor)."""
         if "penalty" in self.learnable:
-            return 1 + F.softplus(self.penalty_raw)
+            return _X_MAX * torch.sigmoid(self.penalty_raw)
         return self.penalty_value
 
     @property
@@ -223,7 +242,7 @@ class DPA(nn.Module):
         if self.fixed_weights is not None:
             w = self.fixed_weights
         else:
-            w = _combine(self.base, self.turn_steps, self.p, self.penalty_step)
+            w = _combine(self.basic, self.frame, self.turns, self.p, self.penalty_step)
         return equalize_gain(w, self.g) if self.equal_gain else w
 
     def forward(self, frames: torch.Tensor) -> DPAState:
@@ -236,7 +255,13 @@ class DPA(nn.Module):
             :class:`~hocnet.dpa.functional.DPAState` shaped like ``frames``.
         """
         return accumulate(
-            frames, self.weights, self.b, self.g, var_table=self.var_table, smooth=self.smooth
+            frames,
+            self.weights,
+            self.b,
+            self.g,
+            var_table=self.var_table,
+            smooth=self.smooth,
+            direction_step=self.direction_step,
         )
 
     def extra_repr(self) -> str:
@@ -244,5 +269,6 @@ class DPA(nn.Module):
         w = self.weights
         return (
             f"window={w.shape[-1]}, D={w.shape[0]}, learnable={self.learnable}, "
-            f"smooth={self.smooth}, equal_gain={self.equal_gain}"
+            f"smooth={self.smooth}, equal_gain={self.equal_gain}, "
+            f"direction_step={self.direction_step!r}"
         )

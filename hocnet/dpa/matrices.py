@@ -1,19 +1,22 @@
-"""Probability matrices, direction table and effective memory of the DPA [NR08].
+"""Probability matrices, direction table and effective memory of the DPA [NR08], section 2.2.
 
 Pure kernel builders in the style of kornia's ``get_*_kernel``: every function returns a fresh
 tensor on the requested ``device`` / ``dtype`` and holds no state. The matrices feed
 :func:`hocnet.dpa.functional.accumulate`.
 
-Window convention (used by every builder and by :func:`~hocnet.dpa.functional.accumulate`): a
-``(k, k)`` matrix ``M`` with ``h = k // 2`` holds at ``M[h + dy, h + dx]`` the value for the
-displacement ``(dx, dy)`` of a target from a pixel ``q`` of frame ``n - 1`` to a pixel ``p`` of
-frame ``n``, i.e. ``(dx, dy) = p - q`` in ``(x = column, y = row)`` image coordinates. The row
-index grows downwards, so **+y points down** on a displayed image. Bearings are
-``atan2(dy, dx)`` (DESIGN section 2), so the directions 1..8 at 0, 45, ..., 315 degrees turn
-counter-clockwise in the ``(x, y)`` frame, which is *clockwise* on screen: direction 1 is +x
-(right), direction 3 (90 degrees) is +y (down), direction 5 is -x (left), direction 7 is -y (up).
-Direction 9 is "in place" (no preferred direction). In tensors, direction ``d`` is stored at index
-``d - 1`` (so index 8 is direction 9).
+Index convention (the paper's, eq. (6)): a ``(k, k)`` matrix ``w`` with ``h = k // 2`` holds at
+``w[h + j, h + i]`` the weight of ``ASF_{n-1}(x + i, y + j)``, the pixel of the previous frame at
+the offset ``(i, j)`` (columns ``x``, rows ``y``) from the pixel ``p = (x, y)`` being scored: rows
+are ``y``, columns ``x``, as Figures 2 and 3 of [NR08] are printed, so a matrix can be compared
+with them entry by entry. The row index grows downwards, so **+y points down** on a displayed
+image. A target that moved by ``(dx, dy)`` from ``q`` to ``p`` came from the offset
+``(i, j) = (-dx, -dy)``.
+
+Directions: a move ``(dx, dy) = p - q`` has the bearing ``atan2(dy, dx)`` (DESIGN section 2), so
+the directions 1..8 at 0, 45, ..., 315 degrees turn counter-clockwise in the ``(x, y)`` frame,
+which is *clockwise* on screen: direction 1 is +x (right, Figure 2's arrow), direction 3
+(90 degrees) is +y (down), direction 5 is -x (left), direction 7 is -y (up). Direction 9 is "in
+place". In tensors, direction ``d`` is stored at index ``d - 1`` (index 8 is direction 9).
 """
 
 from __future__ import annotations
@@ -26,10 +29,16 @@ import torch
 from hocnet._check import check_finite, check_int, check_number
 
 __all__ = [
+    "PAPER_PSF",
+    "PAPER_SIGMA",
+    "b_limit",
     "b_versus_g",
     "basic_matrix",
+    "effective_memories",
     "effective_memory",
     "equalize_gain",
+    "figure3_matrices",
+    "fit_basic_sigma",
     "frame_matrix",
     "memory_line",
     "penalty_matrices",
@@ -42,10 +51,18 @@ __all__ = [
 N_DIRECTIONS = 9
 #: Index of direction 9 ("in place") in direction tensors.
 IN_PLACE = 8
-#: Sub-samples per pixel of the velocity-disc quadrature of :func:`basic_matrix`.
+#: Sub-samples per pixel of the velocity-disc quadrature of :func:`basic_matrix` (``v_max > 0``).
 _SUBGRID = 32
 #: FWHM -> standard deviation of a Gaussian.
 _FWHM_TO_SIGMA = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+#: Standard deviation (pixels) of the Gaussian target spread of W_basic, fitted by
+#: :func:`fit_basic_sigma` so that the 7 x 7 ``W(9) = W_basic`` (jitter U[-0.5, 0.5]) gives the
+#: intercept 0.214 of eq. (15) for direction 9, i.e. ``max(W_basic) = 0.8 * 0.214 = 0.1712``.
+PAPER_SIGMA = 0.8708160208984617
+#: The same spread as a full width at half maximum (pixels), the ``psf`` argument of the builders.
+PAPER_PSF = PAPER_SIGMA / _FWHM_TO_SIGMA
+#: The largest penalty value, on the side the target came from (Figure 2 of [NR08]).
+PENALTY_TOP = 12.0
 
 
 def _window(name: str, window: int) -> int:
@@ -61,7 +78,7 @@ def _dtype(dtype: torch.dtype | None) -> torch.dtype:
 
 
 def _offsets(k: int, device: torch.device | str | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Integer displacement grids ``(dy, dx)`` of a ``(k, k)`` window, each ``(k, k)`` int64."""
+    """Integer offset grids ``(j, i)`` (rows ``y``, columns ``x``) of a ``(k, k)`` window."""
     h = k // 2
     r = torch.arange(-h, h + 1, device=device)
     dy, dx = torch.meshgrid(r, r, indexing="ij")
@@ -69,30 +86,53 @@ def _offsets(k: int, device: torch.device | str | None = None) -> tuple[torch.Te
 
 
 def _sector(dy: torch.Tensor, dx: torch.Tensor) -> torch.Tensor:
-    """Compass sector index (0..7 for directions 1..8, 8 for a zero move) of integer moves.
+    """Direction index (0..7 for directions 1..8, 8 for a zero move) of integer moves ``(dx, dy)``.
 
-    The sectors are 45 degrees wide and centred on 0, 45, ..., 315 degrees. No integer move lies on
-    a sector boundary (``tan(22.5 deg)`` is irrational), so rounding is unambiguous.
+    The groups of Figure 4 of [NR08]: 45-degree sectors centred on 0, 45, ..., 315 degrees of the
+    bearing ``atan2(dy, dx)``. No integer move lies on a sector boundary (``tan(22.5 deg)`` is
+    irrational), so rounding is unambiguous.
     """
     angle = torch.atan2(dy.to(torch.float64), dx.to(torch.float64))
     sector = torch.round(angle / (math.pi / 4)).to(torch.int64) % 8
     return torch.where((dy == 0) & (dx == 0), torch.full_like(sector, IN_PLACE), sector)
 
 
-def _turn_steps(k: int, device: torch.device | str | None = None) -> torch.Tensor:
-    """Turn between each offset of the window and each direction 1..8, in 45-degree steps.
+def _ring_angle(j: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
+    """Position of the offset ``(i, j)`` on its square ring, in units of 45 degrees (``[0, 8)``).
+
+    The ring of Chebyshev radius ``r`` is walked linearly along each side: the side midpoints
+    and corners sit at 0, 1, ..., 7 (bearings 0, 45, ..., 315 degrees of ``atan2(j, i)``) and the
+    cells between them are spaced evenly (``1 / r`` apart). The centre gets 0 (unused).
+    """
+    i = i.to(torch.float64)
+    j = j.to(torch.float64)
+    r = torch.maximum(i.abs(), j.abs()).clamp_min(1.0)
+    right = i == r
+    bottom = (j == r) & ~right
+    left = (i == -r) & ~bottom
+    a = torch.where(
+        right,
+        j / r,
+        torch.where(bottom, 2 - i / r, torch.where(left, 4 - j / r, 6 + i / r)),
+    )
+    return a % 8
+
+
+def _penalty_turns(k: int, device: torch.device | str | None = None) -> torch.Tensor:
+    """Turn of each offset of the window from the side each direction 1..8 came from.
 
     Returns:
-        ``(8, k, k)`` int64 in ``0..4``; the centre (no move) gets 0 (no turn).
+        ``(8, k, k)`` float64 in ``[0, 4]`` (units of 45 degrees), paper index convention; the
+        centre gets 0 (Figure 2 prints 12 there).
     """
-    dy, dx = _offsets(k, device)
-    sector = _sector(dy, dx)
-    direction = torch.arange(8, device=device).view(8, 1, 1)
-    diff = (sector.unsqueeze(0) - direction).abs() % 8
-    steps = torch.minimum(diff, 8 - diff)
+    j, i = _offsets(k, device)
+    a = _ring_angle(j, i)
+    came_from = (torch.arange(8, device=device, dtype=torch.float64) + 4).view(8, 1, 1) % 8
+    diff = (a.unsqueeze(0) - came_from).abs() % 8
+    turns = torch.minimum(diff, 8 - diff)
     h = k // 2
-    steps[:, h, h] = 0
-    return steps
+    turns[:, h, h] = 0.0
+    return turns
 
 
 def _step_cdf(c: torch.Tensor, sigma: float, a: float) -> torch.Tensor:
@@ -112,48 +152,48 @@ def _step_cdf(c: torch.Tensor, sigma: float, a: float) -> torch.Tensor:
 
 def basic_matrix(
     window: int = 7,
-    v_max: float = 1.0,
+    v_max: float = 0.0,
     jitter: float = 0.5,
-    psf: float = 3.0,
+    psf: float = PAPER_PSF,
     *,
     device: torch.device | str | None = None,
     dtype: torch.dtype | None = None,
 ) -> torch.Tensor:
-    r"""W_basic of [NR08]: where the target's apparent displacement between frames falls.
+    r"""W_basic of [NR08] (section 2.2.2): a target standing in place, spread and jittered.
 
-    The displacement is ``v + n + u`` with the velocity ``v`` uniform in the disc
-    ``|v| <= v_max`` (pixels per frame), ``n`` the Gaussian spread of the PSF and ``u`` the sensor
-    jitter, uniform in ``[-jitter, jitter]`` on each axis. The entry at offset ``(dx, dy)`` is the
-    probability that the displacement lands in the pixel cell ``[dx - 1/2, dx + 1/2] x
-    [dy - 1/2, dy + 1/2]``, normalised so that the window sums to 1 (mass falling outside the
-    window is dropped).
+    The apparent displacement of the target between two frames is ``n + u`` per axis, with ``n``
+    the Gaussian target spread (standard deviation ``sigma = psf / (2 sqrt(2 ln 2))``, eq. (1))
+    and ``u`` the sensor jitter, uniform in ``[-jitter, jitter]`` (the paper: U[-0.5, 0.5]). The
+    entry at offset ``(i, j)`` is the probability that it lands in the pixel cell
+    ``[i - 1/2, i + 1/2] x [j - 1/2, j + 1/2]``, normalised so that the window sums to 1.
 
     Notes:
-        Our reading of [NR08]: ``psf`` is the full width at half maximum (FWHM) of the Gaussian
-        PSF in pixels, so the spread has standard deviation ``sigma = psf / (2 sqrt(2 ln 2))``
-        (``psf = 3`` gives ``sigma = 1.27``; ``psf = 0`` means no blur). With this reading the
-        7 x 7, 0-2.5 px/frame matrix reproduces the paper's eq. (15) constants to about 1 %
-        (see :func:`memory_line`). The Gaussian and the jitter are integrated in closed form per
-        axis over each pixel cell; the velocity disc is integrated numerically on a sub-grid of
-        1/32 pixel (a node is inside the disc when its centre is).
+        Our reading of [NR08]: the paper gives "a Gaussian target spread of 3 x 3" and no width.
+        The default width ``PAPER_SIGMA = 0.871`` px (FWHM ``PAPER_PSF = 2.05`` px, most of the
+        mass in 3 x 3 pixels) is fitted (:func:`fit_basic_sigma`) so that the 7 x 7 matrix gives
+        the direction-9 intercept 0.214 of eq. (15), i.e. ``max(W_basic) = 0.1712``; the
+        directions 1-8 line of eq. (15) then follows without further fitting (see
+        :func:`memory_line`). The Gaussian and the jitter are integrated in closed form per axis.
+        ``v_max > 0`` (our addition, not in [NR08]; 0 is the paper's standing target) also
+        spreads the displacement over a velocity disc ``|v| <= v_max``, integrated on a sub-grid
+        of 1/32 pixel; the offsets are then those of the source, ``-(v + n + u)``.
 
     Args:
         window: odd window size ``k``.
-        v_max: largest target speed in pixels per frame, ``>= 0``.
+        v_max: speed of our optional velocity disc in pixels per frame, ``>= 0`` (0: paper).
         jitter: half-width ``a`` of the uniform per-axis jitter in pixels, ``>= 0``.
-        psf: FWHM of the Gaussian PSF in pixels, ``>= 0``.
+        psf: FWHM of the Gaussian target spread in pixels, ``>= 0`` (0: no spread).
         device: device of the result.
         dtype: floating dtype of the result (default: torch's default dtype).
 
     Returns:
-        ``(k, k)`` matrix, non-negative, summing to 1, indexed ``[h + dy, h + dx]``.
+        ``(k, k)`` matrix, non-negative, summing to 1, indexed ``[h + j, h + i]`` (paper
+        convention, see the module docstring).
 
     Examples:
-        >>> w = basic_matrix(5, v_max=1.0, jitter=0.5, psf=3.0)
-        >>> w.shape, round(float(w.sum()), 6)
-        (torch.Size([5, 5]), 1.0)
-        >>> bool(w[2, 2] == w.max())
-        True
+        >>> w = basic_matrix(7)
+        >>> w.shape, round(float(w.sum()), 6), round(float(w.max()), 4)
+        (torch.Size([7, 7]), 1.0, 0.1712)
     """
     k = _window("window", window)
     v_max = check_number("v_max", v_max, low=0.0)
@@ -173,31 +213,88 @@ def basic_matrix(
     cell = _step_cdf(m[:, None] + 0.5 - nodes[None, :], sigma, a) - _step_cdf(
         m[:, None] - 0.5 - nodes[None, :], sigma, a
     )
-    prob = cell @ disc @ cell.T  # [dy, dx]
-    prob = prob.clamp_min(0.0)
+    prob = cell @ disc @ cell.T  # [dy, dx] of the displacement p - q
+    prob = prob.flip(-2, -1).clamp_min(0.0)  # source offsets (i, j) = -(dx, dy)
     prob = prob / prob.sum()
     return prob.to(device=device, dtype=_dtype(dtype))
 
 
+def fit_basic_sigma(
+    intercept: float = 0.214,
+    target: float = 0.8,
+    window: int = 7,
+    jitter: float = 0.5,
+) -> float:
+    r"""The Gaussian spread ``sigma`` (pixels) whose W_basic gives eq. (15)'s direction-9 intercept.
+
+    Solves ``max(basic_matrix(window, 0, jitter, psf(sigma))) = target * intercept`` by
+    bisection (``max`` falls monotonically with ``sigma``). With the defaults (eq. (15):
+    ``1/b = 1.035 g + 0.214`` for direction 9, EMC 0.8, 7 x 7, U[-0.5, 0.5]) this gives
+    :data:`PAPER_SIGMA` = 0.871 px.
+
+    Args:
+        intercept: intercept of the direction-9 line ``1/b = slope g + intercept``, ``> 0``.
+        target: effective memory coefficient of eq. (12), ``> 0``.
+        window: odd window size ``k``.
+        jitter: half-width of the uniform per-axis jitter in pixels, ``>= 0``.
+
+    Returns:
+        ``sigma`` in pixels (float).
+
+    Raises:
+        ValueError: if no ``sigma`` in ``[0, 10]`` reaches the wanted peak.
+
+    Examples:
+        >>> round(fit_basic_sigma(), 4)
+        0.8708
+    """
+    intercept = check_number("intercept", intercept, low=0.0, low_inclusive=False)
+    target = check_number("target", target, low=0.0, low_inclusive=False)
+    k = _window("window", window)
+    peak = intercept * target
+
+    def top(sigma: float) -> float:
+        return float(
+            basic_matrix(k, 0.0, jitter, sigma / _FWHM_TO_SIGMA, dtype=torch.float64).max()
+        )
+
+    lo, hi = 1e-9, 10.0
+    if not top(hi) <= peak <= top(lo):
+        raise ValueError(
+            f"`intercept`: expected a peak {peak:g} between {top(hi):.4g} and {top(lo):.4g} "
+            f"(sigma in [0, 10]), got intercept {intercept:g}"
+        )
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if top(mid) > peak else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _frame_radius(v_max: float, jitter: float) -> int:
+    """Half-width of the square valid search area: ``ceil(v_max + jitter)`` pixels."""
+    return max(0, math.ceil(v_max + jitter - 1e-9))
+
+
 def frame_matrix(
     window: int = 7,
-    v_max: float = 1.0,
+    v_max: float = 2.0,
     jitter: float = 0.5,
     *,
     device: torch.device | str | None = None,
     dtype: torch.dtype | None = None,
 ) -> torch.Tensor:
-    r"""W_frame of [NR08]: the 0/1 support of the reachable offsets.
+    r"""W_frame of [NR08]: 1 inside the square valid search area, 0 outside.
 
-    Notes:
-        Our reading of [NR08]: an offset ``(dx, dy)`` is reachable when
-        ``sqrt(dx^2 + dy^2) <= v_max + jitter * sqrt(2) + 1/2``: the largest speed, plus the
-        largest jitter displacement (both axes at ``jitter``), plus half a pixel for the
-        quantisation of the target position to the pixel grid. The centre is always reachable.
+    The target moves up to ``v_max`` pixels per frame plus the jitter on each axis, so its source
+    lies within ``r = ceil(v_max + jitter)`` pixels on each axis: ``W_frame`` is 1 on the centred
+    ``(2r + 1) x (2r + 1)`` square (clipped to the window) and 0 outside. Section 2.2.1:
+    0-2 px/frame plus 0.5 jitter -> 7 x 7; section 2.2.2 / Figure 3: 0-1 px/frame -> 5 x 5
+    "including the assumed jitter". The paper's "0-2.5 px/frame" already includes the jitter,
+    so it is ``v_max = 2, jitter = 0.5`` here, not ``v_max = 2.5``.
 
     Args:
         window: odd window size ``k``.
-        v_max: largest target speed in pixels per frame, ``>= 0``.
+        v_max: largest target speed in pixels per frame (without the jitter), ``>= 0``.
         jitter: half-width of the uniform per-axis jitter in pixels, ``>= 0``.
         device: device of the result.
         dtype: dtype of the result (default: torch's default dtype).
@@ -206,27 +303,34 @@ def frame_matrix(
         ``(k, k)`` matrix of zeros and ones.
 
     Examples:
-        >>> frame_matrix(5, v_max=1.0, jitter=0.5).int()
-        tensor([[0, 0, 1, 0, 0],
-                [0, 1, 1, 1, 0],
-                [1, 1, 1, 1, 1],
-                [0, 1, 1, 1, 0],
-                [0, 0, 1, 0, 0]], dtype=torch.int32)
+        >>> frame_matrix(7, v_max=1.0, jitter=0.5).int()
+        tensor([[0, 0, 0, 0, 0, 0, 0],
+                [0, 1, 1, 1, 1, 1, 0],
+                [0, 1, 1, 1, 1, 1, 0],
+                [0, 1, 1, 1, 1, 1, 0],
+                [0, 1, 1, 1, 1, 1, 0],
+                [0, 1, 1, 1, 1, 1, 0],
+                [0, 0, 0, 0, 0, 0, 0]], dtype=torch.int32)
     """
     k = _window("window", window)
     v_max = check_number("v_max", v_max, low=0.0)
     a = check_number("jitter", jitter, low=0.0)
-    radius = v_max + a * math.sqrt(2.0) + 0.5
+    r = _frame_radius(v_max, a)
     dy, dx = _offsets(k)
-    support = (dx * dx + dy * dy).to(torch.float64) <= radius * radius * (1 + 1e-12)
+    support = torch.maximum(dy.abs(), dx.abs()) <= r
     return support.to(device=device, dtype=_dtype(dtype))
 
 
 def _penalty_step_tensor(
     penalty_step: float | torch.Tensor, device: torch.device | str | None, dtype: torch.dtype
 ) -> torch.Tensor:
-    check_number("penalty_step", penalty_step, low=1.0)
+    check_number("penalty_step", penalty_step, low=0.0, high=PENALTY_TOP / 4)
     return torch.as_tensor(penalty_step).to(device=device, dtype=dtype)
+
+
+def _penalty(turns: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+    """``12 - step * turn``: the penalty values of Figure 2 (differentiable in ``step``)."""
+    return PENALTY_TOP - step * turns
 
 
 def penalty_matrices(
@@ -236,46 +340,48 @@ def penalty_matrices(
     device: torch.device | str | None = None,
     dtype: torch.dtype | None = None,
 ) -> torch.Tensor:
-    r"""W_penalty of [NR08] for directions 1..8: the turn-angle penalty of each offset.
+    r"""W_penalty(direction) of [NR08] for directions 1..8 (Figure 2, section 2.2.2).
 
-    For direction ``d`` (bearing ``(d - 1) * 45`` degrees, see the module docstring for the
-    axes), the entry at offset ``(dx, dy)`` is ``penalty_step ** -s`` where ``s`` in ``0..4`` is
-    the turn from the direction to the offset's bearing ``atan2(dy, dx)`` in 45-degree steps, i.e.
-    the circular distance between the direction and the offset's compass sector (8 sectors of 45
-    degrees centred on the directions). With ``penalty_step = 3`` a straight move weighs 1, a
-    45-degree turn 1/3, 90 degrees 1/9, 135 degrees 1/27 and a reversal 1/81 (Figure 2 of
-    [NR08] for direction 1).
+    The side the target came from gets 12; every 45 degrees of turn away from it costs
+    ``x = penalty_step`` ("a turn of 45 degrees leads to penalty of -x, 90 degrees to -2x"), so
+    with ``x = 3`` the opposite side gets 0. The turn of an offset is measured along its square
+    ring of the window, linearly along each ring side (corners and side midpoints at multiples
+    of 45 degrees), and the centre gets 12 (as printed in Figure 2). ``x`` lies in ``[0, 3]``
+    (our reading: 3, the paper's value, is the largest step that keeps the opposite side at
+    ``12 - 4x >= 0``, a valid probability; 0 removes the direction preference).
 
     Notes:
-        Our reading of [NR08]: the centre offset (the target stays in place) has no bearing, so
-        it is no turn and is not penalised (weight 1), as a zero move is never a turn anywhere in
-        hocnet (DESIGN section 2). Sub-pixel targets (0.2-0.6 px/frame in [NR08]) stay in their
-        pixel in most frames; penalising the centre like a 90-degree turn (our first reading)
-        made the directional matrices favour moving noise paths over such targets.
-        Differentiable in ``penalty_step`` when it is a tensor.
+        Figure 2 prints direction 1 (arrow ``->``, 0 degrees, 7 x 7, ``x = 3``) as the rows
+        ``9 8 7 6 5 4 3 / 10 9 7.5 6 4.5 3 2 / 11 10 9 6 3 1.5 1 / 12 12 12 12 0 0 0`` and
+        mirrored. The rule above reproduces every entry but two: at the offsets
+        ``(i, j) = (-2, -1)`` and ``(-2, +1)`` (rows 3 and 5, column 2) it gives **10.5** where
+        Figure 2 prints 10. We follow the rule (our reading: 10 is a misprint; the rule's
+        entries of every other mirror pair ``(i, j), (-i, j)`` sum to 12 in the figure, and the
+        printed 10 + 1.5 would be the only exception). Only ``x / 12`` matters after the
+        normalisation of eq. (5). Differentiable in ``penalty_step`` when it is a tensor.
 
     Args:
         window: odd window size ``k``.
-        penalty_step: factor by which each further 45-degree step divides the weight, ``>= 1``
-            (float or 0-dim tensor).
+        penalty_step: the penalty ``x`` per 45 degrees of turn, in ``[0, 3]`` (float or 0-dim
+            tensor); the paper takes ``x = 3``.
         device: device of the result.
         dtype: floating dtype of the result (default: torch's default dtype).
 
     Returns:
-        ``(8, k, k)``: index ``d - 1`` holds direction ``d``.
+        ``(8, k, k)``: index ``d - 1`` holds direction ``d``, paper index convention
+        ``[h + j, h + i]`` (not normalised).
 
     Examples:
-        >>> w = penalty_matrices(3, 3.0)
-        >>> (81 * w[0]).round().int()  # direction 1 (+x): straight ahead is the right column
-        tensor([[ 3,  9, 27],
-                [ 1, 81, 81],
-                [ 3,  9, 27]], dtype=torch.int32)
+        >>> penalty_matrices(7)[0, :4]  # Figure 2, rows 1-4 (rule: 10.5 where it prints 10)
+        tensor([[ 9.0000,  8.0000,  7.0000,  6.0000,  5.0000,  4.0000,  3.0000],
+                [10.0000,  9.0000,  7.5000,  6.0000,  4.5000,  3.0000,  2.0000],
+                [11.0000, 10.5000,  9.0000,  6.0000,  3.0000,  1.5000,  1.0000],
+                [12.0000, 12.0000, 12.0000, 12.0000,  0.0000,  0.0000,  0.0000]])
     """
     k = _window("window", window)
     dtype = _dtype(dtype)
     step = _penalty_step_tensor(penalty_step, device, dtype)
-    steps = _turn_steps(k, device).to(dtype)
-    return torch.pow(step, -steps)
+    return _penalty(_penalty_turns(k, device).to(dtype), step)
 
 
 def penalty_matrix_in_place(
@@ -284,11 +390,12 @@ def penalty_matrix_in_place(
     device: torch.device | str | None = None,
     dtype: torch.dtype | None = None,
 ) -> torch.Tensor:
-    """W_penalty for direction 9 ("in place"): all ones.
+    """All ones: a direction-free penalty (kept for compatibility; not used by eq. (5)).
 
     Notes:
-        Our reading of [NR08]: a pixel whose target has not moved has no preferred direction, so
-        no offset is penalised; its probability matrix is ``W_frame * W_basic`` alone.
+        Eq. (5) of [NR08] has no penalty for direction 9: ``W(9) = W_basic`` (Figure 3, "the
+        basic probability matrix (direction 9)"). This matrix is the neutral penalty of our
+        first reading.
 
     Args:
         window: odd window size ``k``.
@@ -306,44 +413,36 @@ def penalty_matrix_in_place(
     return torch.ones(k, k, device=device, dtype=_dtype(dtype))
 
 
-def _base_matrix(
-    window: int,
-    v_max: float,
-    jitter: float,
-    psf: float,
-    device: torch.device | str | None,
-    dtype: torch.dtype,
-) -> torch.Tensor:
-    """``W_frame * W_basic`` as ``(k, k)``."""
-    basic = basic_matrix(window, v_max, jitter, psf, device=device, dtype=dtype)
-    return frame_matrix(window, v_max, jitter, device=device, dtype=dtype) * basic
-
-
 def _combine(
-    base: torch.Tensor, steps: torch.Tensor, p: torch.Tensor, penalty_step: torch.Tensor
+    basic: torch.Tensor,
+    frame: torch.Tensor,
+    turns: torch.Tensor,
+    p: torch.Tensor,
+    penalty_step: torch.Tensor,
 ) -> torch.Tensor:
-    """Eq. (5): ``normalise(base * W_penalty ** p)`` for directions 1..8, then ``normalise(base)``.
+    """Eq. (5): ``W(d) = p W_basic + (1 - p) P(d) W_frame / sum(P(d) W_frame)``, ``W(9) = W_basic``.
 
     Args:
-        base: ``(k, k)`` ``W_frame * W_basic``.
-        steps: ``(8, k, k)`` turn steps from :func:`_turn_steps` (in ``base``'s dtype).
-        p: 0-dim exponent ``>= 0``.
-        penalty_step: 0-dim step ``>= 1``.
+        basic: ``(k, k)`` W_basic summing to 1.
+        frame: ``(k, k)`` W_frame (0/1).
+        turns: ``(8, k, k)`` turns from :func:`_penalty_turns` (in ``basic``'s dtype).
+        p: 0-dim mixing weight in ``[0, 1]``.
+        penalty_step: 0-dim step ``x`` in ``[0, 3]``.
 
     Returns:
         ``(9, k, k)``, each matrix summing to 1. Differentiable in ``p`` and ``penalty_step``.
     """
-    penalty_p = torch.exp(-(p * torch.log(penalty_step)) * steps)  # == step ** (-p * s)
-    directed = base.unsqueeze(0) * penalty_p
-    stacked = torch.cat([directed, base.unsqueeze(0)], dim=0)
-    return stacked / stacked.sum(dim=(-2, -1), keepdim=True)
+    framed = _penalty(turns, penalty_step) * frame
+    framed = framed / framed.sum(dim=(-2, -1), keepdim=True)
+    directed = p * basic + (1 - p) * framed
+    return torch.cat([directed, basic.unsqueeze(0)], dim=0)
 
 
 def probability_matrices(
     window: int = 7,
-    v_max: float = 1.0,
+    v_max: float = 2.0,
     jitter: float = 0.5,
-    psf: float = 3.0,
+    psf: float = PAPER_PSF,
     p: float | torch.Tensor = 0.5,
     penalty_step: float | torch.Tensor = 3.0,
     *,
@@ -352,40 +451,76 @@ def probability_matrices(
 ) -> torch.Tensor:
     r"""The probability matrices W(direction) of eq. (5) of [NR08].
 
-    ``W(d) = normalise(W_frame * W_basic * W_penalty(d) ** p)`` for directions ``d = 1..8`` and
-    ``W(9) = normalise(W_frame * W_basic)`` for "in place" (:func:`penalty_matrix_in_place` is all
-    ones), where ``normalise`` divides by the sum. Typical settings: ``window=7`` for targets of
-    0-2.5 px/frame (``v_max=2.5``), ``window=5`` for 0-1 px/frame (``v_max=1``).
+    ``W(d) = p * W_basic + (1 - p) * W_penalty(d) W_frame / sum(W_penalty(d) W_frame)`` for the
+    directions ``d = 1..8`` and ``W(9) = W_basic`` (the target standing in place), with
+    :func:`basic_matrix`, :func:`penalty_matrices` and :func:`frame_matrix`. Every matrix sums to
+    1, so the sum recursion (``g = 1``) has the same gain in every direction (``b = 0.8`` for an
+    EMC of 0.8, eq. (13)). The defaults are the paper's: 7 x 7, 0-2 px/frame plus U[-0.5, 0.5]
+    jitter (the full 7 x 7 ``W_frame``, section 2.2.1), ``p = 0.5``, ``x = 3`` (section 2.2.2);
+    ``v_max = 1`` gives Figure 3's 5 x 5 valid search area (pass ``window=5`` to drop the zero
+    border). The defaults give eq. (15)'s constants (see :func:`memory_line`).
 
     Args:
         window: odd window size ``k``.
-        v_max: largest target speed in pixels per frame, ``>= 0`` (:func:`basic_matrix`).
+        v_max: largest target speed in pixels per frame, without the jitter, ``>= 0``
+            (:func:`frame_matrix`).
         jitter: half-width of the uniform per-axis jitter in pixels, ``>= 0``.
-        psf: FWHM of the Gaussian PSF in pixels, ``>= 0`` (see :func:`basic_matrix`).
-        p: exponent of the penalty, ``>= 0`` (``0``: no direction preference). Float or 0-dim
-            tensor; the result is differentiable in it.
-        penalty_step: turn penalty factor per 45 degrees, ``>= 1`` (:func:`penalty_matrices`).
-            Float or 0-dim tensor; the result is differentiable in it.
+        psf: FWHM of the Gaussian target spread in pixels, ``>= 0`` (:func:`basic_matrix`).
+        p: mixing weight of W_basic in ``[0, 1]`` (float or 0-dim tensor; differentiable).
+        penalty_step: the penalty ``x`` per 45 degrees of turn, in ``[0, 3]`` (float or 0-dim
+            tensor; differentiable).
         device: device of the result.
         dtype: floating dtype of the result (default: torch's default dtype).
 
     Returns:
-        ``(9, k, k)``: index ``d - 1`` holds direction ``d``; each matrix sums to 1.
+        ``(9, k, k)``: index ``d - 1`` holds direction ``d``; each matrix sums to 1; paper index
+        convention ``[h + j, h + i]`` for the source ``ASF_{n-1}(x + i, y + j)`` (eq. 6).
 
     Examples:
-        >>> w = probability_matrices(5, v_max=1.0)
+        >>> w = probability_matrices()
         >>> w.shape, torch.allclose(w.sum(dim=(1, 2)), torch.ones(9))
-        (torch.Size([9, 5, 5]), True)
-        >>> bool(w[0, 2, 3] > w[0, 2, 1])  # direction 1 prefers +x over -x
+        (torch.Size([9, 7, 7]), True)
+        >>> bool(w[0, 3, 1] > w[0, 3, 5])  # direction 1 (moving +x) came from -x
         True
     """
     k = _window("window", window)
     dtype = _dtype(dtype)
-    check_number("p", p, low=0.0)
+    check_number("p", p, low=0.0, high=1.0)
     p_t = torch.as_tensor(p).to(device=device, dtype=dtype)
     step = _penalty_step_tensor(penalty_step, device, dtype)
-    base = _base_matrix(k, v_max, jitter, psf, device, dtype)
-    return _combine(base, _turn_steps(k, device).to(dtype), p_t, step)
+    basic = basic_matrix(k, 0.0, jitter, psf, device=device, dtype=dtype)
+    frame = frame_matrix(k, v_max, jitter, device=device, dtype=dtype)
+    return _combine(basic, frame, _penalty_turns(k, device).to(dtype), p_t, step)
+
+
+def figure3_matrices(
+    v_max: float = 1.0, p: float = 0.5, penalty_step: float = 3.0
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The three panels of Figure 3 of [NR08]: W_basic, the framed penalties and W(direction).
+
+    Figure 3 shows 7 x 7 matrices for 0-1 px/frame (a 5 x 5 ``W_frame``) and ``p = 0.5``.
+
+    Args:
+        v_max: largest target speed in pixels per frame (Figure 3: 1).
+        p: mixing weight (Figure 3: 0.5).
+        penalty_step: the penalty ``x`` (Figure 2: 3).
+
+    Returns:
+        ``(basic, penalties, weights)``: ``(7, 7)`` W_basic, ``(8, 7, 7)`` W_penalty(d) W_frame
+        (not normalised) and ``(9, 7, 7)`` W(d), float64, paper index convention.
+
+    Examples:
+        >>> basic, penalties, weights = figure3_matrices()
+        >>> float(penalties[:, 0].abs().sum()), tuple(weights.shape)
+        (0.0, (9, 7, 7))
+    """
+    basic = basic_matrix(7, dtype=torch.float64)
+    frame = frame_matrix(7, v_max, 0.5, dtype=torch.float64)
+    penalties = penalty_matrices(7, penalty_step, dtype=torch.float64) * frame
+    weights = probability_matrices(
+        7, v_max, 0.5, p=p, penalty_step=penalty_step, dtype=torch.float64
+    )
+    return basic, penalties, weights
 
 
 def var_table(*, device: torch.device | str | None = None) -> torch.Tensor:
@@ -417,7 +552,7 @@ def var_table(*, device: torch.device | str | None = None) -> torch.Tensor:
 
 
 def _memory_weights(weights: torch.Tensor | Sequence) -> torch.Tensor:
-    """Validate ``weights`` for the EMC functions and return the matrix the gain is taken from."""
+    """Validate ``weights`` for the EMC functions and return them as ``(D, k, k)``."""
     if not isinstance(weights, torch.Tensor):
         try:
             weights = torch.as_tensor(weights, dtype=torch.float64)
@@ -432,86 +567,171 @@ def _memory_weights(weights: torch.Tensor | Sequence) -> torch.Tensor:
             f"got shape {tuple(weights.shape)} and dtype {weights.dtype}"
         )
     check_finite("weights", weights)
-    return weights if weights.dim() == 2 else weights[0]
+    return weights if weights.dim() == 3 else weights.unsqueeze(0)
 
 
-def _gain(weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    return weights.sum(), weights.max()
+def _pick(weights: torch.Tensor, direction: int) -> torch.Tensor:
+    """The ``(k, k)`` matrix of ``direction`` (1..9; the only one when ``D = 1``)."""
+    check_int("direction", direction, minimum=1, maximum=N_DIRECTIONS)
+    if weights.shape[0] == 1:
+        return weights[0]
+    if direction > weights.shape[0]:
+        raise ValueError(
+            f"`direction`: expected 1..{weights.shape[0]} for {weights.shape[0]} matrices, "
+            f"got {direction}"
+        )
+    return weights[direction - 1]
 
 
-def effective_memory(
-    weights: torch.Tensor,
-    g: float | torch.Tensor,
-    target: float = 0.8,
-) -> float | torch.Tensor:
-    r"""The factor ``b`` that gives the recursion an effective memory ``target``, eq. (12)-(14).
-
-    Feeding a constant ``ASF`` through one step of eq. (11) multiplies it by
-    ``b * (g * sum(w) + (1 - g) * max(w))``; this per-step gain is the effective memory
-    coefficient (EMC). ``b`` is chosen to make it equal ``target``:
-    ``b = target / (g * sum(w) + (1 - g) * max(w))``.
-
-    Notes:
-        Our reading of [NR08]: the EMC is the per-step gain above (a geometric forgetting factor;
-        ``target = 0.8`` weighs a frame ``m`` steps back by ``0.8 ** m``). For direction-dependent
-        weights ``(9, k, k)`` the direction-1 matrix ``weights[0]`` is used (all eight directed
-        matrices are rotations of it up to the pixel grid).
-
-    Args:
-        weights: ``(D, k, k)`` (``weights[0]`` is used) or ``(k, k)``.
-        g: sum/max mixing factor in ``[0, 1]``, float or tensor of any shape.
-        target: the wanted effective memory coefficient, ``> 0``.
-
-    Returns:
-        ``b`` as a float if ``g`` is a float, else a tensor shaped like ``g`` (differentiable in
-        ``g`` and ``weights``).
-
-    Examples:
-        >>> w = probability_matrices(7, v_max=2.5)
-        >>> b = effective_memory(w, 0.5)
-        >>> round(b * (0.5 * float(w[0].sum()) + 0.5 * float(w[0].max())), 6)
-        0.8
-    """
-    w = _memory_weights(weights)
-    target = check_number("target", target, low=0.0, low_inclusive=False)
-    total, peak = _gain(w)
+def _check_g(g: float | torch.Tensor, like: torch.Tensor) -> float | torch.Tensor:
     if isinstance(g, torch.Tensor):
         if not g.is_floating_point():
-            g = g.to(w.dtype)
+            g = g.to(like.dtype)
         check_finite("g", g)
         if g.numel() and not bool(((g >= 0) & (g <= 1)).all()):
             raise ValueError(
                 f"`g`: expected values in [0, 1], got min {float(g.min()):g}, "
                 f"max {float(g.max()):g}"
             )
+        return g
+    return check_number("g", g, low=0.0, high=1.0)
+
+
+def effective_memory(
+    weights: torch.Tensor,
+    g: float | torch.Tensor,
+    target: float = 0.8,
+    *,
+    direction: int = 9,
+) -> float | torch.Tensor:
+    r"""The memory factor ``b`` of eq. (12)-(14) of [NR08] for one direction.
+
+    Feeding a constant ``ASF`` through one step of eq. (11) with the matrix ``w = W(direction)``
+    multiplies it by ``b * (g * sum(w) + (1 - g) * max(w))``, the effective memory coefficient
+    (EMC). Eq. (12): ``b = target / (g * sum(w) + (1 - g) * max(w))``; eq. (14) writes it as
+    ``[g / b_{g=1} + (1 - g) / b_{g=0}]^{-1}``. The result is direction dependent (eq. (13)).
+
+    Notes:
+        The paper tunes ``b`` for direction 9 (section 2.2.6: its targets stay in place most of
+        the time, "``b_{g=0}`` close to 4.65"), so ``direction=9`` is the default; with the
+        default matrices it gives ``b = 4.67`` at ``g = 0`` and ``0.8`` at ``g = 1``.
+        :func:`effective_memories` gives every direction at once. (Before issue 8 this function
+        used direction 1.)
+
+    Args:
+        weights: ``(D, k, k)`` or ``(k, k)`` (then ``D = 1``).
+        g: sum/max mixing factor in ``[0, 1]``, float or tensor of any shape.
+        target: the wanted effective memory coefficient, ``> 0``.
+        direction: the direction 1..9 whose matrix sets ``b`` (ignored when ``D = 1``).
+
+    Returns:
+        ``b`` as a float if ``g`` is a float, else a tensor shaped like ``g`` (differentiable in
+        ``g`` and ``weights``).
+
+    Examples:
+        >>> w = probability_matrices()
+        >>> round(effective_memory(w, 0.0), 2), round(effective_memory(w, 1.0), 2)
+        (4.67, 0.8)
+        >>> round(effective_memory(w, 0.0, direction=1), 2)
+        7.58
+    """
+    w = _pick(_memory_weights(weights), direction)
+    target = check_number("target", target, low=0.0, low_inclusive=False)
+    g = _check_g(g, w)
+    total, peak = w.sum(), w.max()
+    if isinstance(g, torch.Tensor):
         total, peak = total.to(device=g.device, dtype=g.dtype), peak.to(g.device, g.dtype)
         return target / (g * total + (1 - g) * peak)
-    g = check_number("g", g, low=0.0, high=1.0)
     return target / (g * float(total) + (1 - g) * float(peak))
 
 
-def equalize_gain(weights: torch.Tensor, g: float | torch.Tensor) -> torch.Tensor:
-    r"""Rescale each direction's matrix so every direction has the per-step gain of direction 1.
+def effective_memories(
+    weights: torch.Tensor, g: float | torch.Tensor, target: float = 0.8
+) -> torch.Tensor:
+    r"""``b`` of eq. (12)-(14) for every direction: ``target / (g sum W(d) + (1 - g) max W(d))``.
+
+    Args:
+        weights: ``(D, k, k)`` or ``(k, k)``.
+        g: sum/max mixing factor in ``[0, 1]``, float or tensor of any shape.
+        target: the wanted effective memory coefficient, ``> 0``.
+
+    Returns:
+        ``(D, *g.shape)`` tensor (``(D,)`` for a float ``g``), in the dtype of ``weights``
+        (of ``g`` if it is a float tensor); entry ``d - 1`` is direction ``d``.
+
+    Examples:
+        >>> effective_memories(probability_matrices(), 0.0).round(decimals=2)
+        tensor([7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 7.5800, 4.6700])
+    """
+    w = _memory_weights(weights)
+    target = check_number("target", target, low=0.0, low_inclusive=False)
+    g = _check_g(g, w)
+    total, peak = w.sum(dim=(-2, -1)), w.amax(dim=(-2, -1))
+    if isinstance(g, torch.Tensor):
+        total, peak = total.to(g.device, g.dtype), peak.to(g.device, g.dtype)
+        shape = (-1,) + (1,) * g.dim()
+        return target / (g * total.view(shape) + (1 - g) * peak.view(shape))
+    return target / (g * total + (1 - g) * peak)
+
+
+def b_limit(weights: torch.Tensor, g: float | torch.Tensor) -> float:
+    r"""Largest ``b`` of the memory range of eq. (12)-(14): EMC ``<= 1`` in at least one direction.
+
+    ``b_max = 1 / min_d (g * sum(W(d)) + (1 - g) * max(W(d)))``: above it every direction's
+    effective memory coefficient exceeds 1 and the recursion grows geometrically ("explodes",
+    section 2.2.6) even on a constant input. With the default matrices ``b_max = 9.47`` at
+    ``g = 0`` (directions 1-8; the paper sweeps ``b`` up to 8) and exactly 1 at ``g = 1``.
+
+    Notes:
+        Our reading of [NR08]: "an appropriate range for b can be found so that 0 <= EMC <= 1";
+        the paper's own sweeps (``b`` up to 8 at ``g = 0``, Figure 6 "about 0 <= b <= 8") exceed
+        the direction-9 bound (5.84), so the range is bounded by the direction with the smallest
+        gain. :func:`~hocnet.dpa.functional.accumulate` checks ``b`` against it.
+
+    Args:
+        weights: ``(D, k, k)`` or ``(k, k)`` non-negative matrices.
+        g: sum/max mixing factor in ``[0, 1]`` (float or one-element tensor).
+
+    Returns:
+        ``b_max`` as a float (``inf`` if some direction has zero gain).
+
+    Examples:
+        >>> w = probability_matrices()
+        >>> round(b_limit(w, 0.0), 2), round(b_limit(w, 1.0), 2)
+        (9.47, 1.0)
+    """
+    w = _memory_weights(weights).detach().to(torch.float64)
+    if isinstance(g, torch.Tensor):
+        g = float(g.detach().reshape(-1)[0]) if g.numel() == 1 else g
+    g = check_number("g", g, low=0.0, high=1.0)
+    gain = g * w.sum(dim=(-2, -1)) + (1 - g) * w.amax(dim=(-2, -1))
+    low = float(gain.min())
+    return math.inf if low <= 0 else 1.0 / low
+
+
+def equalize_gain(
+    weights: torch.Tensor, g: float | torch.Tensor, *, reference: int = 1
+) -> torch.Tensor:
+    r"""Rescale each direction's matrix so every direction has the per-step gain of ``reference``.
 
     The per-step gain (effective memory coefficient per unit ``b``, see
     :func:`effective_memory`) of matrix ``W(d)`` is ``G_d = g * sum(W(d)) + (1 - g) * max(W(d))``.
-    This returns ``W'(d) = W(d) * G_1 / G_d``, so that ``b * G_1`` is the memory of *every*
-    direction, not only of direction 1.
+    This returns ``W'(d) = W(d) * G_ref / G_d``, so that ``b * G_ref`` is the memory of *every*
+    direction.
 
     Notes:
-        Beyond [NR08]. Eq. (5) normalises every ``W(d)`` to sum 1, which equalises the gains of
-        the sum recursion (``g = 1``) but not of the max recursion: with the defaults the flat
-        in-place matrix ``W(9)`` has half the maximum of the directed ones (5 x 5, ``v_max = 1``:
-        0.123 against 0.249), so a target that stays in its pixel, as the paper's sub-pixel
-        targets do in most frames, is accumulated with about half the memory that
-        :func:`effective_memory` promises. ``hocnet reproduce dpa-pd-snr`` measures the effect.
-        ``W(1)`` is unchanged, so :func:`effective_memory` and :func:`memory_line` (eq. 15) give
-        the same ``b`` for the equalised matrices. Differentiable in ``weights`` and ``g``.
+        Beyond [NR08] (our addition, kept as an option). Eq. (5) normalises every ``W(d)`` to
+        sum 1, which equalises the gains of the sum recursion (``g = 1``) but not of the max
+        recursion: with the paper's matrices the in-place ``W(9) = W_basic`` has a larger
+        maximum than the directed ones (7 x 7: 0.171 against 0.106), so at ``g = 0`` a target
+        that stays in place is accumulated with more memory than a moving one. ``W(reference)``
+        is unchanged. Differentiable in ``weights`` and ``g``.
 
     Args:
         weights: ``(D, k, k)`` non-negative matrices with ``D`` in {1, 9} (``D = 1`` is returned
             as a copy) and a positive gain in every direction.
         g: sum/max mixing factor in ``[0, 1]``, float or 0-dim tensor.
+        reference: the direction 1..9 whose gain every matrix gets (default 1).
 
     Returns:
         ``(D, k, k)`` rescaled matrices in the dtype of ``weights``.
@@ -521,7 +741,7 @@ def equalize_gain(weights: torch.Tensor, g: float | torch.Tensor) -> torch.Tenso
             gain, or ``g`` outside ``[0, 1]``.
 
     Examples:
-        >>> w = equalize_gain(probability_matrices(5, v_max=1.0), 0.0)
+        >>> w = equalize_gain(probability_matrices(), 0.0)
         >>> peaks = w.amax(dim=(1, 2))
         >>> bool(torch.allclose(peaks, peaks[0].expand(9)))
         True
@@ -532,6 +752,7 @@ def equalize_gain(weights: torch.Tensor, g: float | torch.Tensor) -> torch.Tenso
         raise ValueError(
             f"`weights`: expected shape (D, k, k) with D in (1, 9), got {tuple(w.shape)}"
         )
+    ref = check_int("reference", reference, minimum=1, maximum=N_DIRECTIONS)
     if bool((w < 0).any()):
         raise ValueError(f"`weights`: expected non-negative values, got min {float(w.min()):g}")
     if isinstance(g, torch.Tensor):
@@ -545,42 +766,47 @@ def equalize_gain(weights: torch.Tensor, g: float | torch.Tensor) -> torch.Tenso
     if bool((gain <= 0).any()):
         zero = torch.nonzero(gain <= 0).flatten().tolist()
         raise ValueError(f"`weights`: expected a positive gain in every direction, got 0 at {zero}")
-    return w * (gain[0] / gain).view(-1, 1, 1)
+    ref_gain = gain[min(ref, w.shape[0]) - 1]
+    return w * (ref_gain / gain).view(-1, 1, 1)
 
 
-def memory_line(weights: torch.Tensor, target: float = 0.8) -> tuple[float, float]:
-    r"""Constants of eq. (15) of [NR08]: ``1 / b = slope * g + intercept``.
+def memory_line(
+    weights: torch.Tensor, target: float = 0.8, *, direction: int = 9
+) -> tuple[float, float]:
+    r"""Constants of eq. (15) of [NR08]: ``1 / b = slope * g + intercept`` for one direction.
 
-    From :func:`effective_memory`, ``1 / b = g * (sum(w) - max(w)) / target + max(w) / target``.
-    With normalised matrices (``sum(w) = 1``) ``slope + intercept = 1 / target`` exactly.
+    From eq. (14), ``1 / b = g * (sum(w) - max(w)) / target + max(w) / target`` with
+    ``w = W(direction)``. With normalised matrices (``sum(w) = 1``) ``slope + intercept =
+    1 / target`` exactly.
 
     Notes:
-        The paper's eq. (15), with ``target = 0.8``, reads ``1/b = 1.118 g + 0.131`` and
-        ``1/b = 1.035 g + 0.214`` for its two matrices, i.e. ``max(w) = 0.105`` and ``0.171``.
-        Our matrices (:func:`probability_matrices` defaults ``jitter=0.5, psf=3, p=0.5,
-        penalty_step=3``, direction 1) give, measured:
-
-        * 7 x 7, ``v_max = 2.5``: ``1/b = 1.1160 g + 0.1340`` (``max(w) = 0.1072``) — within
-          about 2 % of the paper's ``(1.118, 0.131)``;
-        * 5 x 5, ``v_max = 1``: ``1/b = 0.9388 g + 0.3112`` (``max(w) = 0.2489``) — more
-          peaked than the paper's ``(1.035, 0.214)``: with ``|v| <= 1`` most of the mass stays
-          within one pixel, and our ``W_frame`` keeps only the 13 offsets within 2.2 px.
+        The paper's eq. (15) (``target = 0.8``): ``1/b = 1.118 g + 0.131`` for directions 1-8
+        and ``1/b = 1.035 g + 0.214`` for direction 9. The default matrices
+        (:func:`probability_matrices`: 7 x 7, 0-2 px/frame + 0.5 jitter, ``p = 0.5``, ``x = 3``,
+        W_basic spread fitted to direction 9's intercept) give, measured:
+        directions 1-8 ``1/b = 1.1180 g + 0.1320`` (``b_{g=0} = 7.576``, paper 7.63) and
+        direction 9 ``1/b = 1.0360 g + 0.2140`` (``b_{g=0} = 4.673``, paper "close to 4.65").
+        Directions 1-8 are an independent check (only direction 9's intercept is fitted): both
+        constants within 1 %. (The paper's pairs sum to 1.249, not 1.25: rounding.)
 
     Args:
-        weights: ``(D, k, k)`` (``weights[0]`` is used) or ``(k, k)``.
+        weights: ``(D, k, k)`` or ``(k, k)``.
         target: the wanted effective memory coefficient, ``> 0``.
+        direction: the direction 1..9 of the line (ignored when ``D = 1``).
 
     Returns:
         ``(slope, intercept)`` as floats.
 
     Examples:
-        >>> slope, intercept = memory_line(probability_matrices(7, v_max=2.5))
-        >>> round(slope + intercept, 6)
-        1.25
+        >>> [round(c, 3) for c in memory_line(probability_matrices(), direction=1)]
+        [1.118, 0.132]
+        >>> [round(c, 3) for c in memory_line(probability_matrices(), direction=9)]
+        [1.036, 0.214]
     """
-    w = _memory_weights(weights)
+    w = _pick(_memory_weights(weights), direction)
     target = check_number("target", target, low=0.0, low_inclusive=False)
-    total, peak = _gain(w.detach().to(torch.float64))
+    w = w.detach().to(torch.float64)
+    total, peak = w.sum(), w.max()
     return float(total - peak) / target, float(peak) / target
 
 
@@ -588,13 +814,16 @@ def b_versus_g(
     weights: torch.Tensor,
     gs: torch.Tensor | Sequence[float],
     target: float = 0.8,
+    *,
+    direction: int = 9,
 ) -> torch.Tensor:
-    """The curve ``b(g)`` of :func:`effective_memory` over several values of ``g``.
+    """The curve ``b(g)`` of :func:`effective_memory` (Figure 6 of [NR08]) over several ``g``.
 
     Args:
-        weights: ``(D, k, k)`` (``weights[0]`` is used) or ``(k, k)``.
+        weights: ``(D, k, k)`` or ``(k, k)``.
         gs: values of ``g`` in ``[0, 1]``, a sequence or a tensor of any shape.
         target: the wanted effective memory coefficient, ``> 0``.
+        direction: the direction 1..9 whose matrix sets ``b`` (ignored when ``D = 1``).
 
     Returns:
         ``b`` for each ``g``, a tensor shaped like ``gs`` (float64 unless ``gs`` is a float
@@ -613,6 +842,6 @@ def b_versus_g(
             ) from None
     if not gs.is_floating_point():
         gs = gs.to(torch.float64)
-    w = _memory_weights(weights)
+    w = _pick(_memory_weights(weights), direction)
     result = effective_memory(w.to(gs.dtype), gs.reshape(-1), target)
     return result.reshape(gs.shape)

@@ -1,8 +1,11 @@
 import itertools
+import math
 
 import numpy as np
 import pytest
 import torch
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hocnet.dpa.functional import DPAState, accumulate
 from hocnet.dpa.matrices import probability_matrices, var_table
@@ -25,11 +28,18 @@ def _weights(kind, d, k, dtype, gen):
         w = probability_matrices(k, v_max=1.0, dtype=dtype)  # zero corners, shared support
         return w if d == 9 else w[8:9].contiguous()
     w = torch.rand(d, k, k, generator=gen, dtype=dtype)
-    return torch.where(w < 0.25, torch.zeros_like(w), w)  # zeros differ between directions
+    w = torch.where(w < 0.25, torch.zeros_like(w), w)  # zeros differ between directions
+    w[:, k // 2, k // 2] += 0.5  # every matrix has a positive gain
+    return w / w.sum(dim=(1, 2), keepdim=True)  # sum 1: b up to 1 is in the memory range
+
+
+def _normalised(w):
+    """Leaf with every matrix summing to 1 (``b <= 1`` is then in the memory range)."""
+    return (w / w.sum(dim=(-2, -1), keepdim=True)).detach().requires_grad_()
 
 
 def _random_var_table(gen):
-    return torch.randint(0, 7, (9, 9), generator=gen)
+    return torch.randint(1, 7, (9, 9), generator=gen)  # positive: eq. (7) multiplies by Var
 
 
 def _assert_equal_to_reference(state, expected, exact=False):
@@ -45,9 +55,10 @@ def _assert_equal_to_reference(state, expected, exact=False):
 
 
 SIZES = [(2, 4, 5, 6, 5), (1, 5, 7, 7, 3), (2, 3, 6, 9, 5), (1, 4, 8, 5, 3)]  # B, T, H, W, k
+STEPS = ("paper", "source")
 CASES = [
-    (i, size, d, g)
-    for i, (size, d, g) in enumerate(itertools.product(SIZES, (1, 9), (0.0, 0.3, 1.0)))
+    (i, size, d, g, step)
+    for i, (size, d, g, step) in enumerate(itertools.product(SIZES, (1, 9), (0.0, 0.3, 1.0), STEPS))
 ]
 
 
@@ -79,44 +90,78 @@ class TestAccumulate:
         assert state.asf.dtype == torch.get_default_dtype()
         assert bool((state.asf == 1).all()) and bool((state.direction == 0).all())
 
-    @pytest.mark.parametrize("i, size, d, g", CASES)
-    def test_reference_equality(self, i, size, d, g):
+    @pytest.mark.parametrize("i, size, d, g, step", CASES)
+    def test_reference_equality(self, i, size, d, g, step):
         gen = torch.Generator().manual_seed(i)
         bsz, t, h, w, k = size
-        dtype = F64 if i % 2 == 0 else torch.float32
-        kind = "probability" if (i // 3) % 2 else "random"
-        b = (0.6, 1.3, 0.0)[i % 3] if kind == "random" else 1.0
-        table = _random_var_table(gen) if d == 9 and (i // 2) % 2 else None
+        dtype = F64 if (i // 2) % 2 == 0 else torch.float32
+        kind = "probability" if (i // 6) % 2 else "random"
+        b = (0.6, 0.95, 0.0)[(i // 2) % 3] if kind == "random" else 0.9
+        table = _random_var_table(gen) if d == 9 and (i // 4) % 2 else None
         weights = _weights(kind, d, k, dtype, gen)
-        if i % 4 == 3:  # non-contiguous frames and weights
+        if (i // 2) % 4 == 3:  # non-contiguous frames and weights
             frames = torch.randn(bsz, t, w, h, generator=gen, dtype=dtype).transpose(-1, -2)
             weights = weights.transpose(-1, -2)
             assert not frames.is_contiguous()
         else:
             frames = torch.randn(bsz, t, h, w, generator=gen, dtype=dtype)
-        state = accumulate(frames, weights, b, g, var_table=table)
-        expected = accumulate_reference(frames, weights, b, g, table)
+        state = accumulate(frames, weights, b, g, var_table=table, direction_step=step)
+        expected = accumulate_reference(frames, weights, b, g, table, direction_step=step)
         _assert_equal_to_reference(state, expected)
 
-    @pytest.mark.parametrize("d, g", list(itertools.product((1, 9), (0.0, 0.5, 1.0))))
-    def test_reference_equality_with_ties(self, d, g):
+    @pytest.mark.parametrize("d, g, step", list(itertools.product((1, 9), (0.0, 0.5, 1.0), STEPS)))
+    def test_reference_equality_with_ties(self, d, g, step):
         # integer frames and dyadic weights: many exact ties, every sum exact in float64
         gen = torch.Generator().manual_seed(7 + d)
         frames = torch.randint(-2, 3, (2, 4, 6, 5), generator=gen).to(F64)
-        weights = torch.randint(0, 3, (d, 3, 3), generator=gen).to(F64) / 2
+        weights = torch.randint(0, 3, (d, 3, 3), generator=gen).to(F64) / 16
         table = var_table() + _random_var_table(gen) if d == 9 else None
-        state = accumulate(frames, weights, 0.5, g, var_table=table)
-        _assert_equal_to_reference(
-            state, accumulate_reference(frames, weights, 0.5, g, table), exact=True
-        )
+        state = accumulate(frames, weights, 0.5, g, var_table=table, direction_step=step)
+        expected = accumulate_reference(frames, weights, 0.5, g, table, direction_step=step)
+        _assert_equal_to_reference(state, expected, exact=True)
 
-    @pytest.mark.parametrize("d, g, dtype", [(1, 0.3, F64), (9, 0.0, F64), (9, 1.0, torch.float32)])
-    def test_reference_equality_smooth(self, d, g, dtype):
+    @pytest.mark.parametrize(
+        "d, g, dtype, step",
+        [
+            (1, 0.3, F64, "paper"),
+            (9, 0.0, F64, "paper"),
+            (9, 1.0, torch.float32, "paper"),
+            (9, 0.4, F64, "source"),
+        ],
+    )
+    def test_reference_equality_smooth(self, d, g, dtype, step):
         gen = torch.Generator().manual_seed(3)
         frames = torch.randn(2, 3, 5, 6, generator=gen, dtype=dtype)
         weights = _weights("random", d, 5, dtype, gen)
-        state = accumulate(frames, weights, 0.9, g, smooth=0.4)
-        _assert_equal_to_reference(state, accumulate_reference(frames, weights, 0.9, g, smooth=0.4))
+        state = accumulate(frames, weights, 0.9, g, smooth=0.4, direction_step=step)
+        expected = accumulate_reference(frames, weights, 0.9, g, smooth=0.4, direction_step=step)
+        _assert_equal_to_reference(state, expected)
+
+    def test_paper_direction_step_by_hand(self):
+        # one bright pixel A at q0 in frame 0, zeros elsewhere: eq. (7)-(8) pick q0 as the source
+        # of every pixel p of its window, d(p) = dir(p - q0), and eq. (6) gives
+        # ASF_1(p) = b * W(d(p))[h + j, h + i] * A with (i, j) = q0 - p (g = 0)
+        w = probability_matrices(dtype=F64)
+        frames = torch.zeros(2, 9, 9, dtype=F64)
+        frames[0, 4, 4] = 5.0
+        state = accumulate(frames, w, 2.0, 0.0)
+        for y in range(1, 8):
+            for x in range(1, 8):
+                i, j = 4 - x, 4 - y
+                angle = math.degrees(math.atan2(-j, -i))
+                d = 8 if (i, j) == (0, 0) else round(angle / 45) % 8
+                assert int(state.direction[1, y, x]) == d
+                assert int(state.origin[1, y, x]) == 4 * 9 + 4
+                expected = 2.0 * float(w[d, 3 + j, 3 + i]) * 5.0
+                assert float(state.asf[1, y, x]) == pytest.approx(expected, rel=1e-12)
+
+    def test_paper_and_source_steps_differ(self):
+        gen = torch.Generator().manual_seed(11)
+        frames = torch.randn(1, 6, 12, 12, generator=gen, dtype=F64)
+        w = probability_matrices(dtype=F64)
+        paper = accumulate(frames, w, 4.0, 0.0)
+        source = accumulate(frames, w, 4.0, 0.0, direction_step="source")
+        assert not torch.allclose(paper.asf, source.asf)
 
     def test_smooth_tends_to_hard_max(self):
         gen = torch.Generator().manual_seed(0)
@@ -171,8 +216,8 @@ class TestAccumulate:
         gen = torch.Generator().manual_seed(1)
         frames = torch.randn(1, 5, 8, 8, generator=gen)
         w = probability_matrices(5)
-        with_table = accumulate(frames, w, 0.9, 0.3, var_table=var_table())
-        without = accumulate(frames, w, 0.9, 0.3)
+        with_table = accumulate(frames, w, 0.9, 0.3, var_table=var_table(), direction_step="source")
+        without = accumulate(frames, w, 0.9, 0.3, direction_step="source")
         assert torch.equal(with_table.direction, without.direction)
         torch.testing.assert_close(with_table.asf, without.asf)
 
@@ -185,25 +230,32 @@ class TestAccumulate:
         _assert_equal_to_reference(state, accumulate_reference(frames, weights, 1.0, 0.5))
 
     @pytest.mark.parametrize(
-        "d, g, smooth, bsz",
-        [(9, 0.3, None, 1), (1, 0.6, None, 2), (9, 0.5, 0.3, 2), (1, 0.2, 0.5, 1)],
+        "d, g, smooth, bsz, step",
+        [
+            (9, 0.3, None, 1, "paper"),
+            (9, 0.3, None, 1, "source"),
+            (1, 0.6, None, 2, "paper"),
+            (9, 0.5, 0.3, 2, "paper"),
+            (9, 0.5, 0.3, 2, "source"),
+            (1, 0.2, 0.5, 1, "paper"),
+        ],
     )
-    def test_gradcheck(self, d, g, smooth, bsz):
+    def test_gradcheck(self, d, g, smooth, bsz, step):
         gen = torch.Generator().manual_seed(2)
         frames = torch.randn(bsz, 3, 6, 7, generator=gen, dtype=F64, requires_grad=True)
-        weights = (torch.rand(d, 3, 3, generator=gen, dtype=F64) + 0.1).requires_grad_()
+        weights = _normalised(torch.rand(d, 3, 3, generator=gen, dtype=F64) + 0.1)
         b = torch.tensor(0.7, dtype=F64, requires_grad=True)
         g_t = torch.tensor(g, dtype=F64, requires_grad=True)
 
         def fn(frames, weights, b, g):
-            return accumulate(frames, weights, b, g, smooth=smooth).asf
+            return accumulate(frames, weights, b, g, smooth=smooth, direction_step=step).asf
 
         assert torch.autograd.gradcheck(fn, (frames, weights, b, g_t), fast_mode=True)
 
     def test_gradcheck_full_jacobian(self):
         gen = torch.Generator().manual_seed(4)
         frames = torch.randn(1, 3, 6, 6, generator=gen, dtype=F64, requires_grad=True)
-        weights = (torch.rand(9, 3, 3, generator=gen, dtype=F64) + 0.1).requires_grad_()
+        weights = _normalised(torch.rand(9, 3, 3, generator=gen, dtype=F64) + 0.1)
         b = torch.tensor(0.8, dtype=F64, requires_grad=True)
         g = torch.tensor(0.4, dtype=F64, requires_grad=True)
         fn = lambda *args: accumulate(*args).asf  # noqa: E731
@@ -214,7 +266,7 @@ class TestAccumulate:
         gen = torch.Generator().manual_seed(5)
         frames = torch.randn(1, 3, 5, 5, generator=gen, dtype=F64, requires_grad=True)
         weights = torch.nn.functional.pad(
-            torch.rand(9, 3, 3, generator=gen, dtype=F64) + 0.1, (1,) * 4
+            _normalised(torch.rand(9, 3, 3, generator=gen, dtype=F64) + 0.1).detach(), (1,) * 4
         )
         weights.requires_grad_()
         # zero-weight border of a 5x5 window: cropped for speed, gradients land in the 3x3 centre
@@ -230,7 +282,7 @@ class TestAccumulate:
         frames = torch.randn(1, 3, 5, 6, generator=gen, dtype=F64)
         weights = torch.zeros(1, 5, 5, dtype=F64)
         weights[0, 1:4, 1:4] = torch.rand(3, 3, generator=gen, dtype=F64) + 0.1
-        weights.requires_grad_()
+        weights = (weights / weights.sum()).requires_grad_()
         accumulate(frames, weights, 0.8, 1.0).asf.sum().backward()
         eps = 1e-7
         for r, c in [(0, 0), (0, 2), (4, 3), (2, 2)]:
@@ -271,7 +323,14 @@ class TestAccumulate:
             ({"g": 1.5}, ValueError, "`g`"),
             ({"g": "half"}, TypeError, "`g`"),
             ({"smooth": 0.0}, ValueError, "`smooth`"),
+            ({"b": 1e30}, ValueError, "`b`: expected a value in \\[0, "),
+            ({"direction_step": "mine"}, ValueError, "`direction_step`"),
             ({"var_table": var_table()}, ValueError, "`var_table`"),
+            (
+                {"weights": torch.ones(9, 3, 3) / 9, "var_table": var_table() - 2},
+                ValueError,
+                "`var_table`: expected positive",
+            ),
             (
                 {"weights": torch.ones(9, 3, 3), "var_table": torch.ones(8, 9)},
                 ValueError,
@@ -280,9 +339,11 @@ class TestAccumulate:
         ],
     )
     def test_exceptions(self, kwargs, error, match):
-        args = {"frames": torch.zeros(2, 5, 6), "weights": torch.ones(1, 3, 3), "b": 1.0, "g": 0.5}
+        args = {"frames": torch.zeros(2, 5, 6), "weights": torch.ones(1, 3, 3) / 9, "b": 1.0}
+        args["g"] = 0.5
         args.update(kwargs)
-        extra = {key: args.pop(key) for key in ("smooth", "var_table") if key in args}
+        keys = ("smooth", "var_table", "direction_step")
+        extra = {key: args.pop(key) for key in keys if key in args}
         with pytest.raises(error, match=match):
             accumulate(args["frames"], args["weights"], args["b"], args["g"], **extra)
 
@@ -313,5 +374,77 @@ class TestAccumulateReference:
         table[:, 8] = table[8, :] = 0.0
         table[8, 8] = 0.0
         table[3, :] = 10.0  # direction 4 always wins
-        _, direction, _ = accumulate_reference(frames, np.ones((9, 3, 3)), 1.0, 0.0, table)
+        _, direction, _ = accumulate_reference(
+            frames, np.ones((9, 3, 3)), 1.0, 0.0, table, direction_step="source"
+        )
         assert (direction[1] == 3).all()
+
+
+class TestEmptyAndMemoryRange:
+    def test_empty_batch(self):
+        for step in STEPS:
+            state = accumulate(
+                torch.zeros(0, 6, 16, 16), probability_matrices(), 4.0, 0.0, direction_step=step
+            )
+            assert state.asf.shape == state.direction.shape == state.origin.shape == (0, 6, 16, 16)
+
+    def test_b_above_the_memory_range_names_b(self):
+        # issue 9: g = 1, b = 2 on 140 frames of 24 x 24 unit noise with one 5-sigma pixel
+        gen = torch.Generator().manual_seed(0)
+        frames = torch.randn(140, 24, 24, generator=gen)
+        frames[:, 12, 12] += 5.0
+        with pytest.raises(ValueError, match=r"`b`: expected a value in \[0, 1\]"):
+            accumulate(frames, probability_matrices(), 2.0, 1.0)
+        with pytest.raises(ValueError, match="`b`"):
+            accumulate(frames, probability_matrices(), 1e30, 0.0)
+        state = accumulate(frames, probability_matrices(), 1.0, 1.0)  # the bound itself is fine
+        assert bool(torch.isfinite(state.asf).all())
+
+    @pytest.mark.parametrize("step", STEPS)
+    def test_overflow_stops_with_an_error_naming_b(self, step):
+        # b in the range (EMC <= 1 in directions 1-8) but EMC 1.61 in direction 9: the
+        # recursion grows geometrically and would overflow float32 near frame 185
+        gen = torch.Generator().manual_seed(1)
+        frames = torch.randn(260, 8, 8, generator=gen)
+        frames[:, 4, 4] += 5.0
+        with pytest.raises(ValueError, match="`b`: the accumulated score overflowed"):
+            accumulate(frames, probability_matrices(), 9.4, 0.0, direction_step=step)
+
+
+class TestReferenceProperty:
+    @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+    @given(
+        seed=st.integers(0, 2**31 - 1),
+        bsz=st.integers(1, 2),
+        t=st.integers(1, 4),
+        h=st.integers(3, 7),
+        w=st.integers(3, 7),
+        k=st.sampled_from([1, 3, 5]),
+        d=st.sampled_from([1, 9]),
+        b=st.floats(0.0, 1.0),
+        g=st.sampled_from([0.0, 0.25, 1.0]),
+        double=st.booleans(),
+        transposed=st.booleans(),
+        step=st.sampled_from(STEPS),
+        kind=st.sampled_from(["probability", "random"]),
+    )
+    def test_fast_path_equals_reference(
+        self, seed, bsz, t, h, w, k, d, b, g, double, transposed, step, kind
+    ):
+        k = min(k, h, w) if min(k, h, w) % 2 else min(k, h, w) - 1
+        gen = torch.Generator().manual_seed(seed)
+        dtype = F64 if double else torch.float32
+        if kind == "probability" and k > 1:
+            weights = probability_matrices(k, v_max=1.0, dtype=dtype)
+            weights = weights if d == 9 else weights[8:9].contiguous()
+        else:
+            weights = _weights("random", d, k, dtype, gen)
+        table = _random_var_table(gen) if d == 9 and seed % 2 else None
+        frames = torch.randn(bsz, t, w, h, generator=gen, dtype=dtype).transpose(-1, -2)
+        if transposed:  # non-contiguous frames and weights
+            weights = weights.transpose(-1, -2)
+        else:
+            frames = frames.contiguous()
+        state = accumulate(frames, weights, b, g, var_table=table, direction_step=step)
+        expected = accumulate_reference(frames, weights, b, g, table, direction_step=step)
+        _assert_equal_to_reference(state, expected)

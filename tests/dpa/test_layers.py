@@ -85,22 +85,22 @@ class TestDPA:
 
     def test_learnable_parameters_and_constraints(self):
         dpa = DPA(
-            window=5, b=0.0, g=1.0, p=0.0, penalty_step=1.0, learnable=("b", "g", "p", "penalty")
+            window=5, b=0.0, g=1.0, p=0.0, penalty_step=3.0, learnable=("b", "g", "p", "penalty")
         )
         names = sorted(name for name, _ in dpa.named_parameters())
         assert names == ["b_raw", "g_raw", "p_raw", "penalty_raw"]
         # initialised just inside the bounds
         assert 0 < dpa.b.item() < 1e-5 and 1 - 1e-5 < dpa.g.item() < 1
-        assert 0 < dpa.p.item() < 1e-5 and 1 < dpa.penalty_step.item() < 1 + 1e-5
+        assert 0 < dpa.p.item() < 1e-5 and 3 - 1e-5 < dpa.penalty_step.item() < 3
         with torch.no_grad():
             for param in dpa.parameters():
                 param.fill_(-50.0)
         assert dpa.b.item() >= 0 and dpa.g.item() >= 0 and dpa.p.item() >= 0
-        assert dpa.penalty_step.item() >= 1
+        assert dpa.penalty_step.item() >= 0
         with torch.no_grad():
             for param in dpa.parameters():
                 param.fill_(50.0)
-        assert dpa.g.item() <= 1
+        assert dpa.g.item() <= 1 and dpa.p.item() <= 1 and dpa.penalty_step.item() <= 3
 
     def test_learnable_values_round_trip(self):
         dpa = DPA(
@@ -166,7 +166,11 @@ class TestDPA:
             ({"g": 2.0}, ValueError, "`g`"),
             ({"b": -1.0}, ValueError, "`b`"),
             ({"p": -1.0}, ValueError, "`p`"),
-            ({"penalty_step": 0.5}, ValueError, "`penalty_step`"),
+            ({"penalty_step": -0.5}, ValueError, "`penalty_step`"),
+            ({"penalty_step": 3.5}, ValueError, "`penalty_step`"),
+            ({"p": 1.5}, ValueError, "`p`"),
+            ({"direction_step": "mine"}, ValueError, "`direction_step`"),
+            ({"memory_direction": 10}, ValueError, "`memory_direction`"),
             ({"window": 4}, ValueError, "`window`"),
             ({"smooth": -1.0}, ValueError, "`smooth`"),
             ({"memory": 0.0}, ValueError, "`memory`"),
@@ -184,3 +188,43 @@ class TestDPA:
             DPA(window=7)(torch.randn(2, 5, 5))
         with pytest.raises(ValueError, match="`frames`"):
             DPA(window=3)(torch.randn(5, 5))
+
+
+class TestPaperDefaults:
+    def test_defaults_are_the_papers(self):
+        # g = 0 (max), 7 x 7 for 0-2 px/frame + 0.5 jitter, p = 0.5, x = 3, b = EMC 0.8 in
+        # direction 9 (section 2.2.6: "b_{g=0} close to 4.65"), the paper's direction step
+        dpa = DPA()
+        assert dpa.g.item() == 0.0 and dpa.p.item() == 0.5 and dpa.penalty_step.item() == 3.0
+        assert dpa.direction_step == "paper"
+        torch.testing.assert_close(dpa.weights, probability_matrices())
+        assert dpa.b.item() == pytest.approx(0.8 / float(probability_matrices()[8].max()))
+        assert dpa.b.item() == pytest.approx(4.67, abs=0.005)
+        assert DPA(memory_direction=1).b.item() == pytest.approx(7.576, abs=0.001)
+
+    def test_empty_batch(self):
+        state = DPA()(torch.zeros(0, 6, 16, 16))
+        assert state.asf.shape == (0, 6, 16, 16)
+
+    @pytest.mark.parametrize("smooth", [None, 0.3])
+    @pytest.mark.parametrize("step", ["paper", "source"])
+    def test_gradcheck_new_parameterisation(self, smooth, step):
+        dpa = DPA(
+            window=3,
+            b=0.7,
+            g=0.4,
+            p=0.6,
+            penalty_step=2.0,
+            learnable=("b", "g", "p", "penalty"),
+            smooth=smooth,
+            direction_step=step,
+        ).double()
+        gen = torch.Generator().manual_seed(3)
+        frames = torch.randn(1, 3, 5, 6, generator=gen, dtype=F64, requires_grad=True)
+        names = [name for name, _ in dpa.named_parameters()]
+        params = tuple(p.detach().clone().requires_grad_() for p in dpa.parameters())
+
+        def fn(frames, *values):
+            return functional_call(dpa, dict(zip(names, values, strict=True)), (frames,)).asf
+
+        assert torch.autograd.gradcheck(fn, (frames, *params))
