@@ -1,3 +1,4 @@
+import itertools
 import math
 
 import numpy as np
@@ -519,7 +520,7 @@ class TestAlgorithmScorePaper:
                 for n in range(2):
                     for t in range(4, 7):
                         at = 0 if anchor == "first" else t
-                        x, y = (int(math.floor(float(v) + 0.5)) for v in pos[b, n, at])
+                        x, y = (math.floor(float(v) + 0.5) for v in pos[b, n, at])
                         ref.append(paper_score_loop(asf[b, t].numpy(), x, y, rows, cols, m))
                 assert float(got[b]) == pytest.approx(sum(ref) / len(ref), rel=1e-9)
 
@@ -537,7 +538,7 @@ class TestAlgorithmScorePaper:
             ]
             assert 1 + int(np.argmax(paper)) == k, (seed, paper)
             assert 1 + int(np.argmax(centred)) == 1, (seed, centred)
-            assert all(a >= b - 1e-12 for a, b in zip(centred, centred[1:]))
+            assert all(a >= b - 1e-12 for a, b in itertools.pairwise(centred))
 
     def test_anchor_first_keeps_tiling_fixed(self):
         asf = torch.randn(5, 60, 60, generator=torch.Generator().manual_seed(9))
