@@ -356,6 +356,7 @@ def cfar_threshold(
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
     samples: str = "pixels",
+    **options: Any,
 ) -> float:
     """CFAR threshold on the last-frame ASF for a requested false-alarm rate.
 
@@ -386,14 +387,15 @@ def cfar_threshold(
         var_table: optional ``(9, 9)`` direction-similarity table.
         smooth: optional log-sum-exp temperature ``> 0``.
         samples: ``"pixels"`` or ``"peaks"``, see Notes.
+        **options: further keyword arguments of ``accumulate`` (passed on unchanged).
 
     Returns:
         The threshold, a float.
 
     Raises:
         TypeError: wrong argument types.
-        ValueError: out-of-range arguments, or ``pfa < 1 / N`` (the message says how many
-            samples would be needed).
+        ValueError: out-of-range arguments, ``pfa < 1 / N`` (the message says how many
+            samples would be needed), or an ASF that overflowed to NaN/inf (names ``b``).
 
     Examples:
         >>> noise = torch.randn(4, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -407,7 +409,8 @@ def cfar_threshold(
     pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     samples = check_choice("samples", samples, ("pixels", "peaks"))
-    state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth)
+    state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth, **options)
+    _check_overflow("b", state.asf, _gain_detail(weights, b, g))
     last = state.asf[:, -1].detach()
     if samples == "pixels":
         values = last.reshape(-1)

@@ -538,3 +538,9 @@ class TestDetectIssue9:
         frames = torch.randn(30, 12, 12, generator=torch.Generator().manual_seed(0))
         with pytest.raises(ValueError, match=r"`b`: the accumulated score \(ASF\) overflowed"):
             detect(frames, W5, 1e30, 0.0)
+
+
+def test_cfar_threshold_overflow_names_b():
+    frames = torch.randn(30, 12, 12, generator=torch.Generator().manual_seed(0))
+    with pytest.raises(ValueError, match="`b`: the accumulated score"):
+        cfar_threshold(frames, W5, 1e30, 0.0)
