@@ -646,7 +646,8 @@ def npa_like(
     :data:`NPA_CLOUDS` (wispy, plateau 0.75 of the target peak).
 
     Args:
-        shape: ``(T, H, W)``; ``H`` and ``W`` at least 60 so that both targets fit.
+        shape: ``(T, H, W)``; in smaller frames than 90 x 120 the targets start at
+            ``(min(45, 3W/8), min(45, H/2))`` and ``(min(x0 + 60, 7W/8), min(y0 + 30, 0.85 H))``.
         snr_db: peak SNR of both targets in dB.
         speed: target speed in px/frame.
         clouds: cloud model without the anchor (default :data:`NPA_CLOUDS`); the anchor on
@@ -666,16 +667,14 @@ def npa_like(
         (torch.Size([25, 90, 120]), torch.Size([2, 25, 2]))
     """
     t_len, h, w = _shape3(shape)
-    if h < 60 or w < 60:
-        raise ValueError(f"`shape`: expected H, W >= 60 for the two targets, got {(h, w)}")
     speed = check_number("speed", speed, low=0.0, high=MAX_SPEED)
     jitter = check_number("jitter", jitter, low=0.0)
     if clouds is None:
         clouds = NPA_CLOUDS
     if not isinstance(clouds, CloudSpec):
         raise TypeError(f"`clouds`: expected a CloudSpec or None, got {type(clouds).__name__}")
-    x0, y0 = min(45.0, 0.5 * w), min(45.0, 0.5 * h)
-    x1, y1 = min(x0 + 60.0, w - 15.0), min(y0 + 30.0, h - 8.0)
+    x0, y0 = min(45.0, 0.375 * w), min(45.0, 0.5 * h)
+    x1, y1 = min(x0 + 60.0, 0.875 * w), min(y0 + 30.0, 0.85 * h)
     targets = [
         IRTarget(x0, y0, 0.0, -speed, snr_db=snr_db),
         IRTarget(x1, y1, 0.0, -speed, snr_db=snr_db),

@@ -431,7 +431,7 @@ class TestNpaLike:
             npa_like(speed=-0.1)
         with pytest.raises(ValueError, match="`noise_sigma`"):
             npa_like(noise_sigma=-1.0)
-        with pytest.raises(ValueError, match="`shape`"):
-            npa_like(shape=(5, 40, 90))
+        with pytest.raises(TypeError, match="`shape`"):
+            npa_like(shape=(40, 90))
         with pytest.raises(TypeError, match="`clouds`"):
             npa_like(clouds="wispy")
