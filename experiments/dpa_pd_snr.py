@@ -197,12 +197,14 @@ class Detector:
             result = detect(frames[:, -1:], self.weights, 0.0, 0.0, nms_radius=NMS_RADIUS, **kwargs)
             curve = detection_probability(frames, positions, self.thresholds, radius=RADIUS)
         else:
+            # exclusive re-tracking changes paths, not end points: off, to save time
             result = detect(
                 frames,
                 self.weights,
                 self.b,
                 self.g,
                 nms_radius=NMS_RADIUS,
+                exclusive=False,
                 **kwargs,
                 **self.options,
             )
