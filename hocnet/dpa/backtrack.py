@@ -127,7 +127,7 @@ def _check_overflow(name: str, asf: torch.Tensor, detail: str = "") -> None:
     finite = torch.isfinite(asf.detach())
     if asf.numel() == 0 or bool(finite.all()):
         return
-    bad = ~finite
+    bad = ~finite if finite.dim() == 4 else ~finite.unsqueeze(0)  # (B, T, H, W)
     frame = int(torch.nonzero(bad.flatten(2).any(dim=2).any(dim=0)).flatten()[0])
     raise ValueError(
         f"`{name}`: the accumulated score (ASF) overflowed: {int(bad.sum())} NaN/inf values, "

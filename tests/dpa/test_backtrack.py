@@ -538,6 +538,15 @@ class TestDetectIssue9:
         frames = torch.randn(30, 12, 12, generator=torch.Generator().manual_seed(0))
         with pytest.raises(ValueError, match=r"`b`: the accumulated score \(ASF\) overflowed"):
             detect(frames, W5, 1e30, 0.0)
+        # issue 9: a long sequence with an ordinary b whose sum recursion blows up
+        noise = torch.randn(140, 24, 24, generator=torch.Generator().manual_seed(0))
+        noise[:, 12, 12] += 5.0
+        state = accumulate(noise, W7, 3.0, 1.0)
+        first = int(torch.nonzero(~torch.isfinite(state.asf).flatten(1).all(dim=1))[0])
+        with pytest.raises(ValueError, match=rf"`b`: .*overflowed.* first in frame {first}\b"):
+            detect(noise, W7, 3.0, 1.0)
+        with pytest.raises(ValueError, match=rf"`state`: .*overflowed.* first in frame {first}\b"):
+            backtrack(state)
 
 
 def test_cfar_threshold_overflow_names_b():
