@@ -147,3 +147,20 @@ def gap(ours: tuple[float, float] | None, paper: tuple[float, float]) -> str:
 
 def db(ratio: float) -> float:
     return 20.0 * math.log10(ratio)
+
+
+def emc_b(matrix: torch.Tensor, g: float, target: float = 0.8) -> float:
+    """Eq. (12) of [NR08] for one ``(k, k)`` matrix: ``b = target / (g sum(w) + (1 - g) max(w))``.
+
+    Written out here (rather than calling ``hocnet.dpa.effective_memory``) so that the experiments
+    state b per direction whatever direction that function defaults to.
+    """
+    w = matrix.detach().double()
+    return target / (g * float(w.sum()) + (1.0 - g) * float(w.max()))
+
+
+def memory_constants(matrix: torch.Tensor, target: float = 0.8) -> tuple[float, float]:
+    """Eq. (15) of [NR08] for one matrix: ``1/b = slope g + intercept`` with EMC ``target``."""
+    w = matrix.detach().double()
+    total, peak = float(w.sum()), float(w.max())
+    return (total - peak) / target, peak / target

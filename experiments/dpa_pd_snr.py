@@ -51,7 +51,6 @@ from hocnet.dpa import (
     backtrack,
     detect,
     detection_probability,
-    effective_memory,
     frame_thresholds,
     frames_to_reach,
 )
@@ -75,7 +74,7 @@ PD_SEEDS = 20
 CALIB_SEEDS = 20
 SHAPE = (25, 90, 120)
 QUICK_SHAPE = (8, 45, 60)
-SNRS = (4.0, 8.0, 12.0, 16.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 34.0)
+SNRS = (4.0, 8.0, 12.0, 16.0, 20.0, 24.0, 27.0, 30.0, 34.0)
 """Peak SNRs (dB); NPA's Table 2 peak ~30 x the noise is 29.5 dB, its clouds 22.5 x the noise."""
 QUICK_SNRS = (12.0, 30.0)
 REF_SNR = 30.0
@@ -165,7 +164,7 @@ def _b(weights: torch.Tensor, g: float) -> float:
     For equal-gain matrices every direction has direction 1's gain, so this is also the b of
     every direction.
     """
-    return float(effective_memory(weights[-1], g, EMC))
+    return P.emc_b(weights[-1], g, EMC)
 
 
 class Detector:

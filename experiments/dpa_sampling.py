@@ -34,7 +34,7 @@ import _nr08 as P
 import matplotlib.pyplot as plt
 import torch
 
-from hocnet.dpa import accumulate, algorithm_score, backtrack, effective_memory
+from hocnet.dpa import accumulate, algorithm_score, backtrack
 
 NAME = "dpa-sampling"
 DESCRIPTION = (
@@ -80,7 +80,7 @@ def b_values(weights: torch.Tensor) -> dict[tuple[float, str], float]:
     out = {}
     for g in GS:
         out[g, "paper"] = P.PAPER_B_USED[g]
-        out[g, "EMC"] = float(effective_memory(weights[8], g, EMC))
+        out[g, "EMC"] = P.emc_b(weights[8], g, EMC)
     return out
 
 

@@ -144,6 +144,11 @@ class TestPaperValues:
         assert p.on_truth(path, truth).tolist() == [0.8]
         option = p.direction_option()
         assert option is None or isinstance(option, dict)
+        flat = torch.full((3, 3), 1 / 9)
+        assert p.emc_b(flat, 0.0) == pytest.approx(7.2) and p.emc_b(flat, 1.0) == pytest.approx(0.8)
+        slope, intercept = p.memory_constants(flat)
+        assert (slope, intercept) == pytest.approx((10 / 9, 5 / 36))  # 1/b = slope g + intercept
+        assert 1 / (slope * 0.5 + intercept) == pytest.approx(p.emc_b(flat, 0.5))
 
 
 class TestBSweep:
