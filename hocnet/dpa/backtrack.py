@@ -679,7 +679,8 @@ def detect(
             ).as_batched()
             _check_overflow("b", one.asf, _gain_detail(weights, b, g))
             origin = one.origin.reshape(1, n_t, -1)
-            return _follow(origin, torch.zeros(1, dtype=torch.int64), end.view(1))[0]
+            zero = torch.zeros(1, dtype=torch.int64, device=origin.device)
+            return _follow(origin, zero, end.view(1).to(origin.device))[0]
 
         found = []
         for scene in range(bsz):
