@@ -57,6 +57,9 @@ from hocnet._check import check_choice, check_int, check_number, check_seed
 __all__ = [
     "CLOUD_PRESETS",
     "MAX_SPEED",
+    "NA23A_PEAK",
+    "NPA_CLOUDS",
+    "NPA_PEAK",
     "CloudSpec",
     "IRSequence",
     "IRTarget",
@@ -536,47 +539,77 @@ def _centred_start(t_len: int, h: int, w: int, cx: float, cy: float, speed: floa
     return cx * w - half * vx, cy * h - half * vy, vx, vy
 
 
+NA23A_PEAK = 60.0
+"""Maximal target peak of NA23 in Table 2 of [NR08] (from its reference [13]): the peak-to-noise
+ratio of :func:`na23a_like` (our reading), i.e. ``snr_db = 20 log10(60) = 35.6`` dB."""
+
+NPA_PEAK = 30.0
+"""Maximal target peak of NPA in Table 2 of [NR08]: the peak-to-noise ratio of
+:func:`npa_like` (our reading), ``snr_db = 20 log10(30) = 29.5`` dB."""
+
+NPA_CLOUDS = CloudSpec(amplitude=22.5, coverage=0.35, rho=0.92, edge=1.0, drift=(0.05, 0.02))
+"""Clouds of :func:`npa_like`: the soft-edged ``"wispy"`` preset with the plateau raised to
+0.75 of the target peak (22.5 sigma against the 30 sigma target), so that cloud edges compete
+with the target after whitening, as in [NR08] section 3.2.2 ("the cloud's edges in the target
+block ... behave like targets"); the ratio is that of the earlier 12 dB / 3 sigma operating
+point of the experiments."""
+
+
 def na23a_like(
     *,
-    shape: tuple[int, int, int] = (25, 64, 64),
-    snr_db: float = 6.0,
+    shape: tuple[int, int, int] = (25, 90, 90),
+    snr_db: float = 20.0 * math.log10(NA23A_PEAK),
     speed: float = 0.3,
+    clouds: str | CloudSpec = "clear",
     noise_sigma: float = 1.0,
     jitter: float = 0.5,
     batch: int | None = None,
     seed: int | None = None,
     generator: torch.Generator | None = None,
 ) -> IRSequence:
-    """Scene in the spirit of the NA23a sequence of [NR08]: one slow target, bright clouds.
+    """Scene after the NA23A sequence of [NR08]: one target moving right to left, clear sky.
 
-    One target (PSF sigma 0.7 px) moves at ``speed`` px/frame on a straight course at 30
-    degrees whose midpoint is the frame centre, over ``"bright"`` clouds.
+    Section 3 of [NR08]: "The NA23A sequence has a single target moving in clear sky from right
+    to left at v ~ 0.3 [ppf]". The target (PSF sigma 0.7 px) starts at the frame centre (the
+    target block of [NR08], Figure 8, has the target at its centre in the 1st frame) and moves
+    at ``speed`` px/frame towards -x. The default peak SNR is Table 2's maximal target peak of
+    NA23, about 60, read as a peak-to-noise ratio (:data:`NA23A_PEAK`, our reading: [NR08]
+    gives the peak from [13] without the noise level). The default frame, 90 x 90, holds the
+    3 x 3 blocks of 30 x 30 of the algorithm score (eq. 16-17).
+
+    Notes:
+        [NR08] contradicts itself: Table 1 describes NA23 as a "single fast target in bright
+        clouds", section 3 as a target "in clear sky". We follow the text (``clouds="clear"``);
+        ``clouds="bright"`` gives the Table 1 variant (the earlier default of this preset).
 
     Args:
         shape: ``(T, H, W)``.
         snr_db: peak SNR of the target in dB.
         speed: target speed in px/frame.
+        clouds: ``"clear"`` (default), ``"bright"``, ``"wispy"`` or a :class:`CloudSpec`.
         noise_sigma: sensor noise standard deviation.
         jitter: jitter bound in pixels.
         batch: number of sequences, or ``None``.
-        seed: random seed.
+        seed: random seed (a seeded preset is reproducible).
         generator: generator to draw from instead of ``seed``.
 
     Returns:
         An :class:`IRSequence` with one target.
 
     Examples:
-        >>> na23a_like(seed=0).frames.shape
-        torch.Size([25, 64, 64])
+        >>> seq = na23a_like(seed=0)
+        >>> seq.frames.shape, seq.positions[0, 0].tolist() != seq.positions[0, -1].tolist()
+        (torch.Size([25, 90, 90]), True)
+        >>> round(seq.targets[0].vx, 2), round(seq.targets[0].snr_db, 2)
+        (-0.3, 35.56)
     """
     t_len, h, w = _shape3(shape)
     speed = check_number("speed", speed, low=0.0, high=MAX_SPEED)
-    x0, y0, vx, vy = _centred_start(t_len, h, w, 0.5, 0.5, speed, math.radians(30.0))
-    target = IRTarget(x0, y0, vx, vy, snr_db=snr_db)
+    target = IRTarget(0.5 * w, 0.5 * h, -speed, 0.0, snr_db=snr_db)
     return simulate_ir(
         (t_len, h, w),
         [target],
-        clouds="bright",
+        clouds=clouds,
         noise_sigma=noise_sigma,
         jitter=jitter,
         batch=batch,
@@ -587,50 +620,70 @@ def na23a_like(
 
 def npa_like(
     *,
-    shape: tuple[int, int, int] = (25, 64, 64),
-    snr_db: float = 6.0,
+    shape: tuple[int, int, int] = (25, 90, 120),
+    snr_db: float = 20.0 * math.log10(NPA_PEAK),
     speed: float = 0.2,
+    clouds: CloudSpec | None = None,
     noise_sigma: float = 1.0,
     jitter: float = 0.5,
     batch: int | None = None,
     seed: int | None = None,
     generator: torch.Generator | None = None,
 ) -> IRSequence:
-    """Scene in the spirit of the NPA sequence of [NR08]: two slow targets, wispy clouds.
+    """Scene after the NPA sequence of [NR08]: two slow targets, the studied one in clouds.
 
-    Target 0 crosses the upper-left quarter heading east; target 1 crosses the lower-right
-    quarter heading north-west and stays under the full plateau of a wispy cloud for the whole
-    sequence (the ``"wispy"`` preset with an anchor on its track, see :class:`CloudSpec`).
+    Section 3 of [NR08]: "The NPA sequence has two targets moving at v ~ 0.2 [ppf]; the left
+    target is engulfed in clouds moving from bottom to top, and the right target is moving in
+    scarce clouds. The algorithm will be applied on the surroundings of the left target".
+    Target 0 (the studied, left one) starts at ``(45, 45)`` (the centre of the left 90 x 90
+    part, which holds the 3 x 3 blocks of 30 x 30 of the algorithm score) and moves towards -y
+    (bottom to top) under the full plateau of a cloud (an anchor of :class:`CloudSpec` on its
+    track), with other clouds and their edges around it. Target 1 (the right one) starts below
+    and to the right of it (as in Table 1: [160, 240] against [49, 99]), outside the 3 x 3
+    blocks when the frame is wide enough (default 120 columns), and also moves bottom to top.
+    Both targets have the default peak SNR of Table 2's maximal target peak of NPA, about 30,
+    read as a peak-to-noise ratio (:data:`NPA_PEAK`, our reading), and the clouds are
+    :data:`NPA_CLOUDS` (wispy, plateau 0.75 of the target peak).
 
     Args:
-        shape: ``(T, H, W)``.
+        shape: ``(T, H, W)``; in smaller frames than 90 x 120 the targets start at
+            ``(min(45, 3W/8), min(45, H/2))`` and ``(min(x0 + 60, 7W/8), min(y0 + 30, 0.85 H))``.
         snr_db: peak SNR of both targets in dB.
         speed: target speed in px/frame.
+        clouds: cloud model without the anchor (default :data:`NPA_CLOUDS`); the anchor on
+            target 0's track is always added.
         noise_sigma: sensor noise standard deviation.
         jitter: jitter bound in pixels.
         batch: number of sequences, or ``None``.
-        seed: random seed.
+        seed: random seed (a seeded preset is reproducible).
         generator: generator to draw from instead of ``seed``.
 
     Returns:
-        An :class:`IRSequence` with two targets.
+        An :class:`IRSequence` with two targets; target 0 is the studied one.
 
     Examples:
-        >>> npa_like(seed=0).positions.shape
-        torch.Size([2, 25, 2])
+        >>> seq = npa_like(seed=0)
+        >>> seq.frames.shape, seq.positions.shape
+        (torch.Size([25, 90, 120]), torch.Size([2, 25, 2]))
     """
     t_len, h, w = _shape3(shape)
     speed = check_number("speed", speed, low=0.0, high=MAX_SPEED)
     jitter = check_number("jitter", jitter, low=0.0)
-    first = _centred_start(t_len, h, w, 0.3, 0.3, speed, 0.0)
-    second = _centred_start(t_len, h, w, 0.68, 0.68, speed, math.radians(225.0))
-    targets = [IRTarget(*first, snr_db=snr_db), IRTarget(*second, snr_db=snr_db)]
-    wispy = CLOUD_PRESETS["wispy"]
-    assert wispy is not None
-    # Full cloud over the whole track, allowing for the cloud drift and the jitter.
-    drift = math.hypot(*wispy.drift) * (t_len - 1)
+    if clouds is None:
+        clouds = NPA_CLOUDS
+    if not isinstance(clouds, CloudSpec):
+        raise TypeError(f"`clouds`: expected a CloudSpec or None, got {type(clouds).__name__}")
+    x0, y0 = min(45.0, 0.375 * w), min(45.0, 0.5 * h)
+    x1, y1 = min(x0 + 60.0, 0.875 * w), min(y0 + 30.0, 0.85 * h)
+    targets = [
+        IRTarget(x0, y0, 0.0, -speed, snr_db=snr_db),
+        IRTarget(x1, y1, 0.0, -speed, snr_db=snr_db),
+    ]
+    # Full cloud over target 0's whole track, allowing for the cloud drift and the jitter.
+    drift = math.hypot(*clouds.drift) * (t_len - 1)
     radius = 0.5 * speed * (t_len - 1) + drift + math.sqrt(2.0) * jitter + 1.0
-    spec = replace(wispy, anchors=((0.68 * w, 0.68 * h, radius),))
+    centre = (x0, y0 - 0.5 * speed * (t_len - 1), radius)
+    spec = replace(clouds, anchors=(*clouds.anchors, centre))
     return simulate_ir(
         (t_len, h, w),
         targets,

@@ -5,7 +5,10 @@ from a pixel of the last frame and returns the trajectory that produced its accu
 :func:`detect` finds several targets: non-maximum suppression (NMS) on the last-frame ASF, an
 optional threshold -- fixed, or a constant-false-alarm-rate (CFAR) threshold estimated from
 target-free sequences by :func:`cfar_threshold` (the "future research" of [NR08]) -- and one
-back-tracked :class:`DPATrack` per kept peak.
+back-tracked :class:`DPATrack` per kept peak. Without a threshold the tracks are only the
+top-ranked *candidates* (``confirmed=False``): [NR08] takes the highest pixel as the target, which
+finds a "target" in pure noise too. Tracks that share most of their pixels with another one (two
+targets crossing) are separated by re-tracking (our addition, see :func:`detect`).
 
 Conventions: positions are ``(x, y)`` = (column, row) pixel indices, flat indices are
 ``y * W + x``; the pixel containing a float position ``(x, y)`` is
@@ -34,6 +37,10 @@ from hocnet.dpa.metrics import _upper_quantile
 
 __all__ = ["DPADetection", "DPATrack", "backtrack", "cfar_threshold", "detect"]
 
+MASK_RADIUS = 1
+"""Re-tracking (``detect(exclusive=True)``): pixels within this Chebyshev distance of the other
+track are replaced by the frame median."""
+
 
 # ----------------------------------------------------------------------------- results
 
@@ -48,6 +55,10 @@ class DPATrack:
         score: the last-frame ASF at the end point (the detection statistic).
         id: 1-based index of the track within its :class:`DPADetection`.
         batch: index of the scene in the batch (0 for unbatched input).
+        confirmed: ``True`` if ``score`` passed a detection threshold (fixed or CFAR);
+            ``False`` for an unthresholded candidate (see :func:`detect`).
+        retracked: ``True`` if the track was re-tracked to separate it from another track
+            (see ``exclusive`` in :func:`detect`).
     """
 
     positions: torch.Tensor
@@ -55,6 +66,8 @@ class DPATrack:
     score: float
     id: int
     batch: int = 0
+    confirmed: bool = True
+    retracked: bool = False
 
     @property
     def points(self) -> torch.Tensor:
@@ -84,8 +97,55 @@ class DPADetection:
     tracks: list[DPATrack]
     threshold: float | None
 
+    @property
+    def confirmed(self) -> bool:
+        """Whether the tracks passed a threshold (``False``: unthresholded candidates)."""
+        return self.threshold is not None
+
+    @property
+    def note(self) -> str:
+        """One line saying what the tracks are (for printing next to them).
+
+        Examples:
+            >>> DPADetection(None, [], None).note.split(":")[0]
+            'unthresholded'
+        """
+        if self.threshold is None:
+            return (
+                "unthresholded: the tracks are the highest-ranked candidates, not detections "
+                "(pure noise has candidates too); give `threshold`, or `target_free` for a CFAR "
+                "threshold, to confirm them"
+            )
+        return f"detections above the threshold {self.threshold:.6g}"
+
 
 # ----------------------------------------------------------------------------- helpers
+
+
+def _check_overflow(name: str, asf: torch.Tensor, detail: str = "") -> None:
+    """Raise if the ASF holds NaN/inf: the recursion overflowed (the frames are finite)."""
+    finite = torch.isfinite(asf.detach())
+    if asf.numel() == 0 or bool(finite.all()):
+        return
+    bad = ~finite if finite.dim() == 4 else ~finite.unsqueeze(0)  # (B, T, H, W)
+    frame = int(torch.nonzero(bad.flatten(2).any(dim=2).any(dim=0)).flatten()[0])
+    raise ValueError(
+        f"`{name}`: the accumulated score (ASF) overflowed: {int(bad.sum())} NaN/inf values, "
+        f"the first in frame {frame}. accumulate checks that its frames are finite, so the "
+        "recursion of eq. (11) blew up: the memory b is too large for this g and these "
+        f"matrices (eq. 12-14: keep b * (g sum(w) + (1 - g) max(w)) <= 1){detail}"
+    )
+
+
+def _gain_detail(weights: Any, b: Any, g: Any) -> str:
+    """``"; here ..."`` with the largest per-step gain of the matrices, if computable."""
+    try:
+        w = torch.as_tensor(weights).detach().double()
+        bf, gf = float(b), float(g)
+        gain = gf * w.sum(dim=(-2, -1)) + (1 - gf) * w.amax(dim=(-2, -1))
+        return f"; here b = {bf:g}, g = {gf:g} give a largest gain of {bf * float(gain.max()):.3g}"
+    except (TypeError, ValueError, RuntimeError):
+        return ""
 
 
 def _check_state(state: Any) -> DPAState:
@@ -105,10 +165,10 @@ def _check_state(state: Any) -> DPAState:
         raise TypeError(f"`state`: expected a floating `asf`, got dtype {asf.dtype}")
     if origin.is_floating_point() or origin.is_complex() or origin.dtype == torch.bool:
         raise TypeError(f"`state`: expected an integer `origin`, got dtype {origin.dtype}")
-    bsz, n_t, height, width = asf.shape
-    if min(bsz, n_t, height, width) < 1:
-        raise ValueError(f"`state`: expected a non-empty state, got shape {tuple(asf.shape)}")
-    check_finite("state", asf.detach())
+    _, n_t, height, width = asf.shape
+    if min(n_t, height, width) < 1:
+        raise ValueError(f"`state`: expected non-empty frames, got shape {tuple(asf.shape)}")
+    _check_overflow("state", asf)
     origin = origin.long()
     links = origin[:, 1:]
     if links.numel() and bool(((links < 0) | (links >= height * width)).any()):
@@ -152,6 +212,13 @@ def _start_index(start: Any, state: DPAState, batched: bool) -> torch.Tensor:
         wanted = " or ".join(str(s) for s in shapes)
         raise ValueError(f"`start`: expected shape {wanted}, got {tuple(start.shape)}")
     check_finite("start", start)
+    if start.is_floating_point():
+        if bool((start != torch.round(start)).any()):
+            raise ValueError(
+                f"`start`: expected integer pixel coordinates (x, y) (a pixel of the last frame), "
+                f"got {start.tolist()}"
+            )
+        start = start.long()
     index = _pixel_index("start", start.to(state.asf.device), height, width)
     return index.expand(bsz) if index.dim() == 0 else index
 
@@ -230,8 +297,10 @@ def backtrack(state: DPAState, start: torch.Tensor | None = None) -> torch.Tenso
 
     Notes:
         Our reading of [NR08]: without ``start`` the trajectory ends at the pixel with the
-        highest last-frame ASF (ties: lowest flat index ``y * W + x``). A float ``start`` means
-        the pixel containing it, ``floor(x + 0.5), floor(y + 0.5)``.
+        highest last-frame ASF (ties: lowest flat index ``y * W + x``). ``start`` is a pixel:
+        integer coordinates (an integer tensor, or floats with integer values); a fractional
+        start such as ``[3.5, 2]`` raises instead of being rounded or truncated silently. An
+        empty batch (``B = 0``) gives an empty ``(0, T, 2)`` result.
 
     Args:
         state: a :class:`~hocnet.dpa.functional.DPAState` from
@@ -246,7 +315,9 @@ def backtrack(state: DPAState, start: torch.Tensor | None = None) -> torch.Tenso
 
     Raises:
         TypeError: if ``state`` is not a DPAState or ``start`` is not a real tensor.
-        ValueError: inconsistent state, wrong ``start`` shape, or a start outside the frame.
+        ValueError: inconsistent state, a non-finite ASF (the recursion overflowed: the message
+            says so and names the first frame), wrong ``start`` shape, a fractional ``start``,
+            or a start outside the frame.
 
     Examples:
         >>> from hocnet.dpa.functional import accumulate
@@ -261,6 +332,10 @@ def backtrack(state: DPAState, start: torch.Tensor | None = None) -> torch.Tenso
     """
     s = _check_state(state)
     bsz, n_t, _, width = s.asf.shape
+    if bsz == 0:
+        if start is not None:
+            _start_index(start, s, state.batched)
+        return torch.zeros(0, n_t, 2, dtype=torch.int64, device=s.asf.device)
     if start is None:
         index = s.asf[:, -1].detach().reshape(bsz, -1).argmax(dim=1)  # first maximum
     else:
@@ -281,6 +356,7 @@ def cfar_threshold(
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
     samples: str = "pixels",
+    **options: Any,
 ) -> float:
     """CFAR threshold on the last-frame ASF for a requested false-alarm rate.
 
@@ -311,14 +387,15 @@ def cfar_threshold(
         var_table: optional ``(9, 9)`` direction-similarity table.
         smooth: optional log-sum-exp temperature ``> 0``.
         samples: ``"pixels"`` or ``"peaks"``, see Notes.
+        **options: further keyword arguments of ``accumulate`` (passed on unchanged).
 
     Returns:
         The threshold, a float.
 
     Raises:
         TypeError: wrong argument types.
-        ValueError: out-of-range arguments, or ``pfa < 1 / N`` (the message says how many
-            samples would be needed).
+        ValueError: out-of-range arguments, ``pfa < 1 / N`` (the message says how many
+            samples would be needed), or an ASF that overflowed to NaN/inf (names ``b``).
 
     Examples:
         >>> noise = torch.randn(4, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -332,7 +409,8 @@ def cfar_threshold(
     pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     samples = check_choice("samples", samples, ("pixels", "peaks"))
-    state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth)
+    state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth, **options)
+    _check_overflow("b", state.asf, _gain_detail(weights, b, g))
     last = state.asf[:, -1].detach()
     if samples == "pixels":
         values = last.reshape(-1)
@@ -341,6 +419,96 @@ def cfar_threshold(
         values = last[_local_maxima(last, nms_radius)]
         what = f"last-frame NMS peaks (radius {nms_radius}) of `target_free`"
     return float(_upper_quantile(values, pfa, what))
+
+
+def _median_fill(frames: torch.Tensor, paths: list[torch.Tensor], radius: int) -> torch.Tensor:
+    """Frames with the pixels near ``paths`` replaced by their frame's median.
+
+    ``frames`` ``(T, H, W)``; ``paths`` ``(T,)`` flat indices; pixels within ``radius``
+    (Chebyshev) of a path are replaced (the track's signal removed, the background level kept).
+    """
+    n_t, height, width = frames.shape
+    hit = torch.zeros(n_t, height * width, dtype=frames.dtype, device=frames.device)
+    frame = torch.arange(n_t, device=frames.device)
+    for path in paths:
+        hit[frame, path] = 1.0
+    hit = hit.view(n_t, 1, height, width)
+    if radius > 0:
+        hit = F.max_pool2d(hit, 2 * radius + 1, stride=1, padding=radius)
+    mask = hit.view(n_t, height, width) > 0
+    level = frames.reshape(n_t, -1).median(dim=1).values.view(n_t, 1, 1)
+    return torch.where(mask, level.expand_as(frames), frames)
+
+
+def _shared(a: torch.Tensor, b: torch.Tensor, width: int) -> float:
+    """Fraction of frames where two ``(T,)`` flat paths lie within 1 px (Chebyshev)."""
+    gap = (_to_xy(a, width) - _to_xy(b, width)).abs().amax(dim=-1)
+    return float((gap <= 1).double().mean())
+
+
+def _bend(paths: list[torch.Tensor], width: int) -> float:
+    """Sum over the paths of the squared residuals of a straight-line fit ``(x, y)(t)``."""
+    total = 0.0
+    for path in paths:
+        xy = _to_xy(path, width).double()
+        n_t = xy.shape[0]
+        if n_t < 3:
+            continue
+        t = torch.arange(n_t, dtype=torch.float64, device=xy.device)
+        design = torch.stack([torch.ones_like(t), t], dim=1)
+        coef = torch.linalg.lstsq(design, xy).solution
+        total += float((design @ coef - xy).square().sum())
+    return total
+
+
+def _separate(
+    frames: torch.Tensor,
+    paths: list[torch.Tensor],
+    accumulate_one,
+    width: int,
+    max_shared: float,
+    mask_radius: int,
+) -> list[tuple[int, torch.Tensor, bool]]:
+    """Resolve tracks of one scene that share pixels: ``[(candidate, path, retracked)]``.
+
+    Candidates are taken by decreasing score. A candidate that shares more than ``max_shared``
+    of its frames with an accepted track ``j`` is resolved by re-tracking: either the candidate
+    is back-tracked again from its end pixel on the frames with ``j``'s pixels removed, or
+    ``j`` is, on the frames with the candidate's pixels removed; of the two pairs that no
+    longer share more than ``max_shared``, the straighter one (least squares residual of a
+    straight line per track) is kept. If neither pair separates, the candidate is a duplicate of
+    ``j`` and is dropped.
+    """
+    accepted: list[list] = []  # [candidate index, path, retracked]
+    for i, path in enumerate(paths):
+        clash = next(
+            (
+                k
+                for k, (_, other, _) in enumerate(accepted)
+                if _shared(path, other, width) > max_shared
+            ),
+            None,
+        )
+        if clash is None:
+            accepted.append([i, path, False])
+            continue
+        other = accepted[clash][1]
+        options = []
+        new_i = accumulate_one(_median_fill(frames, [other], mask_radius), path[-1])
+        if _shared(new_i, other, width) <= max_shared:
+            options.append((_bend([new_i, other], width), "candidate", new_i))
+        new_j = accumulate_one(_median_fill(frames, [path], mask_radius), other[-1])
+        if _shared(path, new_j, width) <= max_shared:
+            options.append((_bend([path, new_j], width), "accepted", new_j))
+        if not options:
+            continue  # a duplicate of a stronger track
+        _, which, new = min(options, key=lambda o: o[0])
+        if which == "candidate":
+            accepted.append([i, new, True])
+        else:
+            accepted[clash][1:] = [new, True]
+            accepted.append([i, path, False])
+    return [(i, p, r) for i, p, r in accepted]
 
 
 def detect(
@@ -356,6 +524,9 @@ def detect(
     pfa: float = 1e-3,
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
+    exclusive: bool = True,
+    max_shared: float = 0.25,
+    **options: Any,
 ) -> DPADetection:
     """Detect several targets with the DPA [NR08] and back-track each of them.
 
@@ -363,15 +534,41 @@ def detect(
     2. non-maximum suppression on the last-frame ASF: a pixel is a peak if it is the maximum of
        its ``(2r + 1) x (2r + 1)`` neighbourhood, ``r = nms_radius`` (out-of-frame pixels are
        excluded; ties go to the lowest flat index ``y * W + x``, so a plateau gives one peak);
+       a scene whose last-frame ASF is constant, or whose frames are each constant (e.g. all
+       zero), has no peak: no pixel stands out;
     3. keep the peaks strictly above ``threshold`` (or above
        :func:`cfar_threshold` ``(target_free, ..., pfa=pfa)`` when ``target_free`` is given; with
        neither, no threshold), at most ``max_targets`` per scene, highest first;
-    4. :func:`backtrack` each kept peak.
+    4. :func:`backtrack` each kept peak;
+    5. with ``exclusive`` (default), separate tracks that share more than ``max_shared`` of
+       their frames (within 1 px): see Notes.
 
     Notes:
+        **Without a threshold nothing is a detection.** [NR08] takes the highest last-frame
+        pixel as the target, which finds one in pure noise as well. Without ``threshold`` or
+        ``target_free`` the tracks are the ``max_targets`` highest-ranked candidates, each with
+        ``confirmed=False``, and :attr:`DPADetection.note` says so; give a threshold (e.g. a
+        CFAR one from target-free frames, ``pfa``) to report only what passes it
+        (``confirmed=True``).
+
+        **Crossing targets (our addition, ``exclusive=True``).** Each peak is back-tracked on
+        its own, so where two targets cross, one back-tracked track can follow one target up
+        to the crossing and the other one before it, sharing its early pixels with the other
+        track. A track that shares more than ``max_shared`` of its frames (Chebyshev distance
+        <= 1 px) with a stronger track is re-tracked: the DPA is run again on the frames with
+        the other track's pixels (and their 8 neighbours) replaced by the frame median, and
+        the peak is back-tracked from the same end pixel. Both assignments are tried (re-track
+        the weaker track, or the stronger one on the frames without the weaker one) and the
+        pair with the straighter tracks is kept (the paper's motion model penalises turns); if
+        neither pair separates, the weaker track is a duplicate and is dropped. Re-tracked
+        tracks have ``retracked=True``; their ``score`` is still the last-frame ASF of the
+        original run, their ``scores`` the original ASF along the new path.
+        ``exclusive=False`` gives the plain back-tracking of [NR08].
+
         Our reading of [NR08]: a detection is a peak strictly above the threshold (so the CFAR
         threshold's empirical false-alarm rate is at most ``pfa``); the CFAR threshold is the
-        per-pixel one of :func:`cfar_threshold` with its default ``samples="pixels"``.
+        per-pixel one of :func:`cfar_threshold` with its default ``samples="pixels"``. An
+        empty batch (``B = 0``) gives an empty result.
 
     Args:
         frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
@@ -386,6 +583,9 @@ def detect(
         pfa: false-alarm probability of the CFAR threshold, in ``(0, 1)``.
         var_table: optional ``(9, 9)`` direction-similarity table.
         smooth: optional log-sum-exp temperature ``> 0``.
+        exclusive: separate tracks that share pixels (see Notes).
+        max_shared: largest fraction of shared frames, in ``[0, 1)``, before re-tracking.
+        **options: further keyword arguments of ``accumulate`` (passed on unchanged).
 
     Returns:
         :class:`DPADetection` with the state, the tracks (each ``positions`` ``(T, 2)``
@@ -393,7 +593,8 @@ def detect(
 
     Raises:
         TypeError: wrong argument types.
-        ValueError: out-of-range arguments, or both ``threshold`` and ``target_free``.
+        ValueError: out-of-range arguments, both ``threshold`` and ``target_free``, or an
+            accumulated score that overflowed to NaN/inf (the message names ``b``).
 
     Examples:
         >>> frames = torch.zeros(3, 16, 16)
@@ -401,14 +602,21 @@ def detect(
         ...     frames[t, 3, 2 + t] = 1.0
         ...     frames[t, 12, 12 - t] = 0.9
         >>> result = detect(frames, torch.ones(1, 3, 3) / 9, 1.0, 0.0, threshold=0.5)
-        >>> [(tr.id, tr.positions[-1].tolist()) for tr in result.tracks]
-        [(1, [4, 3]), (2, [10, 12])]
+        >>> [(tr.id, tr.positions[-1].tolist(), tr.confirmed) for tr in result.tracks]
+        [(1, [4, 3], True), (2, [10, 12], True)]
         >>> result.tracks[1].positions[0].tolist()
         [12, 12]
+        >>> detect(frames, torch.ones(1, 3, 3) / 9, 1.0, 0.0).tracks[0].confirmed
+        False
+        >>> detect(torch.zeros(3, 16, 16), torch.ones(1, 3, 3) / 9, 1.0, 0.0).tracks
+        []
     """
     max_targets = check_int("max_targets", max_targets, minimum=1)
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    if not isinstance(exclusive, bool):
+        raise TypeError(f"`exclusive`: expected True or False, got {exclusive!r}")
+    max_shared = check_number("max_shared", max_shared, low=0.0, high=1.0, high_inclusive=False)
     if threshold is not None:
         if target_free is not None:
             raise ValueError(
@@ -416,7 +624,25 @@ def detect(
                 f"estimated from it), got {threshold!r}"
             )
         threshold = check_number("threshold", threshold)
-    state = accumulate(frames, weights, b, g, var_table=var_table, smooth=smooth)
+    cube, _ = as_cube("frames", frames)
+    if cube.shape[0] == 0:
+        if target_free is not None:
+            threshold = cfar_threshold(
+                target_free,
+                weights,
+                b,
+                g,
+                pfa=pfa,
+                nms_radius=nms_radius,
+                var_table=var_table,
+                smooth=smooth,
+                **options,
+            )
+        empty = torch.zeros(cube.shape, dtype=cube.dtype if cube.is_floating_point() else None)
+        index = torch.zeros(cube.shape, dtype=torch.int64)
+        return DPADetection(DPAState(empty, index, index - 1, True), [], threshold)
+    state = accumulate(frames, weights, b, g, var_table=var_table, smooth=smooth, **options)
+    _check_overflow("b", state.asf, _gain_detail(weights, b, g))
     if target_free is not None:
         threshold = cfar_threshold(
             target_free,
@@ -427,25 +653,55 @@ def detect(
             nms_radius=nms_radius,
             var_table=var_table,
             smooth=smooth,
+            **options,
         )
     s = state.as_batched()
     bsz, n_t, height, width = s.asf.shape
     asf = s.asf.detach().reshape(bsz, n_t, -1)
+    last = asf[:, -1]
+    # no pixel stands out (constant last ASF, or spatially constant frames): no peak
+    flat_scene = last.amax(dim=1) == last.amin(dim=1)
+    frame_range = cube.flatten(2).amax(dim=2) - cube.flatten(2).amin(dim=2)  # (B, T)
+    flat_scene |= (frame_range == 0).all(dim=1).to(flat_scene.device)
     batch, flat, value = _select_peaks(
-        asf[:, -1].view(bsz, height, width), nms_radius, threshold, max_targets
+        last.view(bsz, height, width), nms_radius, threshold, max_targets
     )
+    keep = ~flat_scene[batch]
+    batch, flat, value = batch[keep], flat[keep], value[keep]
     path = _follow(s.origin.reshape(bsz, n_t, -1), batch, flat)  # (M, T)
+    found = [(int(batch[i]), i, path[i], False) for i in range(path.shape[0])]
+    if exclusive and n_t > 2 and path.shape[0] > 1:
+        whitened = cube if cube.is_floating_point() else cube.to(s.asf.dtype)
+
+        def retrack(masked: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
+            one = accumulate(
+                masked.unsqueeze(0), weights, b, g, var_table=var_table, smooth=smooth, **options
+            ).as_batched()
+            _check_overflow("b", one.asf, _gain_detail(weights, b, g))
+            origin = one.origin.reshape(1, n_t, -1)
+            zero = torch.zeros(1, dtype=torch.int64, device=origin.device)
+            return _follow(origin, zero, end.view(1).to(origin.device))[0]
+
+        found = []
+        for scene in range(bsz):
+            members = torch.nonzero(batch == scene).flatten().tolist()
+            paths = [path[i] for i in members]
+            kept = _separate(
+                whitened[scene].detach(), paths, retrack, width, max_shared, mask_radius=MASK_RADIUS
+            )
+            found += [(scene, members[k], p, r) for k, p, r in sorted(kept, key=lambda x: x[0])]
     frame = torch.arange(n_t, device=path.device)
-    scores = asf[batch.unsqueeze(1), frame.unsqueeze(0), path]  # (M, T)
-    xy = _to_xy(path, width)
-    tracks = [
-        DPATrack(
-            positions=xy[i],
-            scores=scores[i],
-            score=float(value[i]),
-            id=i + 1,
-            batch=int(batch[i]),
+    tracks = []
+    for scene, i, p, retracked in found:
+        tracks.append(
+            DPATrack(
+                positions=_to_xy(p, width),
+                scores=asf[scene, frame, p],
+                score=float(value[i]),
+                id=len(tracks) + 1,
+                batch=scene,
+                confirmed=threshold is not None,
+                retracked=retracked,
+            )
         )
-        for i in range(path.shape[0])
-    ]
     return DPADetection(state=state, tracks=tracks, threshold=threshold)

@@ -1,8 +1,12 @@
 """Figures of merit of the DPA [NR08]: Block SNR (eq. 16), algorithm score (eq. 17), and more.
 
-* :func:`block_snr` -- the contrast of a target against its surrounding blocks, eq. (16);
-* :func:`algorithm_score` -- ``A_S``, the Block SNR of the ASF averaged over the last frames,
-  eq. (17);
+* :func:`block_snr` / :func:`block_snrs` -- eq. (16): the frame is tiled into ``M x N`` blocks
+  (30 x 30 in [NR08], 30 x 80 for fast targets) around the target block; each block's SNR is
+  (mean of its ``Max_Numbers`` highest pixels - mean of its other pixels) / its std;
+* :func:`algorithm_score` -- ``A_S`` of eq. (17), ``(SNR_TB - mean SNR_NTB) / std SNR_NTB``,
+  averaged over the last frames. ``reading="centred"`` keeps our earlier reading (5 x 5 blocks
+  centred on the truth, the 8 neighbours pooled into one background), under which ``A_S`` can
+  only fall as ``Max_Numbers`` grows;
 * :func:`tracking_success` -- whether a back-tracked trajectory follows the truth;
 * :func:`frame_thresholds` and :func:`detection_probability` -- per-frame CFAR thresholds and
   the probability of detection at a fixed false-alarm rate, frame by frame;
@@ -20,11 +24,14 @@ from typing import Any
 
 import torch
 
-from hocnet._check import as_cube, check_finite, check_int, check_number
+from hocnet._check import as_cube, check_choice, check_finite, check_int, check_number
 
 __all__ = [
+    "PAPER_BLOCK",
+    "READINGS",
     "algorithm_score",
     "block_snr",
+    "block_snrs",
     "detection_probability",
     "frame_thresholds",
     "frames_to_reach",
@@ -173,58 +180,182 @@ def _upper_quantile(values: torch.Tensor, pfa: float, what: str) -> torch.Tensor
     return torch.kthvalue(values, n - m, dim=-1).values
 
 
+# ----------------------------------------------------------------------------- paper reading
+
+READINGS = ("paper", "centred")
+"""Readings of eq. (16)-(17): ``"paper"`` (tiled blocks, the default) and ``"centred"``."""
+
+PAPER_BLOCK = (30, 30)
+"""Block size ``(rows M, columns N)`` of [NR08] for slow targets (``(30, 80)`` for fast ones)."""
+
+
+def _check_reading(reading: Any) -> str:
+    return check_choice("reading", reading, READINGS)
+
+
+def _check_rect(block: Any) -> tuple[int, int]:
+    """``block`` of the paper reading: ``M`` (square) or ``(M, N)`` rows x columns, each >= 1."""
+    if block is None:
+        return PAPER_BLOCK
+    if isinstance(block, tuple | list):
+        if len(block) != 2:
+            raise ValueError(f"`block`: expected an integer or (rows, columns), got {block!r}")
+        return check_int("block", block[0], minimum=1), check_int("block", block[1], minimum=1)
+    size = check_int("block", block, minimum=1)
+    return size, size
+
+
+def _paper_snrs(
+    images: torch.Tensor,
+    which: torch.Tensor,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    rows: int,
+    cols: int,
+    max_numbers: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Block SNR of eq. (16) of the 3 x 3 tiled blocks around ``K`` anchors: ``(K, 9)`` + valid.
+
+    Block ``(r, c)``, ``r, c in {-1, 0, 1}`` (index ``3 (r + 1) + (c + 1)``, 4 = target block)
+    covers rows ``y - rows // 2 + r rows + [0, rows)`` and the same for the columns; pixels
+    outside the frame are left out. A block is valid if it keeps more than ``max_numbers``
+    pixels (so that "the rest" is not empty).
+    """
+    img = images.to(torch.float64)
+    _, height, width = img.shape
+    dev = img.device
+    row_idx = (y - rows // 2 - rows).unsqueeze(1) + torch.arange(3 * rows, device=dev)  # (K, 3M)
+    col_idx = (x - cols // 2 - cols).unsqueeze(1) + torch.arange(3 * cols, device=dev)  # (K, 3N)
+    valid = ((row_idx >= 0) & (row_idx < height)).unsqueeze(2) & (
+        (col_idx >= 0) & (col_idx < width)
+    ).unsqueeze(1)
+    patch = img[
+        which.view(-1, 1, 1),
+        row_idx.clamp(0, height - 1).unsqueeze(2),
+        col_idx.clamp(0, width - 1).unsqueeze(1),
+    ]  # (K, 3M, 3N)
+    k = patch.shape[0]
+
+    def tiles(t: torch.Tensor) -> torch.Tensor:
+        return t.reshape(k, 3, rows, 3, cols).permute(0, 1, 3, 2, 4).reshape(k, 9, rows * cols)
+
+    vals, ok = tiles(patch), tiles(valid)
+    n = ok.sum(dim=-1)  # (K, 9)
+    usable = n > max_numbers
+    top = vals.masked_fill(~ok, -math.inf).topk(max_numbers, dim=-1).values
+    top_sum = top.masked_fill(~torch.isfinite(top), 0.0).sum(dim=-1)
+    total = vals.masked_fill(~ok, 0.0).sum(dim=-1)
+    count = n.clamp_min(1).to(torch.float64)
+    rest = (total - top_sum) / (count - max_numbers).clamp_min(1.0)
+    mean = total / count
+    var = (vals - mean.unsqueeze(-1)).masked_fill(~ok, 0.0).square().sum(dim=-1) / count
+    std = var.sqrt()
+    flat = std == 0  # every pixel of the block equal: no contrast
+    snr = (top_sum / max_numbers - rest) / torch.where(flat, torch.ones_like(std), std)
+    snr = torch.where(flat, torch.zeros_like(snr), snr)
+    return snr.masked_fill(~usable, math.nan), usable
+
+
+def _paper_score(
+    snr: torch.Tensor, usable: torch.Tensor, max_numbers: int, name: str = "asf"
+) -> torch.Tensor:
+    """A_S of eq. (17) from the ``(K, 9)`` block SNRs: ``(K,)`` float64."""
+    if not bool(usable[:, 4].all()):
+        raise ValueError(
+            "`max_numbers`: expected fewer than the pixels of the target block inside the "
+            f"frame, got {max_numbers}"
+        )
+    ntb = torch.cat([snr[:, :4], snr[:, 5:]], dim=1)
+    ok = torch.cat([usable[:, :4], usable[:, 5:]], dim=1)
+    n = ok.sum(dim=1)
+    if bool((n < 2).any()):
+        raise ValueError(
+            f"`{name}`: expected at least 2 non-target blocks with more than `max_numbers` pixels "
+            f"inside the frame, got {int(n.min())} (frame too small for the blocks)"
+        )
+    count = n.to(torch.float64)
+    mean = ntb.masked_fill(~ok, 0.0).sum(dim=1) / count
+    std = ((ntb - mean.unsqueeze(1)).masked_fill(~ok, 0.0).square().sum(dim=1) / count).sqrt()
+    contrast = snr[:, 4] - mean
+    flat = std == 0
+    inf = torch.where(contrast == 0, torch.zeros_like(contrast), torch.sign(contrast) * math.inf)
+    return torch.where(flat, inf, contrast / torch.where(flat, torch.ones_like(std), std))
+
+
 # ----------------------------------------------------------------------------- API
 
 
 def block_snr(
-    image: torch.Tensor, position: torch.Tensor, *, block: int = 5, max_numbers: int = 1
+    image: torch.Tensor,
+    position: torch.Tensor,
+    *,
+    block: int | tuple[int, int] | None = None,
+    max_numbers: int = 1,
+    reading: str = "paper",
 ) -> torch.Tensor:
-    """Block SNR of a target, eq. (16) of [NR08].
+    """Block SNR of the target block, eq. (16) of [NR08].
 
-    The image is tiled with non-overlapping ``block x block`` blocks aligned on the target: the
-    target block is centred on the target pixel and the background is the 8 blocks around it
-    (the ``3 x 3`` blocks minus the target block). Then
+    ``reading="paper"`` (default), as [NR08] prints it: the image is tiled into ``M x N`` blocks
+    (``block``, default 30 x 30; the paper uses 30 x 80 for fast targets) placed so that the
+    target block has the target pixel at its centre (row ``M // 2``, column ``N // 2``), and
 
-    ``Block_SNR = (signal - mean(background)) / std(background)``,
+    ``Block_SNR = (E[v in Max] - E[v not in Max]) / sigma_v``,
 
-    with ``signal`` the mean of the ``max_numbers`` highest values of the target block.
+    with ``v`` the pixels of the target block, ``Max`` its ``max_numbers`` highest pixels, the
+    rest the other pixels of *that* block, and ``sigma_v`` the standard deviation of all its
+    pixels. :func:`block_snrs` gives the SNR of all 9 blocks.
+
+    ``reading="centred"`` (our earlier reading, kept as an option): odd ``block x block``
+    blocks (default 5) centred on the target; ``(mean of the max_numbers highest target-block
+    values - mean(background)) / std(background)``, with the background the pooled pixels of
+    the 8 blocks around the target block.
 
     Notes:
-        Our reading of [NR08]: ``std`` is the population standard deviation (divide by ``n``)
-        of the background pixels. Blocks are clipped at the image border: out-of-frame pixels
-        are excluded from the background and from the target block (if the clipped target
-        block has fewer than ``max_numbers`` pixels, all of them are averaged). A constant
-        background (``std == 0``) gives ``+inf`` / ``-inf`` / ``0`` for a positive / negative
-        / zero numerator. The target position must lie in the frame. The computation runs in
-        float64; the result has the image's float dtype.
+        Our reading of [NR08]: ``sigma`` is the population standard deviation (divide by
+        ``n``); blocks are clipped at the image border (out-of-frame pixels are left out). A
+        block whose pixels are all equal has SNR 0. Paper reading: the target block must keep
+        more than ``max_numbers`` pixels. Centred reading: a constant background gives
+        ``+inf`` / ``-inf`` / ``0`` for a positive / negative / zero numerator, and a clipped
+        target block with fewer than ``max_numbers`` pixels averages all of them. The
+        computation runs in float64; the result has the image's float dtype.
 
     Args:
         image: ``(B, H, W)`` or ``(H, W)`` map, e.g. an ASF frame or a whitened frame.
         position: ``(B, 2)`` (or ``(2,)``, used for every image) or ``(2,)`` ``(x, y)`` of the
             target; float allowed (the pixel containing it is used).
-        block: odd block size ``>= 1``.
-        max_numbers: number of highest target-block values averaged, ``1 .. block * block``.
+        block: paper: ``M`` or ``(M, N)`` (rows, columns), default ``(30, 30)``; centred: an
+            odd size, default 5.
+        max_numbers: number of highest pixels taken as "target" (``Max_Numbers``), ``>= 1``.
+        reading: ``"paper"`` or ``"centred"``.
 
     Returns:
         ``(B,)`` Block SNR per image, or a 0-d tensor for an unbatched image.
 
     Raises:
         TypeError: non-real inputs or non-integer sizes.
-        ValueError: wrong shapes, NaN/inf, out-of-range sizes, a position outside the frame, or
-            an image without background pixels.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, a position outside the frame, an
+            unknown reading, or (centred) an image without background pixels.
 
     Examples:
+        >>> image = torch.zeros(9, 9)
+        >>> image[4, 4], image[3, 4] = 10.0, 4.0  # the target block is rows/columns 3..5
+        >>> # top-1 = 10, rest = 4 / 8 = 0.5, population std of {10, 4, 0 x 7} = 3.2356
+        >>> round(float(block_snr(image, torch.tensor([4, 4]), block=3)), 4)
+        2.9361
         >>> image = torch.zeros(15, 15)
         >>> image[::2] = 1.0  # rows alternate 1, 0: 110 of the 200 background pixels are 1
         >>> image[7, 7] = 10.0
-        >>> round(float(block_snr(image, torch.tensor([7.2, 6.9]))), 4)
+        >>> round(float(block_snr(image, torch.tensor([7.2, 6.9]), reading="centred")), 4)
         18.9952
         >>> round((10 - 0.55) / (0.55 * 0.45) ** 0.5, 4)
         18.9952
-        >>> float(block_snr(torch.ones(15, 15), torch.tensor([7, 7])))  # flat: 0 / 0 -> 0
-        0.0
     """
-    block, max_numbers = _check_block(block, max_numbers)
+    reading = _check_reading(reading)
+    if reading == "paper":
+        rows, cols = _check_rect(block)
+        max_numbers = check_int("max_numbers", max_numbers, minimum=1)
+    else:
+        block, max_numbers = _check_block(5 if block is None else block, max_numbers)
     img = _float(_tensor("image", image, "a tensor of shape (B, H, W) or (H, W)"))
     if img.dim() not in (2, 3) or img.shape[-1] < 1 or img.shape[-2] < 1:
         raise ValueError(f"`image`: expected shape (B, H, W) or (H, W), got {tuple(img.shape)}")
@@ -239,8 +370,71 @@ def block_snr(
     pos = pos.to(images.device).expand(bsz, 2)
     x, y = _pixels("position", pos, height, width)
     which = torch.arange(bsz, device=images.device)
-    snr = _block_snr(images, which, x, y, block, max_numbers)
+    if reading == "paper":
+        snrs, usable = _paper_snrs(images, which, x, y, rows, cols, max_numbers)
+        if not bool(usable[:, 4].all()):
+            raise ValueError(
+                f"`max_numbers`: expected fewer than the pixels of the target block inside the "
+                f"frame, got {max_numbers}"
+            )
+        snr = snrs[:, 4].to(images.dtype)
+    else:
+        snr = _block_snr(images, which, x, y, block, max_numbers)
     return snr if batched else snr[0]
+
+
+def block_snrs(
+    image: torch.Tensor,
+    position: torch.Tensor,
+    *,
+    block: int | tuple[int, int] | None = None,
+    max_numbers: int = 1,
+) -> torch.Tensor:
+    """Block SNR of eq. (16) of [NR08] for the target block and its 8 neighbours.
+
+    The paper reading of :func:`block_snr`: ``M x N`` blocks tiled around the target block,
+    which has the target pixel at its centre. Entry ``3 (r + 1) + (c + 1)`` is the block ``r``
+    block-rows below and ``c`` block-columns right of the target block (entry 4 is the target
+    block). Blocks are clipped at the frame border; a block keeping at most ``max_numbers``
+    pixels is ``NaN``.
+
+    Args:
+        image: ``(B, H, W)`` or ``(H, W)``.
+        position: ``(B, 2)`` / ``(2,)`` ``(x, y)`` of the target.
+        block: ``M`` or ``(M, N)`` (rows, columns), default ``(30, 30)``.
+        max_numbers: ``Max_Numbers``, ``>= 1``.
+
+    Returns:
+        float64 ``(B, 9)``, or ``(9,)`` for an unbatched image.
+
+    Raises:
+        TypeError: non-real inputs or non-integer sizes.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, a position outside the frame.
+
+    Examples:
+        >>> image = torch.zeros(9, 9)
+        >>> image[4, 4] = 1.0
+        >>> snr = block_snrs(image, torch.tensor([4, 4]), block=3)  # 3 x 3 blocks of 9 pixels
+        >>> snr[0].item(), round(snr[4].item(), 4), round(9 / 8**0.5, 4)  # 1 / std{1, 0 x 8}
+        (0.0, 3.182, 3.182)
+    """
+    rows, cols = _check_rect(block)
+    max_numbers = check_int("max_numbers", max_numbers, minimum=1)
+    img = _float(_tensor("image", image, "a tensor of shape (B, H, W) or (H, W)"))
+    if img.dim() not in (2, 3) or img.shape[-1] < 1 or img.shape[-2] < 1:
+        raise ValueError(f"`image`: expected shape (B, H, W) or (H, W), got {tuple(img.shape)}")
+    batched = img.dim() == 3
+    images = img if batched else img.unsqueeze(0)
+    bsz, height, width = images.shape
+    pos = _tensor("position", position, "a tensor of (x, y) positions")
+    shapes = [(2,), (bsz, 2)] if batched else [(2,)]
+    if tuple(pos.shape) not in shapes:
+        wanted = " or ".join(str(s) for s in shapes)
+        raise ValueError(f"`position`: expected shape {wanted}, got {tuple(pos.shape)}")
+    x, y = _pixels("position", pos.to(images.device).expand(bsz, 2), height, width)
+    which = torch.arange(bsz, device=images.device)
+    snrs, _ = _paper_snrs(images, which, x, y, rows, cols, max_numbers)
+    return snrs if batched else snrs[0]
 
 
 def algorithm_score(
@@ -248,44 +442,73 @@ def algorithm_score(
     positions: torch.Tensor,
     *,
     last: int = 6,
-    block: int = 5,
+    block: int | tuple[int, int] | None = None,
     max_numbers: int = 1,
+    reading: str = "paper",
+    anchor: str = "first",
 ) -> torch.Tensor:
-    """Algorithm score ``A_S`` of eq. (17) of [NR08]: the mean Block SNR of the ASF.
+    """Algorithm score ``A_S`` of eq. (17) of [NR08], averaged over the last frames.
 
-    ``A_S = mean over the last `last` frames (and over the targets) of block_snr(ASF_n,
-    position_n)``, with :func:`block_snr` at the true target position of each frame.
+    ``reading="paper"`` (default), eq. (17) as printed: per frame,
+
+    ``A_S = (Block_SNR(TB) - E[Block_SNR(NTB)]) / sigma[Block_SNR(NTB)]``
+
+    with the Block SNRs of :func:`block_snrs` (eq. 16) of the target block ``TB`` and of its
+    8 neighbours ``NTB``; then the mean over the ``last`` final frames and over the targets.
+    The tiling is fixed for the whole sequence ([NR08], Figure 8: "1st frame of TB, target at
+    center") with ``anchor="first"``: the target block is centred on the target's pixel in
+    frame 0 of ``asf`` (hence the paper's 30 x 80 blocks when the target moves far); with
+    ``anchor="each"`` it is re-centred on the target in every frame.
+
+    ``reading="centred"`` (our earlier reading, kept as an option): the mean over the last
+    frames (and the targets) of ``block_snr(..., reading="centred")`` at the true position of
+    each frame (``anchor`` is ignored). Under this reading ``A_S`` can only fall as
+    ``max_numbers`` grows; under the paper's it peaks at the number of target pixels.
 
     Notes:
-        Our reading of [NR08]: the average runs over the ``last`` final frames (once the
-        recursion has accumulated), with equal weight per frame and per target; every true
-        position in those frames must lie in the frame. An infinite Block SNR (constant
-        background) makes ``A_S`` infinite.
+        Our reading of [NR08]: population standard deviations; equal weight per frame and per
+        target; non-target blocks keeping at most ``max_numbers`` pixels inside the frame are
+        left out (at least 2 must remain); a zero spread of the NTB SNRs gives ``+inf`` /
+        ``-inf`` / ``0`` by the sign of the numerator.
 
     Args:
         asf: ASF sequence ``(B, T, H, W)`` or ``(T, H, W)``.
         positions: true ``(x, y)`` target positions ``(B, T, 2)`` / ``(T, 2)``, or for several
             targets ``(B, N, T, 2)`` / ``(N, T, 2)`` (as ``IRSequence.positions``); float.
         last: number of final frames averaged, ``1 .. T``.
-        block: odd block size ``>= 1``.
-        max_numbers: number of highest target-block values averaged, ``1 .. block * block``.
+        block: paper: ``M`` or ``(M, N)`` rows x columns (default 30 x 30); centred: odd size
+            (default 5).
+        max_numbers: ``Max_Numbers``, the number of highest pixels taken as "target", ``>= 1``.
+        reading: ``"paper"`` or ``"centred"``.
+        anchor: ``"first"`` or ``"each"`` (paper reading only).
 
     Returns:
-        ``(B,)`` scores, or a 0-d tensor for an unbatched ``asf``.
+        ``(B,)`` float scores, or a 0-d tensor for an unbatched ``asf``.
 
     Raises:
         TypeError: non-real inputs or non-integer sizes.
-        ValueError: wrong shapes, NaN/inf, out-of-range sizes, positions outside the frame.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, positions outside the frame, a
+            frame too small for 2 non-target blocks.
 
     Examples:
         >>> asf = torch.zeros(8, 15, 15)
         >>> asf[:, ::2] = 1.0
         >>> asf[:, 7, 7] = 10.0
         >>> positions = torch.tensor([[7.0, 7.0]]).expand(8, 2)
-        >>> round(float(algorithm_score(asf, positions, last=3)), 4)
+        >>> round(float(algorithm_score(asf, positions, last=3, reading="centred")), 4)
         18.9952
+        >>> asf = torch.randn(8, 45, 45, generator=torch.Generator().manual_seed(0))
+        >>> asf[:, 22, 22] += 8.0
+        >>> bool(algorithm_score(asf, positions + 15, block=15) > 3)
+        True
     """
-    block, max_numbers = _check_block(block, max_numbers)
+    reading = _check_reading(reading)
+    anchor = check_choice("anchor", anchor, ("first", "each"))
+    if reading == "paper":
+        rows, cols = _check_rect(block)
+        max_numbers = check_int("max_numbers", max_numbers, minimum=1)
+    else:
+        block, max_numbers = _check_block(5 if block is None else block, max_numbers)
     cube, batched = as_cube("asf", asf)
     cube = _float(cube)
     bsz, n_t, height, width = cube.shape
@@ -293,13 +516,22 @@ def algorithm_score(
     last = check_int("last", last, minimum=1, maximum=n_t)
     n_targets = pos.shape[1]
     images = cube[:, n_t - last :].reshape(bsz * last, height, width)
-    pos = pos[:, :, n_t - last :].to(cube.device)  # (B, N, L, 2)
+    pos = pos.to(cube.device)
+    if reading == "paper" and anchor == "first":
+        pos = pos[:, :, :1].expand(bsz, n_targets, last, 2)
+    else:
+        pos = pos[:, :, n_t - last :]  # (B, N, L, 2)
     x, y = _pixels("positions", pos, height, width)
     which = torch.arange(bsz, device=cube.device).view(bsz, 1, 1) * last
     which = (which + torch.arange(last, device=cube.device).view(1, 1, last)).expand(
         bsz, n_targets, last
     )
-    snr = _block_snr(images, which.reshape(-1), x.reshape(-1), y.reshape(-1), block, max_numbers)
+    args = (images, which.reshape(-1), x.reshape(-1), y.reshape(-1))
+    if reading == "paper":
+        snrs, usable = _paper_snrs(*args, rows, cols, max_numbers)
+        snr = _paper_score(snrs, usable, max_numbers).to(cube.dtype)
+    else:
+        snr = _block_snr(*args, block, max_numbers)
     score = snr.view(bsz, n_targets * last).mean(dim=1)
     return score if batched else score[0]
 

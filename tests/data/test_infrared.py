@@ -5,6 +5,7 @@ import torch
 
 from hocnet.data.infrared import (
     CLOUD_PRESETS,
+    NPA_CLOUDS,
     CloudSpec,
     IRSequence,
     IRTarget,
@@ -364,45 +365,63 @@ class TestSimulateIR:
 
 class TestNa23aLike:
     def test_scene(self):
+        # [NR08] section 3: one target in clear sky, right to left at ~0.3 px/frame
         seq = na23a_like(batch=2, seed=0)
-        assert seq.frames.shape == (2, 25, 64, 64)
+        assert seq.frames.shape == (2, 25, 90, 90)
         assert seq.positions.shape == (2, 1, 25, 2)
-        steps = seq.targets[0].trajectory(25).diff(dim=0).norm(dim=1)
-        torch.testing.assert_close(steps, torch.full((24,), 0.3, dtype=torch.float64))
+        step = seq.targets[0].trajectory(25).diff(dim=0)
+        torch.testing.assert_close(step, torch.tensor([[-0.3, 0.0]] * 24, dtype=torch.float64))
+        assert float(seq.clouds.abs().max()) == 0.0  # clear sky
+        assert seq.targets[0].amplitude() == pytest.approx(60.0)  # Table 2: peak ~60
+        torch.testing.assert_close(
+            seq.targets[0].trajectory(1)[0], torch.tensor([45.0, 45.0], dtype=torch.float64)
+        )
+        inside = (seq.positions >= 0) & (seq.positions <= 89)
+        assert inside.all()
+
+    def test_bright_cloud_variant(self):
+        # Table 1 of [NR08] says "bright clouds": kept as an option
+        seq = na23a_like(shape=(6, 40, 40), clouds="bright", seed=1)
         bright = CLOUD_PRESETS["bright"]
         assert seq.clouds.max().item() == pytest.approx(bright.amplitude, rel=1e-5)
-        inside = (seq.positions >= 0) & (seq.positions <= 63)
-        assert inside.all()
 
     def test_seeding_and_options(self):
         a = na23a_like(shape=(10, 32, 40), snr_db=3.0, seed=4)
         _assert_same(a, na23a_like(shape=(10, 32, 40), snr_db=3.0, seed=4))
         assert a.frames.shape == (10, 32, 40)
         assert a.targets[0].snr_db == 3.0
+        assert not torch.equal(a.frames, na23a_like(shape=(10, 32, 40), snr_db=3.0, seed=5).frames)
 
     def test_exceptions(self):
         with pytest.raises(ValueError, match="`speed`"):
             na23a_like(speed=3.0)
         with pytest.raises(TypeError, match="`shape`"):
             na23a_like(shape=(64, 64))
+        with pytest.raises(ValueError, match="`clouds`"):
+            na23a_like(clouds="dark")
 
 
 class TestNpaLike:
     def test_scene(self):
-        seq = npa_like(batch=8, seed=0)
-        assert seq.frames.shape == (8, 25, 64, 64)
-        assert seq.positions.shape == (8, 2, 25, 2)
-        for target in seq.targets:
-            steps = target.trajectory(25).diff(dim=0).norm(dim=1)
-            torch.testing.assert_close(steps, torch.full((24,), 0.2, dtype=torch.float64))
-        # Target 1 is under the full plateau of a wispy cloud in every frame and sequence.
-        wispy = CLOUD_PRESETS["wispy"]
-        pos = seq.positions[:, 1].round().long()
-        b = torch.arange(8)[:, None]
+        seq = npa_like(batch=4, seed=0)
+        assert seq.frames.shape == (4, 25, 90, 120)
+        assert seq.positions.shape == (4, 2, 25, 2)
+        for target in seq.targets:  # bottom to top at ~0.2 px/frame
+            step = target.trajectory(25).diff(dim=0)
+            torch.testing.assert_close(step, torch.tensor([[0.0, -0.2]] * 24, dtype=torch.float64))
+            assert target.amplitude() == pytest.approx(30.0)  # Table 2: peak ~30
+        # the studied target 0 is under the full cloud plateau in every frame and sequence
+        pos = seq.positions[:, 0].round().long()
+        b = torch.arange(4)[:, None]
         t = torch.arange(25)[None, :]
         under = seq.clouds[b, t, pos[..., 1], pos[..., 0]]
-        torch.testing.assert_close(under, torch.full((8, 25), wispy.amplitude), rtol=0, atol=1e-5)
-        assert seq.clouds.max().item() <= wispy.amplitude + 1e-5
+        plateau = torch.full((4, 25), NPA_CLOUDS.amplitude)
+        torch.testing.assert_close(under, plateau, rtol=0, atol=1e-4)
+        # target 1 lies to the lower right, outside the 3 x 3 blocks of 30 x 30 around target 0
+        gap = seq.positions[:, 1, 0] - seq.positions[:, 0, 0]
+        assert bool((gap[:, 0] > 45).all()) and bool((gap[:, 1] > 0).all())
+        # cloud edges around the studied target: the clouds are not a flat sheet
+        assert float((seq.clouds == 0).double().mean()) > 0.2
 
     def test_seeding(self):
         _assert_same(npa_like(seed=3), npa_like(seed=3))
@@ -412,3 +431,7 @@ class TestNpaLike:
             npa_like(speed=-0.1)
         with pytest.raises(ValueError, match="`noise_sigma`"):
             npa_like(noise_sigma=-1.0)
+        with pytest.raises(TypeError, match="`shape`"):
+            npa_like(shape=(40, 90))
+        with pytest.raises(TypeError, match="`clouds`"):
+            npa_like(clouds="wispy")

@@ -1,3 +1,4 @@
+import itertools
 import math
 
 import numpy as np
@@ -11,6 +12,7 @@ from hocnet.dpa.matrices import effective_memory, probability_matrices
 from hocnet.dpa.metrics import (
     algorithm_score,
     block_snr,
+    block_snrs,
     detection_probability,
     frame_thresholds,
     frames_to_reach,
@@ -52,14 +54,23 @@ def block_snr_loop(image, x, y, block, max_numbers):
     return (signal - mean) / std
 
 
-class TestBlockSNR:
+def block_snr_c(*args, **kwargs):
+    """Our earlier reading of eq. (16), kept as ``reading="centred"``."""
+    return block_snr(*args, reading="centred", **kwargs)
+
+
+def algorithm_score_c(*args, **kwargs):
+    return algorithm_score(*args, reading="centred", **kwargs)
+
+
+class TestBlockSNRCentred:
     def test_smoke_shapes(self):
         image = torch.randn(3, 20, 20)
-        out = block_snr(image, torch.tensor([[5, 5], [10.2, 3.7], [19, 0]]))
+        out = block_snr_c(image, torch.tensor([[5, 5], [10.2, 3.7], [19, 0]]))
         assert out.shape == (3,) and out.dtype == torch.float32
-        assert block_snr(image[0], torch.tensor([5, 5])).shape == ()
-        assert block_snr(image.double(), torch.tensor([5, 5])).dtype == torch.float64
-        assert block_snr(image.long(), torch.tensor([5, 5])).dtype == torch.get_default_dtype()
+        assert block_snr_c(image[0], torch.tensor([5, 5])).shape == ()
+        assert block_snr_c(image.double(), torch.tensor([5, 5])).dtype == torch.float64
+        assert block_snr_c(image.long(), torch.tensor([5, 5])).dtype == torch.get_default_dtype()
 
     def test_hand_computation(self):
         # 11 x 11 image, block 3: background = the 8 blocks around the centre pixel (5, 5),
@@ -72,20 +83,20 @@ class TestBlockSNR:
         bg = [0.0] * 70 + [2.0, -2.0]  # 8 blocks of 9 pixels
         mean = sum(bg) / 72
         std = math.sqrt(sum((v - mean) ** 2 for v in bg) / 72)
-        got = block_snr(image, torch.tensor([5, 5]), block=3)
+        got = block_snr_c(image, torch.tensor([5, 5]), block=3)
         assert float(got) == pytest.approx((9.0 - mean) / std, rel=1e-6)
-        got = block_snr(image, torch.tensor([5, 5]), block=3, max_numbers=3)
+        got = block_snr_c(image, torch.tensor([5, 5]), block=3, max_numbers=3)
         assert float(got) == pytest.approx(((9 + 4 + 3) / 3 - mean) / std, rel=1e-6)
 
     def test_max_numbers(self):
         image = torch.zeros(15, 15)
         image[0::3] = 1.0
         image[6:9, 6:9] = torch.tensor([[10.0, 0, 0], [0, 8.0, 0], [0, 0, 6.0]])
-        values = [float(block_snr(image, torch.tensor([7, 7]), max_numbers=m)) for m in (1, 2, 3)]
+        values = [float(block_snr_c(image, torch.tensor([7, 7]), max_numbers=m)) for m in (1, 2, 3)]
         ref = [block_snr_loop(image.numpy(), 7, 7, 5, m) for m in (1, 2, 3)]
         np.testing.assert_allclose(values, ref, rtol=1e-6)
         assert values[0] > values[1] > values[2]
-        all_of_it = float(block_snr(image, torch.tensor([7, 7]), max_numbers=25))
+        all_of_it = float(block_snr_c(image, torch.tensor([7, 7]), max_numbers=25))
         assert all_of_it == pytest.approx(block_snr_loop(image.numpy(), 7, 7, 5, 25), rel=1e-6)
 
     @pytest.mark.parametrize("seed", range(8))
@@ -100,7 +111,7 @@ class TestBlockSNR:
         xy[0] = torch.tensor([0, 0])  # corner: clipped blocks
         xy[1] = torch.tensor([16, 12])
         m = 1 + seed % min(3, block * block)
-        got = block_snr(image, xy, block=block, max_numbers=m)
+        got = block_snr_c(image, xy, block=block, max_numbers=m)
         for b in range(4):
             ref = block_snr_loop(image[b].numpy(), int(xy[b, 0]), int(xy[b, 1]), block, m)
             assert float(got[b]) == pytest.approx(ref, rel=1e-10, abs=1e-12)
@@ -108,67 +119,67 @@ class TestBlockSNR:
     def test_clipped_target_block_with_many_numbers(self):
         image = torch.randn(10, 10, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
         # at a corner the 5 x 5 target block keeps 3 x 3 pixels: all 9 are averaged
-        got = block_snr(image, torch.tensor([0, 0]), max_numbers=20)
+        got = block_snr_c(image, torch.tensor([0, 0]), max_numbers=20)
         assert float(got) == pytest.approx(block_snr_loop(image.numpy(), 0, 0, 5, 20))
 
     def test_float_position_uses_containing_pixel(self):
         image = torch.randn(2, 16, 16, generator=torch.Generator().manual_seed(2))
-        a = block_snr(image, torch.tensor([[7.49, 8.5], [3.0, 2.51]]))
-        b = block_snr(image, torch.tensor([[7, 9], [3, 3]]))
+        a = block_snr_c(image, torch.tensor([[7.49, 8.5], [3.0, 2.51]]))
+        b = block_snr_c(image, torch.tensor([[7, 9], [3, 3]]))
         np.testing.assert_array_equal(a.numpy(), b.numpy())
 
     def test_position_broadcast(self):
         image = torch.randn(3, 16, 16, generator=torch.Generator().manual_seed(3))
-        a = block_snr(image, torch.tensor([6, 9]))
-        b = torch.stack([block_snr(image[i], torch.tensor([6, 9])) for i in range(3)])
+        a = block_snr_c(image, torch.tensor([6, 9]))
+        b = torch.stack([block_snr_c(image[i], torch.tensor([6, 9])) for i in range(3)])
         np.testing.assert_array_equal(a.numpy(), b.numpy())
 
     def test_constant_background(self):
         image = torch.ones(2, 15, 15)
         image[0, 7, 7] = 3.0
         image[1, 5:10, 5:10] = -3.0  # the whole target block below the background
-        assert block_snr(image, torch.tensor([7, 7])).tolist() == [math.inf, -math.inf]
-        assert float(block_snr(torch.full((15, 15), 0.1), torch.tensor([7, 7]))) == 0.0
+        assert block_snr_c(image, torch.tensor([7, 7])).tolist() == [math.inf, -math.inf]
+        assert float(block_snr_c(torch.full((15, 15), 0.1), torch.tensor([7, 7]))) == 0.0
 
     def test_exceptions(self):
         image = torch.randn(16, 16)
         pos = torch.tensor([5, 5])
         for block in (0, 4, -3):
             with pytest.raises(ValueError, match="`block`"):
-                block_snr(image, pos, block=block)
+                block_snr_c(image, pos, block=block)
         with pytest.raises(TypeError, match="`block`"):
-            block_snr(image, pos, block=3.0)
+            block_snr_c(image, pos, block=3.0)
         for m in (0, 10):
             with pytest.raises(ValueError, match="`max_numbers`"):
-                block_snr(image, pos, block=3, max_numbers=m)
+                block_snr_c(image, pos, block=3, max_numbers=m)
         with pytest.raises(ValueError, match="`image`"):
-            block_snr(torch.randn(16), pos)
+            block_snr_c(torch.randn(16), pos)
         with pytest.raises(ValueError, match="`image`"):
-            block_snr(torch.full((16, 16), math.nan), pos)
+            block_snr_c(torch.full((16, 16), math.nan), pos)
         with pytest.raises(TypeError, match="`image`"):
-            block_snr(torch.zeros(16, 16, dtype=torch.bool), pos)
+            block_snr_c(torch.zeros(16, 16, dtype=torch.bool), pos)
         with pytest.raises(ValueError, match="`position`: expected shape"):
-            block_snr(image, torch.tensor([[5, 5]]))
+            block_snr_c(image, torch.tensor([[5, 5]]))
         with pytest.raises(ValueError, match="`position`: expected shape"):
-            block_snr(torch.randn(2, 16, 16), torch.zeros(3, 2))
+            block_snr_c(torch.randn(2, 16, 16), torch.zeros(3, 2))
         with pytest.raises(ValueError, match=r"`position`: expected \(x, y\) inside"):
-            block_snr(image, torch.tensor([16, 3]))
+            block_snr_c(image, torch.tensor([16, 3]))
         with pytest.raises(ValueError, match="`position`"):
-            block_snr(image, torch.tensor([math.inf, 3.0]))
+            block_snr_c(image, torch.tensor([math.inf, 3.0]))
         with pytest.raises(ValueError, match="`image`: expected background"):
-            block_snr(torch.randn(5, 5), torch.tensor([2, 2]))
+            block_snr_c(torch.randn(5, 5), torch.tensor([2, 2]))
 
 
-class TestAlgorithmScore:
-    def test_equals_mean_block_snr(self):
+class TestAlgorithmScoreCentred:
+    def test_equals_mean_block_snr_c(self):
         gen = torch.Generator().manual_seed(0)
         asf = torch.randn(2, 8, 16, 16, generator=gen, dtype=torch.float64)
         pos = torch.rand(2, 3, 8, 2, generator=gen, dtype=torch.float64) * 15
-        got = algorithm_score(asf, pos, last=4, block=3, max_numbers=2)
+        got = algorithm_score_c(asf, pos, last=4, block=3, max_numbers=2)
         assert got.shape == (2,) and got.dtype == torch.float64
         for b in range(2):
             snrs = [
-                block_snr(asf[b, t], pos[b, n, t], block=3, max_numbers=2)
+                block_snr_c(asf[b, t], pos[b, n, t], block=3, max_numbers=2)
                 for n in range(3)
                 for t in range(4, 8)
             ]
@@ -177,13 +188,15 @@ class TestAlgorithmScore:
     def test_shapes(self):
         asf = torch.randn(2, 7, 16, 16)
         pos = torch.full((2, 7, 2), 8.0)
-        assert algorithm_score(asf, pos).shape == (2,)
-        assert algorithm_score(asf, pos.unsqueeze(1)).shape == (2,)
-        one = algorithm_score(asf[0], pos[0])
-        assert one.shape == () and float(one) == pytest.approx(float(algorithm_score(asf, pos)[0]))
-        assert algorithm_score(asf[0], pos[0].unsqueeze(0)).shape == ()
-        assert float(algorithm_score(asf, pos, last=1)[1]) == pytest.approx(
-            float(block_snr(asf[1, -1], pos[1, -1]))
+        assert algorithm_score_c(asf, pos).shape == (2,)
+        assert algorithm_score_c(asf, pos.unsqueeze(1)).shape == (2,)
+        one = algorithm_score_c(asf[0], pos[0])
+        assert one.shape == () and float(one) == pytest.approx(
+            float(algorithm_score_c(asf, pos)[0])
+        )
+        assert algorithm_score_c(asf[0], pos[0].unsqueeze(0)).shape == ()
+        assert float(algorithm_score_c(asf, pos, last=1)[1]) == pytest.approx(
+            float(block_snr_c(asf[1, -1], pos[1, -1]))
         )
 
     def test_higher_with_target(self):
@@ -191,8 +204,8 @@ class TestAlgorithmScore:
         seq = simulate_ir((12, 32, 32), [target], clouds="clear", batch=3, seed=4)
         with_target = accumulate(anti_mean(seq.frames), W7, B7, 0.5).asf
         without = accumulate(anti_mean(seq.target_free), W7, B7, 0.5).asf
-        a = algorithm_score(with_target, seq.positions)
-        b = algorithm_score(without, seq.positions)
+        a = algorithm_score_c(with_target, seq.positions)
+        b = algorithm_score_c(without, seq.positions)
         # about 3.9 against 2.2 (the target-free value is biased up by the max of the block)
         assert bool((a > b + 1.0).all()), (a, b)
 
@@ -201,23 +214,23 @@ class TestAlgorithmScore:
         pos = torch.full((2, 7, 2), 8.0)
         for last in (0, 8):
             with pytest.raises(ValueError, match="`last`"):
-                algorithm_score(asf, pos, last=last)
+                algorithm_score_c(asf, pos, last=last)
         with pytest.raises(ValueError, match="`positions`"):
-            algorithm_score(asf, pos[:, :5])
+            algorithm_score_c(asf, pos[:, :5])
         with pytest.raises(ValueError, match="`positions`"):
-            algorithm_score(asf, pos[:1])
+            algorithm_score_c(asf, pos[:1])
         with pytest.raises(ValueError, match="`positions`"):
-            algorithm_score(asf, pos[0])
+            algorithm_score_c(asf, pos[0])
         with pytest.raises(ValueError, match="`positions`: expected at least one target"):
-            algorithm_score(asf, torch.zeros(2, 0, 7, 2))
+            algorithm_score_c(asf, torch.zeros(2, 0, 7, 2))
         with pytest.raises(ValueError, match=r"`positions`: expected \(x, y\) inside"):
-            algorithm_score(asf, pos + 10)
+            algorithm_score_c(asf, pos + 10)
         with pytest.raises(ValueError, match="`asf`"):
-            algorithm_score(asf[0, 0], pos)
+            algorithm_score_c(asf[0, 0], pos)
         with pytest.raises(ValueError, match="`block`"):
-            algorithm_score(asf, pos, block=2)
+            algorithm_score_c(asf, pos, block=2)
         with pytest.raises(ValueError, match="`max_numbers`"):
-            algorithm_score(asf, pos, max_numbers=26)
+            algorithm_score_c(asf, pos, max_numbers=26)
 
 
 class TestTrackingSuccess:
@@ -365,3 +378,189 @@ class TestDetectionProbability:
             detection_probability(asf, pos, 1.0, radius=-1.0)
         with pytest.raises(ValueError, match="`positions`"):
             detection_probability(asf, torch.zeros(4, 2), 1.0)
+
+
+# ----------------------------------------------------------------------------- paper reading
+
+
+def paper_block_snrs_loop(image, x, y, rows, cols, max_numbers):
+    """Slow oracle of eq. (16) of [NR08]: the 9 tiled blocks around the target block.
+
+    The target block spans rows y - rows // 2 .. + rows - 1 (and the same for columns); each
+    block's SNR is (mean of its max_numbers highest pixels - mean of its other pixels) / its
+    population std. None for a block with at most max_numbers pixels in the frame.
+    """
+    n_h, n_w = image.shape
+    out = []
+    for r in (-1, 0, 1):
+        for c in (-1, 0, 1):
+            y0 = y - rows // 2 + r * rows
+            x0 = x - cols // 2 + c * cols
+            values = [
+                float(image[yy, xx])
+                for yy in range(y0, y0 + rows)
+                for xx in range(x0, x0 + cols)
+                if 0 <= yy < n_h and 0 <= xx < n_w
+            ]
+            if len(values) <= max_numbers:
+                out.append(None)
+                continue
+            ordered = sorted(values, reverse=True)
+            top, rest = ordered[:max_numbers], ordered[max_numbers:]
+            mean = sum(values) / len(values)
+            std = math.sqrt(sum((v - mean) ** 2 for v in values) / len(values))
+            contrast = sum(top) / len(top) - sum(rest) / len(rest)
+            out.append(0.0 if std == 0 else contrast / std)
+    return out
+
+
+def paper_score_loop(image, x, y, rows, cols, max_numbers):
+    """Slow oracle of eq. (17): (SNR_TB - mean SNR_NTB) / std SNR_NTB (population std)."""
+    snrs = paper_block_snrs_loop(image, x, y, rows, cols, max_numbers)
+    tb = snrs[4]
+    ntb = [s for i, s in enumerate(snrs) if i != 4 and s is not None]
+    mean = sum(ntb) / len(ntb)
+    std = math.sqrt(sum((s - mean) ** 2 for s in ntb) / len(ntb))
+    return (tb - mean) / std
+
+
+def peak_scene(k, seed, amp=6.0, frames=6, size=90):
+    """Unit white noise with ``k`` target pixels of about ``amp`` next to the centre."""
+    gen = torch.Generator().manual_seed(seed)
+    asf = torch.randn(frames, size, size, generator=gen, dtype=torch.float64)
+    c = size // 2
+    pixels = [(c, c), (c, c + 1), (c + 1, c), (c + 1, c + 1)][:k]
+    for i, (y, x) in enumerate(pixels):
+        noise = 0.3 * torch.randn(frames, generator=gen, dtype=torch.float64)
+        asf[:, y, x] = amp * (1 - 0.02 * i) + noise
+    return asf, torch.full((frames, 2), float(c), dtype=torch.float64)
+
+
+class TestBlockSNRPaper:
+    def test_hand_computation(self):
+        image = torch.zeros(9, 9)
+        image[3:6, 3:6] = torch.tensor([[1.0, 2.0, 0.0], [0.0, 9.0, 4.0], [0.0, 0.0, 3.0]])
+        image[0, 0] = 5.0  # in the upper-left block: only changes that block
+        values = [1.0, 2.0, 0.0, 0.0, 9.0, 4.0, 0.0, 0.0, 3.0]
+        mean = sum(values) / 9
+        std = math.sqrt(sum((v - mean) ** 2 for v in values) / 9)
+        got = block_snr(image, torch.tensor([4, 4]), block=3)
+        assert float(got) == pytest.approx((9.0 - 10.0 / 8) / std, rel=1e-6)
+        got = block_snr(image, torch.tensor([4, 4]), block=3, max_numbers=3)
+        assert float(got) == pytest.approx((16.0 / 3 - 3.0 / 6) / std, rel=1e-6)
+        snrs = block_snrs(image, torch.tensor([4, 4]), block=3)
+        assert float(snrs[0]) == pytest.approx((5.0 - 0.0) / math.sqrt(25 / 9 - (5 / 9) ** 2))
+        assert snrs[[1, 2, 3, 5, 6, 7, 8]].tolist() == [0.0] * 7
+
+    @pytest.mark.parametrize("seed", range(6))
+    def test_equals_loop(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        rows, cols = [(3, 3), (4, 6), (5, 2), (1, 3), (7, 7), (2, 8)][seed]
+        image = torch.randn(3, 17, 23, generator=gen, dtype=torch.float64)
+        xy = torch.stack(
+            [torch.randint(0, 23, (3,), generator=gen), torch.randint(0, 17, (3,), generator=gen)],
+            dim=1,
+        )
+        xy[0] = torch.tensor([0, 0])  # corner: clipped blocks
+        m = 1 + seed % 2  # the clipped corner target block keeps >= 3 pixels
+        got = block_snrs(image, xy, block=(rows, cols), max_numbers=m)
+        for b in range(3):
+            ref = paper_block_snrs_loop(
+                image[b].numpy(), int(xy[b, 0]), int(xy[b, 1]), rows, cols, m
+            )
+            for i in range(9):
+                if ref[i] is None:
+                    assert math.isnan(float(got[b, i]))
+                else:
+                    assert float(got[b, i]) == pytest.approx(ref[i], rel=1e-10, abs=1e-12)
+            if ref[4] is None:  # a clipped target block with <= m pixels
+                with pytest.raises(ValueError, match="`max_numbers`"):
+                    block_snr(image[b], xy[b], block=(rows, cols), max_numbers=m)
+            else:
+                tb = block_snr(image[b], xy[b], block=(rows, cols), max_numbers=m)
+                assert float(tb) == pytest.approx(ref[4], rel=1e-10, abs=1e-12)
+
+    def test_default_block_is_30(self):
+        image = torch.randn(100, 100, generator=torch.Generator().manual_seed(5))
+        got = block_snrs(image, torch.tensor([50, 47]))
+        ref = paper_block_snrs_loop(image.numpy(), 50, 47, 30, 30, 1)
+        np.testing.assert_allclose(got.numpy(), ref, rtol=1e-6)
+
+    def test_exceptions(self):
+        image = torch.randn(16, 16)
+        pos = torch.tensor([5, 5])
+        with pytest.raises(ValueError, match="`reading`"):
+            block_snr(image, pos, reading="other")
+        with pytest.raises(ValueError, match="`block`"):
+            block_snr(image, pos, block=(3, 3, 3))
+        with pytest.raises(ValueError, match="`block`"):
+            block_snrs(image, pos, block=0)
+        with pytest.raises(ValueError, match="`max_numbers`"):
+            block_snr(image, pos, block=2, max_numbers=4)
+        with pytest.raises(ValueError, match="`max_numbers`"):
+            block_snrs(image, pos, max_numbers=0)
+        with pytest.raises(ValueError, match="`position`"):
+            block_snrs(image, torch.tensor([16, 0]))
+
+
+class TestAlgorithmScorePaper:
+    @pytest.mark.parametrize("seed", range(4))
+    def test_equals_loop(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        asf = torch.randn(2, 7, 19, 26, generator=gen, dtype=torch.float64)
+        pos = torch.rand(2, 2, 7, 2, generator=gen, dtype=torch.float64) * torch.tensor([25, 18])
+        rows, cols = [(4, 5), (5, 5), (3, 8), (6, 4)][seed]
+        m = 1 + seed % 3
+        for anchor in ("first", "each"):
+            got = algorithm_score(
+                asf, pos, last=3, block=(rows, cols), max_numbers=m, anchor=anchor
+            )
+            for b in range(2):
+                ref = []
+                for n in range(2):
+                    for t in range(4, 7):
+                        at = 0 if anchor == "first" else t
+                        x, y = (math.floor(float(v) + 0.5) for v in pos[b, n, at])
+                        ref.append(paper_score_loop(asf[b, t].numpy(), x, y, rows, cols, m))
+                assert float(got[b]) == pytest.approx(sum(ref) / len(ref), rel=1e-9)
+
+    @pytest.mark.parametrize("k", [1, 2, 3, 4])
+    def test_peaks_at_number_of_target_pixels(self, k):
+        # [NR08] Table 2: Max_Numbers 3 for g = 0, 1 for g = 1 (the number of high pixels the
+        # DPA leaves on the target). Under the paper's reading A_S peaks at Max_Numbers = k;
+        # under the centred reading it can only fall, so its peak is 1 whatever k is.
+        for seed in range(5):
+            asf, pos = peak_scene(k, seed)
+            paper = [float(algorithm_score(asf, pos, max_numbers=m)) for m in range(1, 8)]
+            centred = [
+                float(algorithm_score(asf, pos, max_numbers=m, reading="centred"))
+                for m in range(1, 8)
+            ]
+            assert 1 + int(np.argmax(paper)) == k, (seed, paper)
+            assert 1 + int(np.argmax(centred)) == 1, (seed, centred)
+            assert all(a >= b - 1e-12 for a, b in itertools.pairwise(centred))
+
+    def test_anchor_first_keeps_tiling_fixed(self):
+        asf = torch.randn(5, 60, 60, generator=torch.Generator().manual_seed(9))
+        pos = torch.tensor([[30.0 - 3 * t, 30.0] for t in range(5)])
+        first = algorithm_score(asf, pos, last=1, block=10)
+        fixed = algorithm_score(asf, pos[:1].expand(5, 2), last=1, block=10, anchor="each")
+        moved = algorithm_score(asf, pos, last=1, block=10, anchor="each")
+        assert float(first) == float(fixed) and float(first) != float(moved)
+
+    def test_target_scores_above_noise(self):
+        asf, pos = peak_scene(1, 0, amp=6.0)
+        noise, _ = peak_scene(0, 0)
+        assert float(algorithm_score(asf, pos)) > 5.0 > float(algorithm_score(noise, pos))
+
+    def test_exceptions(self):
+        asf = torch.randn(4, 40, 40)
+        pos = torch.full((4, 2), 20.0)
+        with pytest.raises(ValueError, match="`reading`"):
+            algorithm_score(asf, pos, reading="x")
+        with pytest.raises(ValueError, match="`anchor`"):
+            algorithm_score(asf, pos, anchor="middle")
+        with pytest.raises(ValueError, match="`asf`: expected at least 2 non-target blocks"):
+            algorithm_score(asf, pos, last=2, block=(40, 40))
+        with pytest.raises(ValueError, match="`max_numbers`"):
+            algorithm_score(asf, pos, last=2, block=2, max_numbers=4)
