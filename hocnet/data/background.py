@@ -196,8 +196,9 @@ def _fourier(images: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
     ky = torch.fft.fftfreq(h, device=images.device, dtype=images.dtype).view(1, h, 1)
     kx = torch.fft.rfftfreq(w, device=images.device, dtype=images.dtype).view(1, 1, -1)
     phase = -2 * math.pi * (kx * shift[:, 0].view(n, 1, 1) + ky * shift[:, 1].view(n, 1, 1))
-    out = torch.fft.irfft2(torch.fft.rfft2(images) * torch.polar(torch.ones_like(phase), phase),
-                           s=(h, w))
+    out = torch.fft.irfft2(
+        torch.fft.rfft2(images) * torch.polar(torch.ones_like(phase), phase), s=(h, w)
+    )
     ys = torch.arange(h, device=images.device, dtype=images.dtype)
     xs = torch.arange(w, device=images.device, dtype=images.dtype)
     src_x = xs.view(1, 1, w) - shift[:, 0].view(n, 1, 1)
@@ -350,9 +351,10 @@ def _lowrank(past: torch.Tensor, rank: int, iterations: int, clip: float) -> tor
         u = vecs[:, :, -rank:]  # top-r left singular vectors (N, L, r)
         approx = u @ (u.transpose(1, 2) @ work)
         resid = x - approx
-        scale = 1.4826 * resid.abs().median(dim=-1, keepdim=True).values.median(
-            dim=-2, keepdim=True
-        ).values
+        scale = (
+            1.4826
+            * resid.abs().median(dim=-1, keepdim=True).values.median(dim=-2, keepdim=True).values
+        )
         bound = clip * scale
         work = approx + torch.maximum(torch.minimum(resid, bound), -bound)
     return approx[:, -1].to(past.dtype)
