@@ -65,7 +65,7 @@ DATA_DIR = pathlib.Path(
     os.environ.get(DATA_ENV)
     or pathlib.Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real-ir"
 )
-"""The clips: ``$HOCNET_REAL_IR_DIR``, else ``../shared/data/real-ir`` relative to the repository."""
+"""The clips: ``$HOCNET_REAL_IR_DIR``, else ``../shared/data/real-ir`` next to the repository."""
 
 CLIPS = ("seq01", "seq04", "seq05", "seq08", "seq09", "seq10")
 QUICK_CLIPS = ("seq01", "seq05")

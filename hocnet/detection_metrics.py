@@ -378,7 +378,7 @@ def write_detections(
     target = Path(path)
     if target.exists() and not overwrite:
         raise FileExistsError(
-            f"`path`: expected a new file (pass overwrite=True to replace it), got existing {target}"
+            f"`path`: expected a new file (overwrite=True replaces it), got existing {target}"
         )
 
     def number(v: float) -> str:
@@ -399,7 +399,7 @@ def write_detections(
 
 
 def read_detections(path: str | os.PathLike) -> torch.Tensor:
-    """Read a ``detections.csv`` written by :func:`write_detections` (or by hand).
+    r"""Read a ``detections.csv`` written by :func:`write_detections` (or by hand).
 
     Args:
         path: the ``.csv`` file; header ``frame,x,y,score`` (extra columns are not allowed).
@@ -414,7 +414,7 @@ def read_detections(path: str | os.PathLike) -> torch.Tensor:
     Examples:
         >>> import tempfile, pathlib
         >>> p = pathlib.Path(tempfile.mkdtemp()) / "d.csv"
-        >>> _ = p.write_text("frame,x,y,score\\n2,4,5,0.25\\n")
+        >>> _ = p.write_text("frame,x,y,score\n2,4,5,0.25\n")
         >>> read_detections(p).tolist()
         [[2.0, 4.0, 5.0, 0.25]]
     """

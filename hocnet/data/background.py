@@ -47,8 +47,8 @@ from hocnet._check import as_cube, check_choice, check_int, check_number, restor
 __all__ = [
     "BACKGROUND_METHODS",
     "BackgroundRemoval",
-    "Registration",
     "Registered",
+    "Registration",
     "estimate_shifts",
     "register",
     "remove_background",
@@ -70,7 +70,7 @@ def _float_cube(name: str, frames: Any) -> tuple[torch.Tensor, bool]:
 
 
 def _check_shifts(name: str, shifts: Any, cube: torch.Tensor, batched: bool) -> torch.Tensor:
-    """Validate ``(T, 2)`` / ``(B, T, 2)`` shifts against a ``(B, T, H, W)`` cube -> ``(B, T, 2)``."""
+    """Validate ``(T, 2)`` / ``(B, T, 2)`` shifts for a ``(B, T, H, W)`` cube -> ``(B, T, 2)``."""
     b, t = cube.shape[:2]
     if not isinstance(shifts, torch.Tensor):
         try:

@@ -152,7 +152,9 @@ def _from_array_file(path: Path, source: str, key: str | None) -> np.ndarray:
     try:
         loaded = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
-        raise ValueError(f"`source`: expected a readable .npy/.npz file, got {source} ({exc})")
+        raise ValueError(
+            f"`source`: expected a readable .npy/.npz file, got {source} ({exc})"
+        ) from None
     if isinstance(loaded, np.lib.npyio.NpzFile):
         with loaded:
             names = list(loaded.files)
@@ -168,7 +170,9 @@ def _from_array_file(path: Path, source: str, key: str | None) -> np.ndarray:
             try:
                 return np.array(loaded[key])
             except ValueError as exc:
-                raise ValueError(f"`source`: could not read {key!r} from {source} ({exc})")
+                raise ValueError(
+                    f"`source`: could not read {key!r} from {source} ({exc})"
+                ) from None
     if key is not None:
         raise ValueError(f"`key`: expected None for a .npy file ({source}), got {key!r}")
     return np.array(loaded)
