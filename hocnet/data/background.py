@@ -100,12 +100,25 @@ def _hann(n: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     return torch.hann_window(n, periodic=False, device=device, dtype=dtype)
 
 
-def _subpixel(left: torch.Tensor, mid: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
-    """Vertex of the parabola through ``(-1, left), (0, mid), (1, right)``, clamped to +-0.5."""
-    denom = left - 2 * mid + right
-    safe = torch.where(denom < 0, denom, torch.full_like(denom, -1.0))
-    delta = torch.where(denom < 0, 0.5 * (left - right) / safe, torch.zeros_like(denom))
-    return delta.clamp(-0.5, 0.5)
+def _refine(line: torch.Tensor, freq: torch.Tensor, start: torch.Tensor) -> torch.Tensor:
+    """Sub-pixel maximum of ``r(u) = Re sum_k line[k] exp(2 pi i freq[k] u)`` near ``start``.
+
+    ``line`` ``(N, K)`` is the cross-power spectrum collapsed onto one axis at the integer peak
+    of the other; ``r`` is evaluated on a grid of step 0.1 px over ``start +- 1``, then of step
+    0.01 px around the best point (the upsampled DFT of M. Guizar-Sicairos, S. T. Thurman,
+    J. R. Fienup, "Efficient subpixel image registration algorithms", Opt. Lett. 33(2), 2008,
+    one axis at a time).
+    """
+    best = start
+    for half, step in ((1.0, 0.1), (0.1, 0.01)):
+        n = round(half / step)
+        grid = torch.arange(-n, n + 1, device=line.device, dtype=freq.dtype) * step
+        u = best.unsqueeze(-1) + grid  # (N, P)
+        phase = 2 * math.pi * u.unsqueeze(-1) * freq  # (N, P, K)
+        basis = torch.polar(torch.ones_like(phase), phase)
+        values = (basis @ line.unsqueeze(-1)).squeeze(-1).real  # (N, P)
+        best = u.gather(-1, values.argmax(dim=-1, keepdim=True)).squeeze(-1)
+    return best
 
 
 def estimate_shifts(frames: torch.Tensor, *, taper: bool = True) -> torch.Tensor:
@@ -115,9 +128,10 @@ def estimate_shifts(frames: torch.Tensor, *, taper: bool = True) -> torch.Tensor
     taper unless ``taper=False``), the normalised cross-power spectrum
     ``R = B conj(A) / |B conj(A)|`` has an inverse FFT ``r`` that peaks at the shift ``(dx, dy)``
     moving ``a``'s content onto ``b`` (integer part: the arg-max, read as a signed offset in
-    ``-N/2 .. N/2 - 1``). The sub-pixel part is the vertex of a parabola through the peak and its
-    two neighbours along each axis (clamped to +-0.5 px). Measured accuracy: see the tests
-    (smooth textures shifted by Fourier interpolation, error < 0.15 px).
+    ``-N/2 .. N/2 - 1``). The sub-pixel part: ``r`` is interpolated by its DFT (upsampled DFT,
+    one axis at a time, at the integer peak of the other axis) and maximised on a 0.1 px and
+    then a 0.01 px grid within +-1 px of the integer peak. Measured accuracy (tests): < 0.05 px
+    for circular shifts; < 0.2 px for crops of a smooth texture with the Hann taper.
 
     Args:
         frames: ``(B, T, H, W)`` or ``(T, H, W)`` intensities.
@@ -146,25 +160,26 @@ def estimate_shifts(frames: torch.Tensor, *, taper: bool = True) -> torch.Tensor
     x = cube - cube.mean(dim=(-2, -1), keepdim=True)
     if taper:
         x = x * (_hann(h, x.device, x.dtype)[:, None] * _hann(w, x.device, x.dtype)[None, :])
-    spec = torch.fft.rfft2(x)
+    spec = torch.fft.fft2(x)
     cross = spec[:, 1:] * spec[:, :-1].conj()
     mag = cross.abs()
-    cross = cross / torch.where(mag > 0, mag, torch.ones_like(mag))
-    r = torch.fft.irfft2(cross, s=(h, w))  # (B, T-1, H, W)
-    flat = r.reshape(b, t - 1, h * w)
-    idx = flat.argmax(dim=-1)
+    cross = (cross / torch.where(mag > 0, mag, torch.ones_like(mag))).reshape(-1, h, w)
+    r = torch.fft.ifft2(cross).real  # (N, H, W), N = B (T - 1)
+    idx = r.reshape(-1, h * w).argmax(dim=-1)
     iy, ix = idx // w, idx % w
-
-    def at(yy: torch.Tensor, xx: torch.Tensor) -> torch.Tensor:
-        return flat.gather(-1, ((yy % h) * w + (xx % w)).unsqueeze(-1)).squeeze(-1)
-
-    mid = at(iy, ix)
-    fx = _subpixel(at(iy, ix - 1), mid, at(iy, ix + 1)) if w >= 3 else torch.zeros_like(mid)
-    fy = _subpixel(at(iy - 1, ix), mid, at(iy + 1, ix)) if h >= 3 else torch.zeros_like(mid)
-    dx = torch.where(ix >= (w + 1) // 2, ix - w, ix).to(cube.dtype) + fx
-    dy = torch.where(iy >= (h + 1) // 2, iy - h, iy).to(cube.dtype) + fy
-    shifts[:, 1:, 0] = dx
-    shifts[:, 1:, 1] = dy
+    dy0 = torch.where(iy >= (h + 1) // 2, iy - h, iy).to(cube.dtype)
+    dx0 = torch.where(ix >= (w + 1) // 2, ix - w, ix).to(cube.dtype)
+    fy = torch.fft.fftfreq(h, device=x.device, dtype=x.dtype)
+    fx = torch.fft.fftfreq(w, device=x.device, dtype=x.dtype)
+    # collapse the spectrum onto each axis at the integer peak of the other, then refine
+    at_y = torch.polar(torch.ones_like(fy), 2 * math.pi * fy * dy0.unsqueeze(-1))  # (N, H)
+    at_x = torch.polar(torch.ones_like(fx), 2 * math.pi * fx * dx0.unsqueeze(-1))  # (N, W)
+    line_x = (at_y.unsqueeze(1) @ cross).squeeze(1)  # (N, W)
+    line_y = (cross @ at_x.unsqueeze(-1)).squeeze(-1)  # (N, H)
+    dx = _refine(line_x, fx, dx0) if w >= 2 else dx0
+    dy = _refine(line_y, fy, dy0) if h >= 2 else dy0
+    shifts[:, 1:, 0] = dx.reshape(b, t - 1)
+    shifts[:, 1:, 1] = dy.reshape(b, t - 1)
     return restore_batch(shifts, batched)
 
 
@@ -395,7 +410,7 @@ def temporal_background(
       ``L x (H W)`` matrix ``X`` (missing samples filled with the pixel's median) are
       approximated by a truncated SVD ``A``; the residual ``X - A`` is clipped to
       ``+- clip * 1.4826 * MAD`` (MAD: the median over the frames of each frame's median
-      absolute residual) and the SVD is redone on ``A + clipped residual``, ``iterations``
+      absolute residual; lower medians, as ``torch.median``) and the SVD is redone on ``A + clipped residual``, ``iterations``
       times. The background of frame ``n`` is the final approximation's row of frame ``n - 1``
       (the most recent past frame, denoised, with its outliers such as moving targets clipped).
       Our choice; it follows global brightness changes that a median over the window lags.
