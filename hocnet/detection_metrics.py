@@ -102,7 +102,7 @@ def detect_peaks(
         >>> detect_peaks(scores, max_per_frame=1).tolist()
         [[0.0, 3.0, 1.0, 2.0], [1.0, 0.0, 4.0, 1.0]]
     """
-    cube, batched = as_cube("scores", scores)
+    cube, batched = as_cube("scores", scores, min_frames=0)
     radius = check_int("radius", radius, minimum=0)
     max_per_frame = check_int("max_per_frame", max_per_frame, minimum=1)
     if threshold is not None:
@@ -184,7 +184,8 @@ class ROC:
     """Pd versus false alarms over a threshold sweep (:func:`roc_curve`).
 
     Entry ``i`` of each curve is the operating point "detections with ``score >=
-    thresholds[i]``"; entry 0 is ``+inf`` (nothing detected), the last the lowest score.
+    thresholds[i]``": entry 0 is ``+inf`` (nothing detected), then every distinct score of the
+    evaluated detections in decreasing order.
 
     Attributes:
         thresholds: ``(K,)`` decreasing thresholds.
@@ -278,7 +279,7 @@ def roc_curve(
     frame_best = best[chosen][has_target[chosen]]
     frame_best = frame_best[torch.isfinite(frame_best)]
     fa_scores = det[~hit, 3]
-    levels = torch.cat([frame_best, fa_scores]).unique(sorted=True).flip(0)
+    levels = det[:, 3].unique(sorted=True).flip(0)
     thresholds = torch.cat([torch.tensor([math.inf], dtype=torch.float64), levels])
     # counts of values >= each threshold
     hits_sorted = frame_best.sort().values
