@@ -42,7 +42,7 @@ def expected_peaks(scores, radius, max_per_frame, threshold=None):
 def expected_roc(det, truth, frames, radius):
     """Threshold by threshold: count detected frames and false alarms directly."""
     det = [d for d in det.tolist() if int(d[0]) in frames]
-    thresholds = [math.inf] + sorted({d[3] for d in det}, reverse=True)
+    thresholds = [math.inf, *sorted({d[3] for d in det}, reverse=True)]
     targets = [f for f in frames if not math.isnan(truth[f][0])]
     pds, fas = [], []
     for tau in thresholds:
@@ -169,7 +169,7 @@ class TestRoc:
             roc_curve(torch.zeros(3, 3), truth)
         with pytest.raises(ValueError, match="`truth_xy`: expected shape"):
             roc_curve(torch.zeros(1, 4), torch.zeros(2, 3))
-        with pytest.raises(ValueError, match="`frames`: expected frame indices in 0 .. 1"):
+        with pytest.raises(ValueError, match=r"`frames`: expected frame indices in 0 \.\. 1"):
             roc_curve(torch.zeros(1, 4), truth, frames=[0, 2])
         with pytest.raises(ValueError, match="`hit_radius`"):
             roc_curve(torch.zeros(1, 4), truth, hit_radius=-1)
@@ -205,5 +205,5 @@ class TestDetectionsCsv:
             read_detections(bad_header)
         bad_value = tmp_path / "b.csv"
         bad_value.write_text("frame,x,y,score\n0,1,2,abc\n")
-        with pytest.raises(ValueError, match="line 2 of .*b.csv"):
+        with pytest.raises(ValueError, match=r"line 2 of .*b\.csv"):
             read_detections(bad_value)

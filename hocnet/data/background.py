@@ -410,8 +410,9 @@ def temporal_background(
       ``L x (H W)`` matrix ``X`` (missing samples filled with the pixel's median) are
       approximated by a truncated SVD ``A``; the residual ``X - A`` is clipped to
       ``+- clip * 1.4826 * MAD`` (MAD: the median over the frames of each frame's median
-      absolute residual; lower medians, as ``torch.median``) and the SVD is redone on ``A + clipped residual``, ``iterations``
-      times. The background of frame ``n`` is the final approximation's row of frame ``n - 1``
+      absolute residual; lower medians, as ``torch.median``) and the SVD is redone on
+      ``A + clipped residual``, ``iterations`` times. The background of frame ``n`` is the
+      final approximation's row of frame ``n - 1``
       (the most recent past frame, denoised, with its outliers such as moving targets clipped).
       Our choice; it follows global brightness changes that a median over the window lags.
 

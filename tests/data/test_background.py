@@ -81,7 +81,7 @@ def expected_shift(image, dx, dy):
             sx, sy = x - dx, y - dy
             if -1e-6 <= sx <= w - 1 + 1e-6 and -1e-6 <= sy <= h - 1 + 1e-6:
                 sx, sy = min(max(sx, 0.0), w - 1), min(max(sy, 0.0), h - 1)
-                x0, y0 = min(int(math.floor(sx)), w - 2), min(int(math.floor(sy)), h - 2)
+                x0, y0 = min(math.floor(sx), w - 2), min(math.floor(sy), h - 2)
                 fx, fy = sx - x0, sy - y0
                 out[y, x] = (
                     (1 - fx) * (1 - fy) * image[y0, x0]

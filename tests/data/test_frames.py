@@ -87,18 +87,18 @@ class TestLoadFrames:
         folder, _ = clip
         empty = tmp_path / "empty"
         empty.mkdir()
-        with pytest.raises(ValueError, match="empty .*empty"):
+        with pytest.raises(ValueError, match=r"empty .*empty"):
             load_frames(empty)
         (folder / "notes.txt").write_text("hi")
         with pytest.raises(ValueError, match=r"got the file notes.txt"):
             load_frames(folder)
         os.remove(folder / "notes.txt")
         (folder / "frame99.png").write_bytes(b"not a png")
-        with pytest.raises(ValueError, match="frame99.png"):
+        with pytest.raises(ValueError, match=r"frame99\.png"):
             load_frames(folder)
         os.remove(folder / "frame99.png")
         save(folder / "frame50.png", np.zeros((5, 5), np.uint8))
-        with pytest.raises(ValueError, match="one size.*frame50.png"):
+        with pytest.raises(ValueError, match=r"one size.*frame50\.png"):
             load_frames(folder)
         with pytest.raises(FileNotFoundError, match="`source`"):
             load_frames(tmp_path / "missing")
