@@ -217,7 +217,7 @@ def _plot_clips(
         "truth: green square",
         fontsize=9,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.3 / len(results)))
     fig.savefig(path, dpi=80)
     plt.close(fig)
 
