@@ -136,7 +136,7 @@ def point_score(
     alpha1: float = 1 / 3,
     A2: float = 2.12,
     alpha2: float = 2.0,
-    combine: str = "mean",
+    combine: str = "min",
 ) -> torch.Tensor | float:
     """Score of a point entered by move ``(i1, j1)`` and left by ``(i2, j2)``.
 
@@ -176,14 +176,14 @@ def point_score(
         ValueError: unknown ``combine``; TypeError/ValueError for a bad constant.
 
     Examples:
-        >>> round(point_score(2, 1, 2, 1), 2)  # straight, constant speed
+        >>> round(point_score(2, 1, 2, 1), 2)  # straight, constant speed: min(3.0, 4.24)
+        3.0
+        >>> round(point_score(2, 1, 2, 1, combine="mean"), 2)
         3.62
         >>> round(point_score(1, 0, 1, 1), 2)  # 45-degree turn, L1 change 1
         2.67
         >>> point_score(1, 0, 0, 1) < 2.5  # right-angle turn
         True
-        >>> round(point_score(1, 0, 1, 1, combine="min"), 2)
-        2.67
     """
     combine = check_choice("combine", combine, COMBINE)
     m = movement_score(i1, j1, i2, j2, A1=A1, alpha1=alpha1)
