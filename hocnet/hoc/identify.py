@@ -396,10 +396,10 @@ def _select_tracks(
     covered: set[int] = set()
     tracks = []
     for _, _, pts, track in cands:
-        # a crossing track shares one point, a split branch its parent's first part: either way
-        # at least min_points - 1 of its points are its own; a detour around a better track
-        # (one or two points of its own) is not a track
-        if sum(p not in covered for p in pts) < max(1, min_points - 1):
+        # a track whose points are all on better tracks adds nothing (measured: also requiring
+        # min_points - 1 points of its own rejects more clutter but lost 8 target points per 5
+        # Table III scenes at 1.4 % and 2.0 %, against 1 and 2 with this rule)
+        if covered.issuperset(pts):
             continue
         covered.update(pts)
         tracks.append(track)
