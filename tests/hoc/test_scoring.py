@@ -85,7 +85,7 @@ class TestPointScore:
     def test_combinations(self, m1, m2):
         m = movement_score(*m1, *m2)
         c = curvature_score(*m1, *m2)
-        assert point_score(*m1, *m2) == pytest.approx(min(m, c))
+        assert point_score(*m1, *m2) == pytest.approx((m + c) / 2)
         assert point_score(*m1, *m2, combine="mean") == pytest.approx((m + c) / 2)
         assert point_score(*m1, *m2, combine="min") == pytest.approx(min(m, c))
         assert point_score(*m1, *m2, combine="sum") == pytest.approx(m + c)
