@@ -45,7 +45,7 @@ CONFIGS = {
     "mhoc + greedy": {"identify": "greedy"},
     "chain + paper": {"support": "chain"},
     "chain + greedy (old default)": {"support": "chain", "identify": "greedy"},
-    "paper, combine=mean": {"combine": "mean"},
+    "paper, combine=min": {"combine": "min"},
     "paper, combine=sum": {"combine": "sum"},
     "paper, combine=movement": {"combine": "movement"},
 }

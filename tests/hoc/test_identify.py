@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from hocnet.data.binary import paper_scene
 from hocnet.hoc import chain_support, detect, identify_tracks
-from hocnet.hoc.identify import density_bound
+from hocnet.hoc.identify import density_bound, mhoc_candidates
 from hocnet.hoc.kernels import allowed_moves, move_offsets
 from hocnet.hoc.reference import turn_reference
 
@@ -291,3 +291,16 @@ class TestIdentifyTracks:
     def test_bad_arguments(self, kw, match):
         with pytest.raises(ValueError, match=match):
             identify_tracks(torch.zeros(3, 4, 4, dtype=torch.bool), **kw)
+
+
+class TestBatchRecipe:
+    def test_detect_equals_candidates_plus_identify(self):
+        """What a streaming caller must run to equal batch ``detect`` (support="mhoc")."""
+        scene = paper_scene("table3-paper", 0.014, seed=2)
+        result = detect(scene.cube, order=2)
+        image, cand = mhoc_candidates(scene.cube, order=2)
+        tracks, scores, cleaned = identify_tracks(cand, 4, math.pi / 4, roots=image, min_points=5)
+        assert torch.equal(result.support, image)
+        assert torch.equal(result.cleaned, cleaned)
+        assert torch.equal(result.scores.isnan(), scores.isnan())
+        assert [t.points.tolist() for t in result.tracks] == [t.points.tolist() for t in tracks]
