@@ -42,7 +42,8 @@ class TestMovementScore:
         r = torch.arange(-4, 5)
         i1, j1, i2, j2 = torch.meshgrid(r, r, r, r, indexing="ij")
         fast = movement_score(i1, j1, i2, j2)
-        for idx in torch.randint(0, fast.numel(), (200,), generator=torch.Generator().manual_seed(0)):
+        gen = torch.Generator().manual_seed(0)
+        for idx in torch.randint(0, fast.numel(), (200,), generator=gen):
             a, b, c, d = (int(x.reshape(-1)[idx]) for x in (i1, j1, i2, j2))
             assert float(fast.reshape(-1)[idx]) == pytest.approx(movement_loop(a, b, c, d))
 
@@ -92,9 +93,11 @@ class TestPointScore:
         assert point_score(*m1, *m2, combine="movement") == pytest.approx(m)
 
     def test_min_on_tensors(self):
-        out = point_score(torch.tensor([1, 1]), 0, torch.tensor([1, 0]), torch.tensor([1, 1]), combine="min")
+        i2, j2 = torch.tensor([1, 0]), torch.tensor([1, 1])
+        out = point_score(torch.tensor([1, 1]), 0, i2, j2, combine="min")
         assert out.shape == (2,)
-        assert out[1].item() == pytest.approx(min(movement_score(1, 0, 0, 1), curvature_score(1, 0, 0, 1)))
+        want = min(movement_score(1, 0, 0, 1), curvature_score(1, 0, 0, 1))
+        assert out[1].item() == pytest.approx(want)
 
     def test_bad_combine(self):
         with pytest.raises(ValueError, match="`combine`"):
