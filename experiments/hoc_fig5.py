@@ -70,6 +70,13 @@ def _same(stream: HOCResult, batch: HOCResult) -> bool:
     return True
 
 
+def _shift(track, start: int) -> torch.Tensor:
+    """Window-local track points to absolute scans."""
+    pts = track.points.clone()
+    pts[:, 0] += start
+    return pts
+
+
 def evaluate(seeds: Sequence[int], density: float, progress: bool) -> tuple[list[dict], dict]:
     """One row per (seed, window), and the first seed's scene and windows for the plot."""
     rows = []
@@ -86,7 +93,9 @@ def evaluate(seeds: Sequence[int], density: float, progress: bool) -> tuple[list
             frames = scene.cube[out.start : out.stop]
             truth = scene.target_mask[out.start : out.stop]
             res = out.result
-            batch = detect(frames, order=ORDER, v=V, delta=DELTA)
+            # the streaming detector identifies on the chain support: compare like with like
+            batch = detect(frames, order=ORDER, v=V, delta=DELTA, support="chain")
+            paper = detect(frames, order=ORDER, v=V, delta=DELTA)  # MHOC image (the paper)
             recall = metrics.track_recall(
                 scene.tracks, out.tracks, window=(out.start, out.stop), min_points=2 * ORDER + 1
             )
@@ -115,6 +124,17 @@ def evaluate(seeds: Sequence[int], density: float, progress: bool) -> tuple[list
                 "true_found": recall.n_found,
                 "false_tracks": metrics.false_tracks(res.tracks, truth),
                 "stream_equals_batch": int(_same(res, batch)),
+                "paper_id_rejection": metrics.clutter_rejection(frames, paper.cleaned, truth),
+                "paper_id_target_lost": metrics.target_points_lost(frames, paper.cleaned, truth),
+                "paper_id_eligible_lost": metrics.target_points_lost(
+                    frames, paper.cleaned, eligible
+                ),
+                "paper_tracks_found": metrics.track_recall(
+                    scene.tracks,
+                    [_shift(tr, out.start) for tr in paper.tracks],
+                    window=(out.start, out.stop),
+                    min_points=2 * ORDER + 1,
+                ).n_found,
             }
             for label, flag in zip(scene.track_labels, recall.found):
                 row[f"found_T{label}"] = "" if flag is None else int(flag)
@@ -329,7 +349,18 @@ def run(
                 "",
             ]
         ),
-        f"Note: {C.PAPER_NA_NOTE}",
+        "Paper configuration (batch `detect` on each window, MHOC image + section III-B "
+        "identification), over all windows: clutter rejection after identification "
+        f"{C.mean_std([r['paper_id_rejection'] for r in rows], 2, scale=100)} %, target points "
+        f"lost on the evaluated tracks {sum(r['paper_id_eligible_lost'] for r in rows)}, true "
+        f"tracks found {sum(r['paper_tracks_found'] for r in rows)} of "
+        f"{sum(r['true_evaluated'] for r in rows)}. The streaming rows above use the chain "
+        "support (the streaming detector's), compared with batch `detect(support='chain')`.",
+        "",
+        "Paper: Fig. 5 of [LA98] is a picture without numbers; it reports every track identified "
+        "in its interval and stationary clutter kept (the paper's scene, 520 x 520 with six "
+        "tracks and stationary clutter, is `paper_scene('fig5-paper', ...)`; this run uses the "
+        "harder 60 x 60 preset `fig5`).",
         "",
         f"![{NAME}]({NAME}.png)",
     ]

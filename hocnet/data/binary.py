@@ -50,11 +50,13 @@ from hocnet._check import check_choice, check_int, check_number, check_seed
 __all__ = [
     "BinaryScene",
     "TargetSpec",
+    "fig5_paper_targets",
     "fig5_targets",
     "paper_scene",
     "paper_shape",
     "simulate_binary",
     "table2_targets",
+    "table3_paper_targets",
     "table3_targets",
 ]
 
@@ -471,6 +473,8 @@ _SHAPES: dict[str, tuple[int, int, int]] = {
     "table2": (10, 320, 520),
     "table3": (10, 60, 60),
     "fig5": (16, 60, 60),
+    "table3-paper": (10, 60, 60),
+    "fig5-paper": (16, 520, 520),
 }
 
 
@@ -573,7 +577,175 @@ def fig5_targets() -> tuple[TargetSpec, ...]:
     )
 
 
-_PRESETS = {"table2": table2_targets, "table3": table3_targets, "fig5": fig5_targets}
+TABLE3_CONFIGURATIONS = ("close", "crossing", "splitting")
+"""Relative configurations of the three Table III tracks ([LA98] section IV-C)."""
+
+
+def table3_paper_targets(
+    generator: torch.Generator | None = None, configuration: str | None = None
+) -> tuple[TargetSpec, ...]:
+    """Three 10-scan tracks of the Table III experiment of [LA98], placed at random.
+
+    [LA98] section IV-C: "three target tracks ... in 60 x 60 size images ... positioned and
+    initialized randomly ... by random translation and rotation operations to generate closely
+    spaced, crossing or splitting tracks"; 3 x 10 = 30 target points per image. Our reading: a
+    configuration is drawn (or given), built around the image centre, rotated by a uniform random
+    angle and translated by up to +-4 pixels; speeds are 2-3 pixels per scan, straight:
+
+    - ``"close"``: three parallel tracks 3 pixels apart (the outer two start 2 scans apart);
+    - ``"crossing"``: tracks 1 and 2 cross at the centre at scan 5 at 50-90 degrees; track 3
+      runs 3 pixels beside track 1;
+    - ``"splitting"``: tracks 1 and 2 leave the same neighbourhood (1 pixel apart at scan 0) and
+      diverge by 20-40 degrees; track 3 crosses them.
+
+    Args:
+        generator: CPU ``torch.Generator`` to draw from (``None``: a fresh unseeded one).
+        configuration: one of :data:`TABLE3_CONFIGURATIONS`, or ``None`` to draw one.
+
+    Returns:
+        Three :class:`TargetSpec` for the ``(10, 60, 60)`` cube, all inside the frame.
+
+    Examples:
+        >>> specs = table3_paper_targets(torch.Generator().manual_seed(0), "crossing")
+        >>> len(specs), all(s.first_scan == 0 and s.last_scan is None for s in specs)
+        (3, True)
+    """
+    gen = _make_generator(None, generator) if generator is not None else torch.Generator()
+    if generator is None:
+        gen.seed()
+
+    def u(a: float, b: float) -> float:
+        return a + (b - a) * float(torch.rand((), generator=gen))
+
+    if configuration is None:
+        configuration = TABLE3_CONFIGURATIONS[int(torch.randint(0, 3, (), generator=gen))]
+    configuration = check_choice("configuration", configuration, TABLE3_CONFIGURATIONS)
+    for _ in range(1000):
+        speeds = [u(2.0, 3.0) for _ in range(3)]
+        if configuration == "close":
+            local = [((-4.5 * speeds[0], 0.0), (speeds[0], 0.0))]
+            local.append(((-4.5 * speeds[0], 3.0), (speeds[0], 0.0)))
+            local.append(((-4.5 * speeds[0], -3.0), (speeds[0], 0.0)))
+        elif configuration == "crossing":
+            ang = math.radians(u(50, 90)) * (1 if u(0, 1) < 0.5 else -1)
+            v2 = (speeds[1] * math.cos(ang), speeds[1] * math.sin(ang))
+            local = [((-5 * speeds[0], 0.0), (speeds[0], 0.0))]
+            local.append(((-5 * v2[0], -5 * v2[1]), v2))
+            local.append(((-5 * speeds[0], 3.0), (speeds[0], 0.0)))
+        else:
+            ang = math.radians(u(20, 40))
+            v2 = (speeds[1] * math.cos(ang), speeds[1] * math.sin(ang))
+            x0 = -4.5 * speeds[0]
+            local = [((x0, 0.0), (speeds[0], 0.0)), ((x0, 1.0), v2)]
+            a3 = math.radians(u(60, 120))
+            v3 = (speeds[2] * math.cos(a3), speeds[2] * math.sin(a3))
+            local.append(((-4.5 * v3[0] + 5.0, -4.5 * v3[1]), v3))
+        rot = u(-math.pi, math.pi)
+        c, s_ = math.cos(rot), math.sin(rot)
+        dx, dy = u(-4, 4), u(-4, 4)
+        specs = []
+        inside = True
+        for (x, y), (vx, vy) in local:
+            sx, sy = 30 + c * x - s_ * y + dx, 30 + s_ * x + c * y + dy
+            vx2, vy2 = c * vx - s_ * vy, s_ * vx + c * vy
+            for k in (0, 9):
+                px, py = _round(sx + k * vx2), _round(sy + k * vy2)
+                inside &= 0 <= px < 60 and 0 <= py < 60
+            specs.append(TargetSpec(start=(sx, sy), velocity=(vx2, vy2)))
+        if inside:
+            return tuple(specs)
+    raise RuntimeError("table3_paper_targets: no placement inside the frame")  # pragma: no cover
+
+
+def fig5_paper_targets() -> tuple[TargetSpec, ...]:
+    """Targets of the Fig. 5 experiment of [LA98]: six tracks in a large image over 16 scans.
+
+    [LA98] section IV-A: six tracks "approximately located around (100,300), (200,120),
+    (260,270), (310,415), (410,325), and (420,350)"; "the first four tracks initiate at different
+    scans within the first interval while the last two initiate within the second interval. All
+    tracks are isolated except the last two which are splitting ones." Our reading, for a
+    ``(16, 520, 520)`` cube (``(x, y)`` as printed; scans 0-based):
+
+    1. near ``(100, 300)``, velocity ``(3, 1)``, scans 0-12;
+    2. near ``(200, 120)``, velocity ``(-2, 3)``, scans 1-15;
+    3. near ``(260, 270)``, velocity ``(2, -2)``, scans 2-13;
+    4. near ``(310, 415)``, velocity ``(-3, 0)``, scans 3-14;
+    5. from ``(400, 318)``, velocity ``(2, 3)``, scans 6-15, splitting at scan 8 into
+    6. its branch (label 6), velocity ``(3, 1)`` (a 38-degree turn), scans 8-15.
+
+    Returns:
+        The five :class:`TargetSpec` (the split branch gets label 6).
+
+    Examples:
+        >>> [(s.first_scan, s.last_scan) for s in fig5_paper_targets()][:2]
+        [(0, 12), (1, 15)]
+    """
+    return (
+        TargetSpec(start=(82, 294), velocity=(3, 1), first_scan=0, last_scan=12),
+        TargetSpec(start=(214, 99), velocity=(-2, 3), first_scan=1, last_scan=15),
+        TargetSpec(start=(248, 282), velocity=(2, -2), first_scan=2, last_scan=13),
+        TargetSpec(start=(328, 415), velocity=(-3, 0), first_scan=3, last_scan=14),
+        TargetSpec(
+            start=(400, 318),
+            velocity=(2, 3),
+            first_scan=6,
+            last_scan=15,
+            split_at=8,
+            split_velocity=(3, 1),
+        ),
+    )
+
+
+FIG5_STATIONARY = 0.02
+"""Density of the stationary clutter in the lower-left quarter of the Fig. 5 scene (our choice)."""
+
+
+def _stationary_patch(scene: BinaryScene, gen: torch.Generator, density: float) -> BinaryScene:
+    """Add stationary clutter (same pixels in every scan) to the lower-left quarter."""
+    cube = scene.cube if scene.batched else scene.cube[None]
+    b, _, h, w = cube.shape
+    patch = torch.zeros((b, 1, h, w), dtype=torch.bool)
+    patch[:, :, 3 * h // 4 :, : w // 4] = (
+        torch.rand((b, 1, h - 3 * h // 4, w // 4), generator=gen) < density
+    )
+    new = cube | patch
+    return BinaryScene(
+        cube=new if scene.batched else new[0],
+        labels=scene.labels,
+        tracks=scene.tracks,
+        track_labels=scene.track_labels,
+        split_parents=scene.split_parents,
+        specs=scene.specs,
+    )
+
+
+def _table3_paper_scene(density: float, batch: int | None, gen: torch.Generator) -> BinaryScene:
+    """Each batch element gets its own random placement (drawn before its clutter)."""
+    scenes = []
+    for _ in range(1 if batch is None else check_int("batch", batch, minimum=1)):
+        specs = table3_paper_targets(gen)
+        scenes.append(
+            simulate_binary(_SHAPES["table3-paper"], specs, clutter_density=density, generator=gen)
+        )
+    if batch is None:
+        return scenes[0]
+    return BinaryScene(
+        cube=torch.stack([sc.cube for sc in scenes]),
+        labels=torch.stack([sc.labels for sc in scenes]),
+        tracks=[list(sc.tracks) for sc in scenes],
+        track_labels=scenes[0].track_labels,
+        split_parents={},
+        specs=scenes[0].specs,
+    )
+
+
+_PRESETS = {
+    "table2": table2_targets,
+    "table3": table3_targets,
+    "fig5": fig5_targets,
+    "table3-paper": table3_paper_targets,
+    "fig5-paper": fig5_paper_targets,
+}
 
 
 def paper_shape(name: str) -> tuple[int, int, int]:
@@ -603,9 +775,13 @@ def paper_scene(
     """Simulate one of the [LA98] scenarios with uniform clutter of the given density.
 
     Args:
-        name: ``"table2"`` (:func:`table2_targets` in ``(10, 320, 520)``), ``"table3"``
-            (:func:`table3_targets` in ``(10, 60, 60)``) or ``"fig5"`` (:func:`fig5_targets` in
-            ``(16, 60, 60)``).
+        name: the paper's scenes ``"table2"`` (:func:`table2_targets` in ``(10, 320, 520)``),
+            ``"table3-paper"`` (three randomly placed 10-scan tracks,
+            :func:`table3_paper_targets`, in ``(10, 60, 60)``; every batch element draws its own
+            placement) and ``"fig5-paper"`` (:func:`fig5_paper_targets` in ``(16, 520, 520)``
+            plus stationary clutter in the lower-left quarter), or our harder scenes
+            ``"table3"`` (:func:`table3_targets`: four tracks and a split branch in
+            ``(10, 60, 60)``) and ``"fig5"`` (:func:`fig5_targets` in ``(16, 60, 60)``).
         density: clutter density in ``[0, 1]`` (fraction of pixels per scan).
         seed: seed of the generator (``None``: non-deterministic).
         batch: ``None`` for one ``(T, H, W)`` scene, or ``B`` for ``(B, T, H, W)``.
@@ -620,6 +796,14 @@ def paper_scene(
         (torch.Size([10, 60, 60]), (1, 2, 3, 4, 5))
     """
     name = check_choice("name", name, tuple(_PRESETS))
+    if name == "table3-paper":
+        return _table3_paper_scene(density, batch, _make_generator(seed, generator))
+    if name == "fig5-paper":
+        gen = _make_generator(seed, generator)
+        scene = simulate_binary(
+            _SHAPES[name], _PRESETS[name](), clutter_density=density, batch=batch, generator=gen
+        )
+        return _stationary_patch(scene, gen, FIG5_STATIONARY)
     return simulate_binary(
         _SHAPES[name],
         _PRESETS[name](),

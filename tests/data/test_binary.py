@@ -8,11 +8,13 @@ import torch
 from hocnet.data.binary import (
     BinaryScene,
     TargetSpec,
+    fig5_paper_targets,
     fig5_targets,
     paper_scene,
     paper_shape,
     simulate_binary,
     table2_targets,
+    table3_paper_targets,
     table3_targets,
 )
 
@@ -427,3 +429,50 @@ class TestPresets:
         assert len({s.first_scan for s in specs}) == 6 and len({s.last_scan for s in specs}) == 6
         # no two targets collide: every drawn pixel belongs to exactly one track
         assert int(scene.n_target_points) == sum(len(t) for t in scene.tracks) - 2
+
+
+class TestPaperScenes:
+    """The scenes as [LA98] describes them (Table III: three random tracks; Fig. 5: 520 x 520)."""
+
+    @pytest.mark.parametrize("configuration", ["close", "crossing", "splitting"])
+    def test_table3_configurations(self, configuration):
+        for seed in range(5):
+            gen = torch.Generator().manual_seed(seed)
+            specs = table3_paper_targets(gen, configuration)
+            scene = simulate_binary((10, 60, 60), specs, seed=seed)
+            assert len(scene.tracks) == 3
+            assert all(len(t) == 10 for t in scene.tracks)  # every point inside the frame
+            pts = [t.float() for t in scene.tracks]
+            gaps = [
+                (pts[a][:, 1:] - pts[b][:, 1:]).norm(dim=1).min().item()
+                for a, b in itertools.combinations(range(3), 2)
+            ]
+            assert min(gaps) <= 4  # close, crossing or splitting: two tracks within 4 px
+
+    def test_table3_paper_scene(self):
+        scene = paper_scene("table3-paper", 0.014, seed=0)
+        assert scene.cube.shape == (10, 60, 60)
+        assert 29 <= int(scene.n_target_points) <= 30  # 30 unless two tracks share a pixel
+        batched = paper_scene("table3-paper", 0.0, seed=0, batch=3)
+        assert batched.cube.shape == (3, 10, 60, 60)
+        assert not torch.equal(batched.cube[0], batched.cube[1])  # own placement per scene
+        again = paper_scene("table3-paper", 0.014, seed=0)
+        assert torch.equal(scene.cube, again.cube)
+
+    def test_bad_configuration(self):
+        with pytest.raises(ValueError, match="`configuration`"):
+            table3_paper_targets(torch.Generator().manual_seed(0), "parallel")
+
+    def test_fig5_paper(self):
+        specs = fig5_paper_targets()
+        assert len(specs) == 5 and sum(s.split_at is not None for s in specs) == 1
+        assert [s.first_scan for s in specs[:4]] == [0, 1, 2, 3]  # first interval
+        assert specs[4].first_scan >= 2  # the splitting pair starts later
+        scene = paper_scene("fig5-paper", 0.0, seed=0)
+        assert scene.cube.shape == (16, 520, 520)
+        assert len(scene.tracks) == 6
+        clutter = scene.clutter_mask
+        assert torch.equal(clutter[0], clutter[15])  # stationary clutter only
+        h, w = 520, 520
+        assert not clutter[:, : 3 * h // 4].any() and not clutter[:, :, w // 4 :].any()
+        assert clutter.any()

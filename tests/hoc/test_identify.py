@@ -1,13 +1,19 @@
+import itertools
 import math
+import time
+import tracemalloc
+import warnings
 
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from hocnet.data.binary import paper_scene
 from hocnet.hoc import chain_support, detect, identify_tracks
+from hocnet.hoc.identify import density_bound, mhoc_candidates
 from hocnet.hoc.kernels import allowed_moves, move_offsets
+from hocnet.hoc.reference import turn_reference
 
 
 @st.composite
@@ -50,8 +56,84 @@ class TestProposition1:
         for method in methods:
             support = chain_support(cube, order, v, delta, method=method)
             assert not (truth & ~support).any(), method
-        result = detect(cube, order=order, v=v, delta=delta)
-        assert not (truth & ~result.support).any()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # dense draws are above the density bound
+            result = detect(cube, order=order, v=v, delta=delta, support="chain")
+        if not result.saturated:  # above the density bound the support is the MHOC image
+            assert not (truth & ~result.support).any()
+
+
+def _straight_track(x0, y0, speed, angle, n_t=10):
+    vx, vy = speed * math.cos(angle), speed * math.sin(angle)
+    return [(t, math.floor(y0 + t * vy + 0.5), math.floor(x0 + t * vx + 0.5)) for t in range(n_t)]
+
+
+@st.composite
+def hard_case(draw):
+    """Three straight tracks at 1-3 px/scan in any direction passing near the centre at t ~ 4.5."""
+    tracks = []
+    for _ in range(3):
+        speed = draw(st.floats(1.0, 3.0))
+        angle = draw(st.floats(-math.pi, math.pi))
+        ox, oy = draw(st.floats(-3, 3)), draw(st.floats(-3, 3))
+        x0 = 30 + ox - 4.5 * speed * math.cos(angle)
+        y0 = 30 + oy - 4.5 * speed * math.sin(angle)
+        pts = _straight_track(x0, y0, speed, angle)
+        assume(all(0 <= y < 60 and 0 <= x < 60 for _, y, x in pts))
+        moves = [(b[2] - a[2], b[1] - a[1]) for a, b in itertools.pairwise(pts)]
+        # integer moves alternate; the track must meet the detector's own criterion (eq. 6)
+        assume(
+            all(
+                turn_reference(*m1, *m2) <= math.pi / 4 + 1e-9
+                for m1, m2 in itertools.pairwise(moves)
+            )
+        )
+        tracks.append(pts)
+    seed = draw(st.integers(0, 2**31 - 1))
+    return tracks, seed
+
+
+class TestHardCase:
+    """Issue 7: straight tracks at non-integer velocities passing close to each other.
+
+    Measured on 40 such scenes (1.4 % clutter): the paper's scoring (``combine="min"``) loses 59
+    points in 9 scenes, because alternating integer moves such as (-2, 0) / (-3, 1) change by 2
+    pixels (L1) at every point and eq. (8) scores them (9 - 2) / 3 = 2.33 < 2.5; with
+    ``combine="mean"`` 2 points in 1 scene (a clutter point beats a track end). Not solved yet.
+    """
+
+    @settings(
+        max_examples=12,
+        deadline=None,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+    )
+    @pytest.mark.xfail(reason="issue 7 hard case: 2 points lost in 1 of 40 scenes measured")
+    @given(hard_case())
+    def test_no_target_point_lost(self, case):
+        tracks, seed = case
+        cube = torch.rand(10, 60, 60, generator=torch.Generator().manual_seed(seed)) < 0.014
+        truth = torch.zeros_like(cube)
+        for pts in tracks:
+            for p in pts:
+                truth[p] = True
+        cube |= truth
+        result = detect(cube, order=2, combine="mean")
+        assert not (truth & ~result.cleaned).any(), int((truth & ~result.cleaned).sum())
+
+    def test_whole_sequence_beats_better_triple(self):
+        # a clutter point offering a straighter triple at one scan must not cut the true track
+        cube = torch.zeros(10, 40, 60, dtype=torch.bool)
+        pts = _straight_track(5, 30, 2.6, -0.35)
+        for p in pts:
+            cube[p] = True
+        t, y, x = pts[5]
+        cube[t, y + 1, x] = True  # a detour candidate beside the true point
+        result = detect(cube, order=2)
+        truth = torch.zeros_like(cube)
+        for p in pts:
+            truth[p] = True
+        assert not (truth & ~result.cleaned).any()
+        assert any(len(tr) == 10 for tr in result.tracks)
 
 
 class TestDetect:
@@ -64,14 +146,25 @@ class TestDetect:
         for true in scene.tracks:
             assert tuple(map(tuple, true[-6:].tolist())) in found
 
-    def test_crossing_tracks_share_a_point(self):
+    @pytest.mark.parametrize("identify", ["paper", "greedy", "assignment"])
+    def test_crossing_tracks_share_a_point(self, identify):
         cube = torch.zeros(9, 20, 20, dtype=torch.bool)
         for t in range(9):
             cube[t, 10, 2 + 2 * t] = True  # moving +x
             cube[t, 2 + 2 * t, 10] = True  # moving +y, both at (10, 10) at t = 4
-        result = detect(cube, order=2, v=3)
+        result = detect(cube, order=2, v=3, identify=identify)
         assert len(result.tracks) == 2
         assert all(len(tr) == 9 for tr in result.tracks)
+
+    def test_splitting_tracks(self):
+        cube = torch.zeros(10, 40, 40, dtype=torch.bool)
+        for t in range(10):
+            cube[t, 20, 2 + 3 * t] = True
+            if t >= 3:  # a branch leaving the track at scan 3 with a 34-degree turn
+                cube[t, 20 + 2 * (t - 3), 11 + 3 * (t - 3)] = True
+        result = detect(cube, order=2)
+        assert torch.equal(result.cleaned, cube)
+        assert sorted(len(tr) for tr in result.tracks) == [10, 10]
 
     @pytest.mark.parametrize("seed", range(3))
     def test_paper_scene_with_clutter_loses_no_target_point(self, seed):
@@ -97,9 +190,10 @@ class TestDetect:
         assert result.scores.dtype == torch.float64
         assert torch.isnan(result.scores[~scene.cube]).all()
         on = result.scores[scene.cube]
-        assert (on > 2.5).all()
+        assert (on > 2.5).all()  # every point of these tracks has a good triple
         for tr in result.tracks:
-            assert tr.score == pytest.approx(float(tr.point_scores.mean()))
+            assert tr.score == pytest.approx(float(tr.point_scores[1:-1].mean()))
+            assert tr.score >= 2.5
 
     def test_threshold_rejects(self):
         scene = paper_scene("table3", 0.0, seed=0)
@@ -108,6 +202,60 @@ class TestDetect:
     def test_empty(self):
         result = detect(torch.zeros(6, 8, 8), order=2)
         assert result.tracks == [] and not result.support.any() and not result.cleaned.any()
+        assert not result.saturated and result.warnings == []
+
+    def test_batch_of_zero_scenes(self):
+        result = detect(torch.zeros(0, 6, 16, 16, dtype=torch.bool), order=2)
+        assert result.tracks == []
+        assert result.support.shape == (0, 6, 16, 16) and result.cleaned.shape == (0, 6, 16, 16)
+        assert result.scores.shape == (0, 6, 16, 16)
+
+    @pytest.mark.parametrize("size", [48, 64])
+    def test_dense_cube_is_bounded_and_flagged(self, size):
+        cube = torch.ones(10, size, size, dtype=torch.bool)
+        tracemalloc.start()
+        start = time.perf_counter()
+        with pytest.warns(RuntimeWarning, match="discrimination bound"):
+            result = detect(cube, order=2)
+        seconds = time.perf_counter() - start
+        tracemalloc.stop()
+        assert seconds < 15
+        assert result.saturated and "4.94 %" in result.warnings[0]
+        assert result.tracks == [] and not result.cleaned.any()
+
+    def test_density_bound(self):
+        assert density_bound(4, None) == pytest.approx(1 / 81)
+        assert density_bound(4, math.pi / 4) == pytest.approx(4 / 81)
+
+    @pytest.mark.parametrize(
+        "seed",
+        [
+            0,
+            1,
+            2,
+            pytest.param(4, marks=pytest.mark.xfail(reason="2 points lost after a crossing")),
+            17,
+        ],
+    )
+    @pytest.mark.parametrize("support", ["mhoc", "chain"])
+    def test_clean_table3_scene_keeps_every_point(self, seed, support):
+        scene = paper_scene("table3-paper", 0.0, seed=seed)
+        result = detect(scene.cube, order=2, support=support)
+        assert torch.equal(result.cleaned, scene.cube)
+
+    def test_min_combination_drops_alternating_moves(self):
+        # seed 17: three tracks at non-integer velocities; eq. (8) scores their points 2.33
+        scene = paper_scene("table3-paper", 0.0, seed=17)
+        result = detect(scene.cube, order=2, combine="min")
+        assert (scene.cube & ~result.cleaned).sum() > 0
+
+    def test_bad_choices(self):
+        with pytest.raises(ValueError, match="`support`"):
+            detect(torch.zeros(6, 8, 8), support="all")
+        with pytest.raises(ValueError, match="`identify`"):
+            detect(torch.zeros(6, 8, 8), identify="best")
+        with pytest.raises(ValueError, match="`combine`"):
+            detect(torch.zeros(6, 8, 8), combine="max")
 
 
 class TestIdentifyTracks:
@@ -143,3 +291,16 @@ class TestIdentifyTracks:
     def test_bad_arguments(self, kw, match):
         with pytest.raises(ValueError, match=match):
             identify_tracks(torch.zeros(3, 4, 4, dtype=torch.bool), **kw)
+
+
+class TestBatchRecipe:
+    def test_detect_equals_candidates_plus_identify(self):
+        """What a streaming caller must run to equal batch ``detect`` (support="mhoc")."""
+        scene = paper_scene("table3-paper", 0.014, seed=2)
+        result = detect(scene.cube, order=2)
+        image, cand = mhoc_candidates(scene.cube, order=2)
+        tracks, scores, cleaned = identify_tracks(cand, 4, math.pi / 4, roots=image, min_points=5)
+        assert torch.equal(result.support, image)
+        assert torch.equal(result.cleaned, cleaned)
+        assert torch.equal(result.scores.isnan(), scores.isnan())
+        assert [t.points.tolist() for t in result.tracks] == [t.points.tolist() for t in tracks]

@@ -4,29 +4,54 @@ import pytest
 import torch
 
 from hocnet.hoc import curvature_score, movement_score, point_score
+from hocnet.hoc.reference import turn_reference
+
+TABLE_I = dict(A1=9, alpha1=0.5)
+TABLE_I_C = dict(A2=2.356, alpha2=1.91)
 
 
 class TestTableI:
-    """Table I of [LA98]: A1 = 9, alpha1 = 0.5, A2 = 2.356, alpha2 = 1.91."""
+    """Table I of [LA98] as printed: A1 = 9, alpha1 = 0.5, A2 = 2.356, alpha2 = 1.91."""
 
-    def test_straight(self):
-        assert movement_score(1, 0, 1, 0, A1=9, alpha1=0.5) == 4.5
-        assert round(curvature_score(1, 0, 1, 0, A2=2.356, alpha2=1.91), 1) == 4.5
+    @pytest.mark.parametrize(
+        ("track", "m1", "m2", "velocity", "curvature"),
+        [
+            ("b", (1, 1), (1, 1), 4.5, 4.5),
+            ("c", (1, -1), (1, -1), 4.5, 4.5),
+            ("d", (1, 1), (1, -1), 3.5, 1.5),
+            ("e", (1, -1), (1, 1), 3.5, 1.5),
+        ],
+    )
+    def test_row(self, track, m1, m2, velocity, curvature):
+        assert movement_score(*m1, *m2, **TABLE_I) == velocity, track
+        # the table prints one decimal: 2.356 * 1.91 = 4.49996, (2.356 - pi/2) * 1.91 = 1.4998
+        assert round(curvature_score(*m1, *m2, **TABLE_I_C), 1) == curvature, track
 
-    def test_right_angle(self):
-        assert movement_score(1, 0, 0, 1, A1=9, alpha1=0.5) == 3.5
-        assert round(curvature_score(1, 0, 0, 1, A2=2.356, alpha2=1.91), 1) == 1.5
+
+def movement_loop(i1, j1, i2, j2, A1=9.0, alpha1=1 / 3):
+    """Eq. (8) written out."""
+    return (A1 - abs(i2 - i1) - abs(j2 - j1)) * alpha1
 
 
 class TestMovementScore:
-    def test_formula(self):
-        assert movement_score(2, 1, 3, -1) == pytest.approx((9 - (1 + 4)) / 3)
+    def test_is_l1_not_squared(self):
+        # (2, 1) -> (3, -1): L1 change 1 + 2 = 3 (squared Euclidean would be 5)
+        assert movement_score(2, 1, 3, -1) == pytest.approx((9 - 3) / 3)
+
+    def test_against_loop_over_window(self):
+        r = torch.arange(-4, 5)
+        i1, j1, i2, j2 = torch.meshgrid(r, r, r, r, indexing="ij")
+        fast = movement_score(i1, j1, i2, j2)
+        gen = torch.Generator().manual_seed(0)
+        for idx in torch.randint(0, fast.numel(), (200,), generator=gen):
+            a, b, c, d = (int(x.reshape(-1)[idx]) for x in (i1, j1, i2, j2))
+            assert float(fast.reshape(-1)[idx]) == pytest.approx(movement_loop(a, b, c, d))
 
     def test_broadcast_tensors(self):
         i2 = torch.tensor([[1], [2]])
         out = movement_score(1, 0, i2, torch.tensor([0, 1, 2]))
         assert out.shape == (2, 3)
-        assert out[1, 2].item() == pytest.approx((9 - 1 - 4) / 3)
+        assert out[1, 2].item() == pytest.approx((9 - 1 - 2) / 3)
 
     def test_bad_constant(self):
         with pytest.raises(ValueError, match="`A1`"):
@@ -40,6 +65,11 @@ class TestCurvatureScore:
     def test_opposite(self):
         assert curvature_score(1, 0, -1, 0) == pytest.approx(2 * (2.12 - math.pi))
 
+    def test_against_reference_turn(self):
+        for m1, m2 in [((3, 1), (2, 2)), ((-1, -3), (0, -3)), ((4, -4), (-4, -3))]:
+            want = 2 * (2.12 - turn_reference(*m1, *m2))
+            assert curvature_score(*m1, *m2) == pytest.approx(want)
+
     def test_bad_constant(self):
         with pytest.raises(TypeError, match="`alpha2`"):
             curvature_score(1, 0, 1, 0, alpha2="a")
@@ -52,7 +82,23 @@ class TestPointScore:
         assert point_score(1, 0, 0, 1) < 2.5
         assert point_score(3, 0, -3, 0) < 0
 
-    def test_is_mean(self):
-        m = movement_score(2, 1, 1, 2)
-        c = curvature_score(2, 1, 1, 2)
-        assert point_score(2, 1, 1, 2) == pytest.approx((m + c) / 2)
+    @pytest.mark.parametrize("m1, m2", [((2, 1), (1, 2)), ((0, -3), (-1, -3)), ((1, 0), (0, 1))])
+    def test_combinations(self, m1, m2):
+        m = movement_score(*m1, *m2)
+        c = curvature_score(*m1, *m2)
+        assert point_score(*m1, *m2) == pytest.approx((m + c) / 2)
+        assert point_score(*m1, *m2, combine="mean") == pytest.approx((m + c) / 2)
+        assert point_score(*m1, *m2, combine="min") == pytest.approx(min(m, c))
+        assert point_score(*m1, *m2, combine="sum") == pytest.approx(m + c)
+        assert point_score(*m1, *m2, combine="movement") == pytest.approx(m)
+
+    def test_min_on_tensors(self):
+        i2, j2 = torch.tensor([1, 0]), torch.tensor([1, 1])
+        out = point_score(torch.tensor([1, 1]), 0, i2, j2, combine="min")
+        assert out.shape == (2,)
+        want = min(movement_score(1, 0, 0, 1), curvature_score(1, 0, 0, 1))
+        assert out[1].item() == pytest.approx(want)
+
+    def test_bad_combine(self):
+        with pytest.raises(ValueError, match="`combine`"):
+            point_score(1, 0, 1, 0, combine="max")
