@@ -34,8 +34,8 @@ QUICK_SEEDS = 2
 """Scenes per setting in a quick (smoke) run."""
 
 PAPER_NA_NOTE = (
-    "Values of the paper's own tables: n/a (paper text not available in this workplace); "
-    "a `paper` column appears only where the paper's value is known."
+    "n/a: [NR08] prints no value for this (its text is in ../shared/papers/NR08-dpa-tbd.txt); "
+    "a `paper` column appears only where the paper prints the value."
 )
 
 
@@ -406,9 +406,9 @@ DPA_MATRICES = {"7x7, v <= 2.5": (7, 2.5), "5x5, v <= 1": (5, 1.0)}
 """Probability matrices of the DPA experiments: label -> (window, v_max) of
 ``hocnet.dpa.probability_matrices`` (other arguments at their defaults)."""
 
-PAPER_EQ15 = {"7x7, v <= 2.5": (1.118, 0.131), "5x5, v <= 1": (1.035, 0.214)}
-"""Eq. (15) of [NR08], ``1/b = slope g + intercept``, for its two matrices (our attribution:
-the flatter 7 x 7 matrix has the smaller intercept = max(w) / 0.8)."""
+PAPER_EQ15 = {"directions 1-8": (1.118, 0.131), "direction 9": (1.035, 0.214)}
+"""Eq. (15) of [NR08], ``1/b = slope g + intercept``: one line for the moving directions 1-8 and
+one for direction 9 (the target standing in place), both for the same (7 x 7) matrices."""
 
 PAPER_B_RANGE = {
     ("NA23A-like", 0.0): "4.4-6",

@@ -6,7 +6,6 @@ collected here, each with where the paper gives it. Loaded by file path like ``_
 
 from __future__ import annotations
 
-import inspect
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -29,6 +28,10 @@ PAPER_MAX_NUMBERS = {0.0: 3, 1.0: 1}
 
 PAPER_SN_RANGE = {"NA23A": (1, 5), "NPA": (3, 5)}
 """Table 2 of [NR08]: range of the sampling s_n where tracking occurred (both g)."""
+
+PAPER_SN_TABLE2 = {"NA23A": 4, "NPA": 3}
+"""The sampling s_n at which [NR08] finds Table 2's b ranges: NA23 at s_n = 4 (section 3.2.1(3),
+Figures 16-19, with 30 x 80 blocks), NPA at s_n = 3 (section 3.2.2(1), Figures 22-25)."""
 
 PAPER_VELOCITY = {"NA23A": "0.6 ± 0.15", "NPA": "0.8 ± 0.1"}
 """[NR08] section 3.2.1(4) / 3.2.2(2): effective velocity (px/frame) where A_S peaks."""
@@ -85,32 +88,39 @@ def weights(window: int = MATRIX[0], v_max: float = MATRIX[1], *, equal_g: float
     return w if equal_g is None else equalize_gain(w, equal_g)
 
 
-_DIRECTION_NAMES = ("direction", "direction_step", "direction_reading", "directions")
-_DIRECTION_VALUES = ("source", "ours", "legacy", "today", "previous", "per_source", "hocnet")
+def direction_option() -> dict[str, Any]:
+    """Keyword of ``accumulate`` for our earlier (pre-issue-8) direction reading.
 
-
-def direction_option() -> dict[str, Any] | None:
-    """Keyword of ``accumulate`` that selects today's (pre-issue-8) direction reading, if any.
-
-    Feature check: the faithful direction step of [NR08] (eq. 7-8) is being added to
-    ``hocnet.dpa.accumulate`` with today's reading kept as an option; its name is probed here
-    (a tiny call per candidate). ``None`` if this build has no such option.
+    ``direction_step="source"``: each source pixel's own previous direction picks its matrix
+    (the paper's eq. (7)-(8) step is the default ``"paper"``).
     """
-    from hocnet.dpa import accumulate
+    return {"direction_step": "source"}
 
-    params = inspect.signature(accumulate).parameters
-    frames = torch.zeros(2, 5, 5)
-    w = weights()
-    for name in _DIRECTION_NAMES:
-        if name not in params:
-            continue
-        for value in _DIRECTION_VALUES:
-            try:
-                accumulate(frames, w, 1.0, 0.0, **{name: value})
-            except (TypeError, ValueError):
-                continue
-            return {name: value}
-    return None
+
+def nine_block_start(asf: torch.Tensor, truth: torch.Tensor, block) -> torch.Tensor:
+    """``(B, 2)`` ``(x, y)``: the highest last-frame ASF pixel within the nine blocks of eq. (17).
+
+    [NR08] section 2.3: "the algorithm is run over nine blocks, that is, the target block and
+    eight adjacent blocks" (section 3: "applied on the surroundings of the left target"), so the
+    target it detects is the highest pixel of those blocks, not of the whole simulated frame
+    (which may hold another target, as NPA's second one). The blocks are tiled around the
+    target's first-frame pixel as in ``algorithm_score`` and clipped to the frame.
+
+    Args:
+        asf: ``(B, T, H, W)`` accumulated scores.
+        truth: ``(B, T, 2)`` ``(x, y)`` of the studied target.
+        block: block size, an int or ``(rows, columns)``.
+    """
+    rows, cols = (block, block) if isinstance(block, int) else block
+    last = asf[:, -1].detach()
+    _, height, width = last.shape
+    ys = torch.arange(height).view(1, -1, 1)
+    xs = torch.arange(width).view(1, 1, -1)
+    x0 = torch.floor(truth[:, 0, 0].double() + 0.5).long().view(-1, 1, 1) - cols // 2 - cols
+    y0 = torch.floor(truth[:, 0, 1].double() + 0.5).long().view(-1, 1, 1) - rows // 2 - rows
+    inside = (xs >= x0) & (xs < x0 + 3 * cols) & (ys >= y0) & (ys < y0 + 3 * rows)
+    flat = last.masked_fill(~inside, float("-inf")).flatten(1).argmax(dim=1)
+    return torch.stack([flat % width, flat // width], dim=1)
 
 
 def tracked(trajectory: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:

@@ -3,18 +3,23 @@
 The two scene families of ``hocnet.data.infrared`` follow section 3 of [NR08]: ``na23a_like`` (one
 target in clear sky, right to left at 0.3 px/frame, peak 60 x the noise: Table 2's maximal target
 peak) and ``npa_like`` (two targets at 0.2 px/frame, the studied one engulfed in clouds, peak 30 x
-the noise). 12 seeded scenes each, anti-mean whitened, run through the DPA
+the noise). 12 seeded scenes each, sampled at the s_n where the paper finds Table 2's ranges
+(every 4th frame for NA23A, section 3.2.1(3); every 3rd for NPA, section 3.2.2(1): 1.2 and 0.6
+px/frame between kept frames, 25 kept frames), anti-mean whitened, run through the DPA
 (``hocnet.dpa.accumulate``, eq. 11) with the 5 x 5 probability matrices of section 3 (target speeds
-0-1 px/frame), for every b of a grid: g = 0 (max, b = 0 .. 7.2 step 0.2; the paper's grid runs to
-8) and g = 1 (sum, b = 0 .. 1 step 0.05). Variants: the paper's DPA, its equal-gain matrices
-(``equalize_gain``, our addition); today's direction reading (our earlier reading, kept as an
+0-1 px/frame), for every b of a grid: g = 0 (max, b = 0 .. 8 step 0.2, the paper's grid) and g = 1
+(sum, b = 0 .. 1 step 0.05). A b above ``hocnet.dpa.b_limit(weights, g)`` (7.99 at g = 0, 1 at
+g = 1) is outside the memory range of eq. (12)-(14): ``accumulate`` refuses it, and it is skipped
+and reported as such. Variants: the paper's DPA, its equal-gain matrices
+(``equalize_gain``, our addition); the source direction step (our earlier reading, kept as an
 option) is measured in ``dpa-pd-snr``. For each b: the algorithm score A_S of
-eq. (16)-(17) as the paper prints it (30 x 30 blocks, the target block and its 8 neighbours,
+eq. (16)-(17) as the paper prints it (30 x 80 blocks for NA23A at s_n = 4, 30 x 30 for NPA, the
+target block and its 8 neighbours,
 Max_Numbers 3 for g = 0 and 1 for g = 1 as in Table 2, mean over the last six frames), our earlier
-centred reading beside it, and whether the track back-tracked from the highest last-frame ASF
-follows the studied target (within 1.5 px in >= 80 % of the frames). The b range where tracking
-occurred (>= 50 % of the scenes) is set beside Table 2; b per direction and the eq. (15) constants
-of the matrices beside the paper's.
+centred reading beside it, and whether the track back-tracked from the highest last-frame ASF of
+the nine blocks (section 2.3) follows the studied target (within 1.5 px in >= 80 % of the
+frames). The b range where tracking occurred (>= 50 % of the scenes) is set beside Table 2; b per
+direction and the eq. (15) constants of the matrices beside the paper's.
 
 Run: ``python experiments/dpa_b_sweep.py [--quick] [--seeds N] [--out DIR]`` or
 ``hocnet reproduce dpa-b-sweep``.
@@ -33,24 +38,27 @@ import _nr08 as P
 import matplotlib.pyplot as plt
 import torch
 
-from hocnet.dpa import accumulate, algorithm_score, backtrack
+from hocnet.dpa import accumulate, algorithm_score, b_limit, backtrack
 
 NAME = "dpa-b-sweep"
 DESCRIPTION = (
     "Table 2 of [NR08]: algorithm score A_S (eq. 16-17 as printed, last six frames) and tracking "
-    "versus the memory factor b of the DPA, g = 0 (b = 0..7.2) and g = 1 (b = 0..1), 5 x 5 "
+    "versus the memory factor b of the DPA, g = 0 (b = 0..8) and g = 1 (b = 0..1), 5 x 5 "
     "matrices (paper DPA and equal gain), on NA23A-like and "
     "NPA-like sequences; b per direction and eq. (15) constants beside the paper's."
 )
 
 SEED_BASE = 6000
-SHAPES = {"NA23A": (25, 90, 90), "NPA": (25, 90, 120)}
-QUICK_SHAPES = {"NA23A": (8, 45, 45), "NPA": (8, 45, 60)}
-BLOCK, QUICK_BLOCK = 30, 15
+SHAPES = {"NA23A": (25, 90, 240), "NPA": (25, 90, 120)}
+"""Frames seen by the DPA (after sampling); NA23A is 240 wide for its 30 x 80 blocks."""
+QUICK_SHAPES = {"NA23A": (8, 45, 90), "NPA": (8, 45, 60)}
+BLOCK = {"NA23A": (30, 80), "NPA": (30, 30)}
+"""[NR08] section 3.2.1(2): 30 x 80 blocks for NA23A at s_n = 4; 30 x 30 otherwise."""
+QUICK_BLOCK = {"NA23A": 15, "NPA": 15}
 SEEDS = 12
 """Scenes per setting in a full run (fewer than ``_expkit``'s 20 to stay within ~6 minutes)."""
 B_GRID = {
-    0.0: [round(0.2 * i, 2) for i in range(37)],
+    0.0: [round(0.2 * i, 2) for i in range(41)],
     1.0: [round(0.05 * i, 2) for i in range(21)],
 }
 QUICK_B_GRID = {0.0: [0.0, 4.8, 8.0], 1.0: [0.0, 0.8, 1.2]}
@@ -60,6 +68,7 @@ TRACK_LEVEL = 0.5
 GOAL = {0.0: 0.4, 1.0: 0.1}
 """Issue 8's goal: b range ends within 0.4 (g = 0) and 0.1 (g = 1) of the paper's."""
 DIRECTION_READING = "today's direction reading"
+OUTSIDE = "outside the memory range of eq. (12)-(14)"
 
 
 def variants(direction: bool = False) -> dict[str, dict]:
@@ -79,30 +88,53 @@ def _weights(variant: dict, g: float) -> torch.Tensor:
     return P.weights(equal_g=g if variant["equal"] else None)
 
 
+def valid_bs(weights: torch.Tensor, g: float, bs: Sequence[float]) -> tuple[list, list]:
+    """``(kept, skipped)``: the b of ``bs`` within ``[0, b_limit(weights, g)]`` and the rest."""
+    limit = b_limit(weights, g) * (1 + 1e-6)  # accumulate allows float32 rounding above it
+    return [b for b in bs if b <= limit], [b for b in bs if b > limit]
+
+
+def _block_shape(block) -> tuple[int, int]:
+    return (block, block) if isinstance(block, int) else tuple(block)
+
+
+def sampled(scene: str, seeds: Sequence[int], shape: tuple[int, int, int]) -> tuple:
+    """Whitened frames ``(B, T, H, W)`` and the studied target ``(B, T, 2)`` at Table 2's s_n.
+
+    The scene is simulated with ``1 + (T - 1) s_n`` frames and every ``s_n``-th one is kept
+    (``s_n = P.PAPER_SN_TABLE2[scene]``), as [NR08] samples its sequences.
+    """
+    step = P.PAPER_SN_TABLE2[scene]
+    n_t, height, width = shape
+    seq = P.scene(scene, seeds, shape=(1 + (n_t - 1) * step, height, width))
+    frames = C.whiten(seq.frames[:, ::step], "anti_mean")
+    return frames, seq.positions[:, 0, ::step]  # the studied target
+
+
 def evaluate(scenes, table, grid, seeds, shapes, block, progress) -> list[dict]:
-    """One row per (scene, variant, g, b, seed)."""
+    """One row per (scene, variant, g, b, seed), b within the memory range only."""
     data = {}
     for scene in scenes:
-        seq = P.scene(scene, seeds, shape=shapes[scene])
-        data[scene] = (C.whiten(seq.frames, "anti_mean"), seq.positions[:, 0])  # studied target
+        data[scene] = sampled(scene, seeds, shapes[scene])
+    weights = {(v, g): _weights(table[v], g) for v in table for g in grid}
     jobs = [
         (s, v, g, b)
         for s in scenes
         for v in table
         for g in grid
-        for b in grid[g]
+        for b in valid_bs(weights[v, g], g, grid[g])[0]
         if not (table[v]["equal"] and g == 1.0)  # sum-to-one matrices: the same recursion
     ]
-    weights = {(v, g): _weights(table[v], g) for v in table for g in grid}
     rows = []
     for scene, variant, g, b in C.progress(jobs, enabled=progress, desc=NAME):
         frames, truth = data[scene]
         state = accumulate(frames, weights[variant, g], b, g, **table[variant]["options"])
         last = min(LAST, frames.shape[1])
         mn = P.PAPER_MAX_NUMBERS[g]
-        a_s = algorithm_score(state.asf, truth, last=last, block=block, max_numbers=mn)
+        a_s = algorithm_score(state.asf, truth, last=last, block=block[scene], max_numbers=mn)
         centred = algorithm_score(state.asf, truth, last=last, reading="centred")
-        hit = P.tracked(backtrack(state), truth)
+        start = P.nine_block_start(state.asf, truth, block[scene])
+        hit = P.tracked(backtrack(state, start), truth)
         rows += [
             {
                 "table": "sweep",
@@ -218,18 +250,21 @@ def _memory_table() -> str:
     return C.md_table(headers, body)
 
 
-def _sweep_table(summaries, scene, table, g) -> str:
+def _sweep_table(summaries, scene, table, g, bs, n) -> str:
     headers = ["b"]
     for variant in table:
         headers += [f"A_S ({variant})", f"A_S centred MN 1 ({variant})", f"tracking ({variant})"]
-    first = summaries[scene, next(iter(table)), g]
     body = []
-    for i, b in enumerate(first["b"]):
+    for b in bs:
         cells = [f"{b:g}"]
         for variant in table:
             s = summaries[scene, variant, g]
+            if b not in s["b"]:
+                cells += [OUTSIDE, "", ""]
+                continue
+            i = s["b"].index(b)
             cells += [
-                f"{s['a_mean'][i]:.2f} ± {s['a_std'][i]:.2f}",
+                C.format_mean_std(s["a_mean"][i], s["a_std"][i], n, 2),
                 f"{s['c_mean'][i]:.2f}",
                 C.pct(s["rate"][i], 0),
             ]
@@ -279,7 +314,7 @@ def run(
     """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
 
     Args:
-        quick: smoke run (8 frames of 45 x 45 / 45 x 60, 15 x 15 blocks, 3 b values per g,
+        quick: smoke run (8 frames of 45 x 90 / 45 x 60, 15 x 15 blocks, 3 b values per g,
             2 seeds).
         seeds: scenes per setting (default 12, quick 2).
         out_dir: output folder (default ``experiments/results``).
@@ -301,12 +336,27 @@ def run(
     for row in [r for r in rows if table[r["variant"]]["equal"] is False and r["g"] == 1.0]:
         if row["variant"] == P.PAPER_DPA:  # equal gain at g = 1 is the paper's recursion
             rows.append({**row, "variant": P.EQUAL, "copied_from": P.PAPER_DPA})
+    kept = {(v, g): valid_bs(_weights(table[v], g), g, grid[g]) for v in table for g in grid}
     summaries = {
-        (s, v, g): summarise(rows, s, v, g, grid[g]) for s in scenes for v in table for g in grid
+        (s, v, g): summarise(rows, s, v, g, kept[v, g][0])
+        for s in scenes
+        for v in table
+        for g in grid
     }
+    skipped = sorted({(g, b) for (_, g), (_, out) in kept.items() for b in out})
+    limits = ", ".join(f"{b_limit(P.weights(), g):.3g} at g = {g:g}" for g in grid)
+    skip_note = (
+        f"- b above `b_limit(weights, g)` ({limits}; eq. (12)-(14): above it the effective "
+        "memory coefficient exceeds 1 in every direction) is skipped, "
+        + (
+            "here " + ", ".join(f"b = {b:g} at g = {g:g}" for g, b in skipped) + f": {OUTSIDE}."
+            if skipped
+            else "none in this grid."
+        )
+    )
     missing = (
-        " Today's direction reading (our earlier reading, an option of `accumulate` when "
-        "available) is measured side by side in `dpa-pd-snr`."
+        ' The source direction step (our earlier reading, `direction_step="source"`) is '
+        "measured side by side in `dpa-pd-snr`."
     )
     parts = [
         C.header(
@@ -316,9 +366,13 @@ def run(
             n=n,
             seconds=timer.seconds,
         ),
-        "- Scenes (section 3 of [NR08]): `na23a_like` "
-        f"{' x '.join(map(str, shapes['NA23A']))} (one target in clear sky, right to left at 0.3 "
-        f"px/frame, peak SNR {P.db(P.PAPER_PEAK['NA23A']):.1f} dB = Table 2's peak ~60 x the "
+        "- Scenes (section 3 of [NR08]), sampled at the s_n of Table 2's ranges: NA23A-like "
+        f"s_n = {P.PAPER_SN_TABLE2['NA23A']} (section 3.2.1(3)), NPA-like s_n = "
+        f"{P.PAPER_SN_TABLE2['NPA']} (section 3.2.2(1)): every s_n-th frame of 1 + (T - 1) s_n "
+        "simulated frames is kept. `na23a_like` "
+        f"{' x '.join(map(str, shapes['NA23A']))} after sampling (one target in clear sky, right "
+        f"to left at 0.3 px/frame, peak SNR {P.db(P.PAPER_PEAK['NA23A']):.1f} dB = Table 2's "
+        "peak ~60 x the "
         f"noise) and `npa_like` {' x '.join(map(str, shapes['NPA']))} (two targets bottom to top "
         f"at 0.2 px/frame, the studied one under a cloud, peak {P.db(P.PAPER_PEAK['NPA']):.1f} "
         "dB = ~30 x the noise, cloud plateau 22.5 x the noise), jitter 0.5 px, seeds "
@@ -330,12 +384,18 @@ def run(
         "matrices for 0-1 px/frame); *equal gain*: `equalize_gain(..., g)` (our addition: every "
         "direction gets the per-step gain of direction 1; at g = 1 the eq. (5) matrices sum to 1 "
         "and already have equal gains, so its g = 1 rows repeat the paper DPA's)." + missing,
-        f"- A_S: `algorithm_score(asf, truth, last={LAST}, block={block}, "
+        f"- A_S: `algorithm_score(asf, truth, last={LAST}, block=B, "
         "max_numbers=MN)`, the paper's reading of eq. (16)-(17) (tiled blocks anchored on the "
         "target's first-frame pixel, per-block SNR, (SNR_TB - mean SNR_NTB) / std SNR_NTB), MN = "
         "3 for g = 0 and 1 for g = 1 (Table 2). *A_S centred*: our earlier reading "
-        "(`reading='centred'`, 5 x 5 blocks centred on the truth, MN 1).",
-        "- Tracking: the back-tracked track from the highest last-frame ASF lies within 1.5 px of "
+        "(`reading='centred'`, 5 x 5 blocks centred on the truth, MN 1). Blocks B (rows x "
+        "columns): "
+        + ", ".join(f"{s}-like {' x '.join(map(str, _block_shape(block[s])))}" for s in scenes)
+        + ".",
+        skip_note,
+        "- Tracking: the track back-tracked from the highest last-frame ASF of the nine blocks "
+        "(section 2.3: the algorithm is run over the target block and its 8 neighbours; "
+        "`_nr08.nine_block_start`) lies within 1.5 px of "
         "the studied target in >= 80 % of the frames. *Tracking occurred* at a b when it holds "
         "in >= 50 % of the scenes.",
         "",
@@ -360,12 +420,12 @@ def run(
                 f"## {scene}-like, g = {g:g}: A_S (mean ± std) and tracking rate per b "
                 f"(paper range {P.fmt_range(P.PAPER_B_RANGE[scene, g])})",
                 "",
-                _sweep_table(summaries, scene, table, g),
+                _sweep_table(summaries, scene, table, g, grid[g], n),
                 "",
             ]
     parts += [
-        "Mean ± std over the scenes (sample std). The `paper` columns are [NR08]'s printed values "
-        "(Table 2, eq. 15, section 2.2.6).",
+        "Mean ± std over the scenes (sample std; one scene: the value alone). The `paper` "
+        "columns are [NR08]'s printed values (Table 2, eq. 15, section 2.2.6).",
         "",
         f"![{NAME}]({NAME}.png)",
     ]

@@ -11,8 +11,9 @@ calibration sequences, and every option of the DPA is measured side by side:
 * **equal gain, g = 0** (our addition, ``hocnet.dpa.equalize_gain``): every direction gets the
   per-step gain of direction 1, and b gives every direction the memory 0.8 (at g = 1 the eq. (5)
   matrices already have equal gains);
-* **today's direction reading, g = 0 / g = 1** (our earlier reading of the direction step), when
-  this build of ``accumulate`` offers it (feature check ``_nr08.direction_option``).
+* **source direction step, g = 0 / g = 1** (our earlier reading of the direction step,
+  ``accumulate(..., direction_step="source")``: each source pixel's own previous direction picks
+  its matrix, and the origin is the argmax of the weighted terms of eq. (11)).
 
 Part 1, Pd versus peak SNR and versus the number of frames, on ``npa_like`` scenes (the paper's
 NPA after section 3: two targets at 0.2 px/frame, the studied one in clouds; 5 x 5 matrices as in
@@ -60,7 +61,7 @@ DESCRIPTION = (
     "Beyond [NR08]: probability of detection at a CFAR per-pixel Pfa of 1e-3 versus peak SNR and "
     "versus frames (NPA-like scenes and a clear-sky control), and tracking versus target speed "
     "0-2 px/frame (+ 0.5 px jitter), for every DPA option: paper DPA g = 0 / 1, equal gain, "
-    "today's direction reading (if available), single frame."
+    "the source direction step (our earlier reading), single frame."
 )
 
 SCENE = "NPA-like"
@@ -96,6 +97,8 @@ QUICK_SPEED_SHAPE = (8, 32, 32)
 SPEED_MATRIX = (7, 2.0)
 """7 x 7 matrices for 0-2 px/frame; the 0.5 px jitter is the matrices' own (default) term."""
 HOLDS = 0.8
+SOURCE_STEP = "source direction step"
+"""Label of ``direction_step="source"`` (our earlier reading of eq. (6)-(8))."""
 """An option *holds* at a speed when its track is on the truth in >= 80 % of the frames."""
 
 
@@ -106,12 +109,11 @@ def options() -> list[tuple[str, float, bool, dict]]:
         (f"{P.EQUAL}, g = 0", 0.0, True, {}),
         (f"{P.PAPER_DPA}, g = 1", 1.0, False, {}),
     ]
-    direction = P.direction_option()
-    if direction is not None:
-        out += [
-            ("today's direction reading, g = 0", 0.0, False, direction),
-            ("today's direction reading, g = 1", 1.0, False, direction),
-        ]
+    source = {"direction_step": "source"}
+    out += [
+        (f"{SOURCE_STEP}, g = 0", 0.0, False, source),
+        (f"{SOURCE_STEP}, g = 1", 1.0, False, source),
+    ]
     return out
 
 
@@ -452,12 +454,6 @@ def run(
                 ]
     rows += speed_rows
     speed_table, holds_table = _speed_tables(speed_rows, speeds)
-    missing = (
-        ""
-        if any("direction" in m for m in methods)
-        else " Today's direction reading is not an option of `accumulate` in this build "
-        "(feature check `_nr08.direction_option`): its rows are absent."
-    )
     method_lines = [
         f"  - {d.label}: b = {d.b:.3f}, g = {d.g:g}; last-frame threshold {d.threshold:.3f} "
         f"({SCENE}), {c.threshold:.3f} ({CONTROL})"
@@ -479,7 +475,7 @@ def run(
         f"{REF_SNR:g} dB and scaled to each SNR (exact: whitening is linear). [NR08]'s NPA peak "
         f"~30 x the noise is {P.db(P.PAPER_PEAK['NPA']):.1f} dB.",
         "- Matrices: `probability_matrices(5, v_max=1)` (section 3); b: effective memory 0.8 of "
-        "direction 9 (eq. 12-14)." + missing,
+        "direction 9 (eq. 12-14).",
         f"- Thresholds: per-pixel Pfa = {PFA:g} on the calibration scenes (`frame_thresholds`; "
         "its last entry is `cfar_threshold`).",
         f"- Pd (detect rule): `detect(..., threshold, nms_radius={NMS_RADIUS}, "

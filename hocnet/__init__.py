@@ -1,12 +1,13 @@
 """hocnet: track-before-detect for dim multiple moving targets, as PyTorch modules.
 
 Subpackages: :mod:`hocnet.hoc` (modified high-order correlation, [LA98]), :mod:`hocnet.dpa`
-(dynamic-programming TBD, [NR08]), :mod:`hocnet.data` (simulators, whitening, files),
-:mod:`hocnet.metrics` and :mod:`hocnet.plot`.
+(dynamic-programming TBD, [NR08]), :mod:`hocnet.data` (simulators, real frames, registration,
+background removal, whitening, CFAR binarisation, files), :mod:`hocnet.metrics` (including the
+small-target detection measures) and :mod:`hocnet.plot`.
 """
 
 from hocnet import data, hoc
-from hocnet.data import paper_scene, simulate_binary, simulate_ir
+from hocnet.data import load_frames, paper_scene, simulate_binary, simulate_ir
 from hocnet.hoc import (
     HOCLayer,
     HOCNet,
@@ -32,6 +33,7 @@ __all__ = [
     "chain_support",
     "data",
     "hoc",
+    "load_frames",
     "modified_hoc",
     "original_hoc",
     "paper_scene",

@@ -72,6 +72,7 @@ def detect_peaks(
     radius: int = 2,
     max_per_frame: int = 50,
     threshold: float | None = None,
+    mask: torch.Tensor | None = None,
 ) -> torch.Tensor | list[torch.Tensor]:
     """Candidate detections of every frame: local maxima, non-maximum suppressed.
 
@@ -86,6 +87,9 @@ def detect_peaks(
         radius: NMS radius in pixels, ``>= 0`` (0: every pixel is a candidate).
         max_per_frame: most detections per frame, ``>= 1``.
         threshold: keep only scores strictly above it (``None``: no threshold).
+        mask: bool cube shaped like ``scores``: only its pixels can be detections, and they are
+            the only pixels taking part in the NMS (scores elsewhere are ignored and may be
+            NaN; e.g. the HOC's support points).
 
     Returns:
         ``(N, 4)`` float64 detections ``frame, x, y, score`` ordered by frame, then decreasing
@@ -101,7 +105,21 @@ def detect_peaks(
         >>> scores[1, 4, 0] = 1.0
         >>> detect_peaks(scores, max_per_frame=1).tolist()
         [[0.0, 3.0, 1.0, 2.0], [1.0, 0.0, 4.0, 1.0]]
+        >>> support = torch.zeros(2, 5, 5, dtype=torch.bool)
+        >>> support[1, 2, 2] = True
+        >>> detect_peaks(scores, mask=support).tolist()
+        [[1.0, 2.0, 2.0, 0.0]]
     """
+    if mask is not None:
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+            raise TypeError(f"`mask`: expected a bool tensor, got {type(mask).__name__}")
+        raw = torch.as_tensor(scores)
+        if tuple(mask.shape) != tuple(raw.shape):
+            raise ValueError(
+                f"`mask`: expected the shape of `scores` {tuple(raw.shape)}, got "
+                f"{tuple(mask.shape)}"
+            )
+        scores = torch.where(mask, raw, torch.zeros((), dtype=raw.dtype))
     cube, batched = as_cube("scores", scores, min_frames=0)
     radius = check_int("radius", radius, minimum=0)
     max_per_frame = check_int("max_per_frame", max_per_frame, minimum=1)
@@ -109,11 +127,17 @@ def detect_peaks(
         threshold = check_number("threshold", threshold)
     if not cube.is_floating_point():
         cube = cube.to(torch.float64)
+    allowed = None
+    if mask is not None:
+        allowed = mask if batched else mask.unsqueeze(0)
+        cube = cube.masked_fill(~allowed, -math.inf)
     b, t, h, w = cube.shape
     out = []
     for i in range(b):
         s = cube[i]
         keep = _peaks(s, radius)
+        if allowed is not None:
+            keep &= allowed[i]
         if threshold is not None:
             keep &= s > threshold
         values = s.reshape(t, h * w)
@@ -291,24 +315,37 @@ def roc_curve(
     return ROC(thresholds, pd, fa, fa / pixels, n_frames, n_target)
 
 
-def pd_at_fa(roc: ROC, fa: float = 1.0) -> float:
-    """Largest Pd among the operating points with at most ``fa`` false alarms per frame.
+def pd_at_fa(roc: ROC, fa: float = 1.0, *, per: str = "frame") -> float:
+    """Largest Pd among the operating points with at most ``fa`` false alarms per frame (pixel).
 
     Args:
         roc: a :class:`ROC`.
-        fa: false alarms per frame, ``>= 0``.
+        fa: false alarms per frame (``per="frame"``) or per pixel (``per="pixel"``), ``>= 0``.
+        per: ``"frame"`` or ``"pixel"`` (needs ``frame_shape`` in :func:`roc_curve`).
 
     Returns:
         Pd in ``[0, 1]`` (NaN if the ROC has no target frame).
+
+    Raises:
+        ValueError: ``fa < 0``, an unknown ``per``, or ``per="pixel"`` on a ROC made without
+            ``frame_shape``.
 
     Examples:
         >>> det = torch.tensor([[0, 5, 5, 3.0], [0, 1, 1, 2.0], [1, 9, 9, 4.0], [1, 6, 5, 1.0]])
         >>> roc = roc_curve(det, torch.tensor([[5.0, 5.0], [5.0, 5.0]]))
         >>> pd_at_fa(roc, 0.5), pd_at_fa(roc, 1.0), pd_at_fa(roc, 0.0)
         (0.5, 1.0, 0.0)
+        >>> roc = roc_curve(det, torch.tensor([[5.0, 5.0], [5.0, 5.0]]), frame_shape=(10, 10))
+        >>> pd_at_fa(roc, 0.005, per="pixel")
+        0.5
     """
     fa = check_number("fa", fa, low=0.0)
-    ok = roc.fa_per_frame <= fa + 1e-12
+    if per not in ("frame", "pixel"):
+        raise ValueError(f"`per`: expected 'frame' or 'pixel', got {per!r}")
+    rates = roc.fa_per_frame if per == "frame" else roc.fa_per_pixel
+    if per == "pixel" and bool(rates.isnan().any()) and roc.n_frames:
+        raise ValueError("`per`: 'pixel' needs a ROC made with `frame_shape`")
+    ok = rates <= fa * (1 + 1e-12) + 1e-15
     if roc.n_target_frames == 0:
         return math.nan
     return float(roc.pd[ok].max()) if bool(ok.any()) else 0.0

@@ -18,6 +18,14 @@ Track metrics compare ground-truth tracks with found tracks, both as ``(N, 3)`` 
 Score metrics (:func:`pd_pfa`, :func:`roc_curve`) threshold a score cube against a truth mask,
 pooled over all cells (and all batch elements), optionally restricted to the ``valid`` cells.
 
+Small-target detection measures on per-frame candidate detections (re-exported from
+:mod:`hocnet.detection_metrics`, issue 10): :func:`detect_peaks` (local maxima, NMS, at most N
+per frame), :func:`detection_roc_curve` (Pd versus false alarms per frame and per pixel over a
+threshold sweep, 3-pixel hit radius by default; :func:`hocnet.detection_metrics.roc_curve`),
+:func:`pd_at_fa` (Pd at a false-alarm rate per frame or per pixel), :func:`roc_auc` (normalised
+ROC area), :class:`DetectionROC`, :func:`write_detections` / :func:`read_detections`
+(``detections.csv``).
+
 All functions validate their inputs through :mod:`hocnet._check` and raise ``TypeError`` /
 ``ValueError`` naming the argument.
 """
@@ -31,16 +39,32 @@ from typing import Any
 import torch
 
 from hocnet._check import as_cube, check_int, check_number
+from hocnet.detection_metrics import ROC as DetectionROC
+from hocnet.detection_metrics import (
+    detect_peaks,
+    pd_at_fa,
+    read_detections,
+    roc_auc,
+    write_detections,
+)
+from hocnet.detection_metrics import roc_curve as detection_roc_curve
 
 __all__ = [
+    "DetectionROC",
     "TrackRecall",
     "clutter_rejection",
+    "detect_peaks",
+    "detection_roc_curve",
     "false_tracks",
+    "pd_at_fa",
     "pd_pfa",
     "points_remaining",
+    "read_detections",
+    "roc_auc",
     "roc_curve",
     "target_points_lost",
     "track_recall",
+    "write_detections",
 ]
 
 

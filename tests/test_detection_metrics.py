@@ -207,3 +207,62 @@ class TestDetectionsCsv:
         bad_value.write_text("frame,x,y,score\n0,1,2,abc\n")
         with pytest.raises(ValueError, match=r"line 2 of .*b\.csv"):
             read_detections(bad_value)
+
+
+# ----------------------------------------------------------------------------- issue 10 additions
+
+
+class TestMask:
+    @pytest.mark.parametrize("seed", [0, 1])
+    def test_reference(self, seed):
+        g = torch.Generator().manual_seed(seed)
+        scores = torch.randn(3, 9, 10, generator=g, dtype=torch.float64)
+        mask = torch.rand(3, 9, 10, generator=g) < 0.3
+        # NaN outside the mask is allowed: those pixels are ignored
+        got = detect_peaks(scores.masked_fill(~mask, math.nan), radius=1, mask=mask)
+        # loop reference: the masked-out pixels take no part (as -inf), then only mask pixels
+        ref = expected_peaks(scores.masked_fill(~mask, -math.inf), 1, 50)
+        ref = ref[torch.isfinite(ref[:, 3])]
+        assert got.tolist() == ref.tolist()
+        for f, x, y, _ in got.tolist():
+            assert mask[int(f), int(y), int(x)]
+
+    def test_batched_and_errors(self):
+        scores = torch.zeros(2, 2, 4, 4)
+        mask = torch.zeros(2, 2, 4, 4, dtype=torch.bool)
+        mask[1, 0, 2, 3] = True
+        scores[1, 0, 2, 3] = 5.0
+        out = detect_peaks(scores, mask=mask)
+        assert [d.tolist() for d in out] == [[], [[0.0, 3.0, 2.0, 5.0]]]
+        with pytest.raises(ValueError, match="`mask`: expected the shape"):
+            detect_peaks(scores, mask=mask[0])
+        with pytest.raises(TypeError, match="`mask`"):
+            detect_peaks(scores, mask=mask.float())
+
+
+class TestPerPixel:
+    def test_pd_at_fa_per_pixel(self):
+        det = torch.tensor([[0, 5, 5, 3.0], [0, 1, 1, 2.0], [1, 9, 9, 4.0], [1, 6, 5, 1.0]])
+        truth = torch.tensor([[5.0, 5.0], [5.0, 5.0]])
+        roc = roc_curve(det, truth, frame_shape=(10, 10))
+        # 1 false alarm per frame = 0.01 per pixel on 10 x 10 frames
+        for fa in (0.0, 0.5, 1.0):
+            assert pd_at_fa(roc, fa / 100, per="pixel") == pd_at_fa(roc, fa)
+        with pytest.raises(ValueError, match="`per`"):
+            pd_at_fa(roc, 1.0, per="scan")
+        with pytest.raises(ValueError, match="frame_shape"):
+            pd_at_fa(roc_curve(det, truth), 0.01, per="pixel")
+
+
+def test_hocnet_metrics_reexports():
+    import hocnet.detection_metrics as dm
+    import hocnet.metrics as m
+
+    assert m.detect_peaks is dm.detect_peaks and m.pd_at_fa is dm.pd_at_fa
+    assert m.roc_auc is dm.roc_auc and m.detection_roc_curve is dm.roc_curve
+    assert m.DetectionROC is dm.ROC
+    assert m.write_detections is dm.write_detections and m.read_detections is dm.read_detections
+    # the default hit radius is 3 pixels
+    det = torch.tensor([[0, 3, 0, 1.0], [1, 4, 0, 1.0]], dtype=torch.float64)
+    roc = m.detection_roc_curve(det, torch.zeros(2, 2))
+    assert m.pd_at_fa(roc, 0.5) == 0.5

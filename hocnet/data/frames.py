@@ -33,7 +33,7 @@ import torch
 
 from hocnet._check import as_cube
 
-__all__ = ["IMAGE_SUFFIXES", "load_frames", "natural_key"]
+__all__ = ["IMAGE_SUFFIXES", "frame_files", "load_frames", "natural_key"]
 
 IMAGE_SUFFIXES = (".png", ".bmp", ".tif", ".tiff")
 """File name endings read as image frames (case-insensitive)."""
@@ -78,6 +78,38 @@ def _image_files(source: str, path: Path | None) -> list[Path]:
                 f"{source}, got the file {p.name}"
             )
     return files
+
+
+def frame_files(source: str | os.PathLike) -> list[Path]:
+    """The image files :func:`load_frames` reads from a folder, a glob or one image, in order.
+
+    Args:
+        source: a folder, a glob pattern or an image file (for a ``.npy`` / ``.npz``: ``[]``).
+
+    Returns:
+        The files in natural order of their names.
+
+    Raises:
+        ValueError: as :func:`load_frames` (empty folder, a non-image file in it, no match).
+        FileNotFoundError: ``source`` is neither a path nor a pattern.
+
+    Examples:
+        >>> import tempfile, pathlib
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> for name in ("f10.png", "f2.png"):
+        ...     _ = (folder / name).write_bytes(b"")
+        >>> [p.name for p in frame_files(folder)]
+        ['f2.png', 'f10.png']
+    """
+    text = os.fspath(source)
+    path = Path(text)
+    if path.is_dir():
+        return _image_files(text, path)
+    if path.is_file():
+        return [path] if _is_image(path) else []
+    if _GLOB_CHARS.search(text):
+        return _image_files(text, None)
+    raise FileNotFoundError(f"`source`: expected an existing file or folder, got {text}")
 
 
 def _decode(file: Path, source: str) -> tuple[list[np.ndarray], bool]:

@@ -12,6 +12,11 @@ Tracks are written as::
     {"meta": {...}, "tracks": [{"id": 1, "score": 3.2, "points": [[t, y, x], ...]}, ...]}
 
 with one track per line.
+
+Real sensor frames (a folder or glob of PNG / BMP / TIFF images, or a ``.npy`` / ``.npz`` with a
+named array) are read by :func:`load_frames` (defined in :mod:`hocnet.data.frames`, re-exported
+here): see there for the order (natural sort of the file names) and dtype rules (no rescaling;
+colour converted to grey with a warning).
 """
 
 from __future__ import annotations
@@ -31,8 +36,9 @@ import numpy as np
 import torch
 
 from hocnet._check import as_cube, check_int, check_number, restore_batch
+from hocnet.data.frames import load_frames
 
-__all__ = ["load_cube", "load_tracks_json", "save_cube", "save_tracks_json"]
+__all__ = ["load_cube", "load_frames", "load_tracks_json", "save_cube", "save_tracks_json"]
 
 _CUBE_SUFFIXES = (".npy", ".npz")
 

@@ -28,6 +28,7 @@ from hocnet.dpa.matrices import (
 from hocnet.dpa.metrics import (
     algorithm_score,
     block_snr,
+    block_snrs,
     detection_probability,
     frame_thresholds,
     frames_to_reach,
@@ -49,6 +50,7 @@ __all__ = [
     "backtrack",
     "basic_matrix",
     "block_snr",
+    "block_snrs",
     "cfar_threshold",
     "detect",
     "detection_probability",

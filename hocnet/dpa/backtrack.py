@@ -137,17 +137,6 @@ def _check_overflow(name: str, asf: torch.Tensor, detail: str = "") -> None:
     )
 
 
-def _gain_detail(weights: Any, b: Any, g: Any) -> str:
-    """``"; here ..."`` with the largest per-step gain of the matrices, if computable."""
-    try:
-        w = torch.as_tensor(weights).detach().double()
-        bf, gf = float(b), float(g)
-        gain = gf * w.sum(dim=(-2, -1)) + (1 - gf) * w.amax(dim=(-2, -1))
-        return f"; here b = {bf:g}, g = {gf:g} give a largest gain of {bf * float(gain.max()):.3g}"
-    except (TypeError, ValueError, RuntimeError):
-        return ""
-
-
 def _check_state(state: Any) -> DPAState:
     """Validate a :class:`DPAState` and return its batched form with int64 ``origin``."""
     if not isinstance(state, DPAState):
@@ -293,7 +282,12 @@ def backtrack(state: DPAState, start: torch.Tensor | None = None) -> torch.Tenso
     """Retrieve a trajectory from the tracking matrix of the DPA, eq. (8) of [NR08].
 
     Starting at a pixel ``p_{T-1}`` of the last frame, ``p_{n-1} = origin_n(p_n)`` for
-    ``n = T - 1, ..., 1``: the source pixel whose term won the max of eq. (11).
+    ``n = T - 1, ..., 1`` (section 2.2.4 of [NR08]). With the paper's direction step
+    (``accumulate(..., direction_step="paper")``, the default) ``origin_n(p)`` is eq. (8)'s
+    argmax: the source pixel with the highest ``Source_Pixel_Score`` of eq. (7)
+    (``ASF_{n-1}(q) * w_basic * Var``), which need not be the term that won the max of
+    eq. (11). With ``direction_step="source"`` (our earlier reading) it is the source pixel
+    whose weighted term won the max of eq. (11).
 
     Notes:
         Our reading of [NR08]: without ``start`` the trajectory ends at the pixel with the
@@ -380,7 +374,7 @@ def cfar_threshold(
     Args:
         target_free: target-free whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
         weights: probability matrices ``(D, k, k)``, as for ``accumulate``.
-        b: memory factor ``>= 0``.
+        b: memory factor in ``[0, b_limit(weights, g)]`` (eq. (12)-(14)).
         g: sum/max mixing in ``[0, 1]``.
         pfa: requested false-alarm probability in ``(0, 1)``; needs ``pfa >= 1 / N``.
         nms_radius: NMS radius ``>= 0`` (``samples="peaks"`` only).
@@ -395,7 +389,8 @@ def cfar_threshold(
     Raises:
         TypeError: wrong argument types.
         ValueError: out-of-range arguments, ``pfa < 1 / N`` (the message says how many
-            samples would be needed), or an ASF that overflowed to NaN/inf (names ``b``).
+            samples would be needed), ``b`` above the memory range of eq. (12)-(14), or an ASF
+            that overflowed in the recursion (both raised by ``accumulate``, naming ``b``).
 
     Examples:
         >>> noise = torch.randn(4, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -410,7 +405,6 @@ def cfar_threshold(
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     samples = check_choice("samples", samples, ("pixels", "peaks"))
     state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth, **options)
-    _check_overflow("b", state.asf, _gain_detail(weights, b, g))
     last = state.asf[:, -1].detach()
     if samples == "pixels":
         values = last.reshape(-1)
@@ -563,7 +557,11 @@ def detect(
         neither pair separates, the weaker track is a duplicate and is dropped. Re-tracked
         tracks have ``retracked=True``; their ``score`` is still the last-frame ASF of the
         original run, their ``scores`` the original ASF along the new path.
-        ``exclusive=False`` gives the plain back-tracking of [NR08].
+        ``exclusive=False`` gives the plain back-tracking of [NR08]. Measured on two 18 dB
+        targets crossing at 0.71 px/frame (7 x 7 matrices, b of EMC 0.8, 20 seeds): plain
+        back-tracking gives one track per target in 0 of 20 scenes, re-tracking in 11 (g = 1)
+        and 5 (g = 0); a re-tracked track can still lose its target where the other track's
+        masked pixels cover it around the crossing.
 
         Our reading of [NR08]: a detection is a peak strictly above the threshold (so the CFAR
         threshold's empirical false-alarm rate is at most ``pfa``); the CFAR threshold is the
@@ -573,7 +571,7 @@ def detect(
     Args:
         frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
         weights: probability matrices ``(D, k, k)``, as for ``accumulate``.
-        b: memory factor ``>= 0``.
+        b: memory factor in ``[0, b_limit(weights, g)]`` (eq. (12)-(14)).
         g: sum/max mixing in ``[0, 1]``.
         max_targets: largest number of tracks per scene, ``>= 1``.
         nms_radius: NMS radius ``r >= 0`` (``0``: every pixel is a peak).
@@ -593,8 +591,9 @@ def detect(
 
     Raises:
         TypeError: wrong argument types.
-        ValueError: out-of-range arguments, both ``threshold`` and ``target_free``, or an
-            accumulated score that overflowed to NaN/inf (the message names ``b``).
+        ValueError: out-of-range arguments, both ``threshold`` and ``target_free``, ``b``
+            above the memory range of eq. (12)-(14), or an accumulated score that overflowed in
+            the recursion (both raised by ``accumulate``, naming ``b``).
 
     Examples:
         >>> frames = torch.zeros(3, 16, 16)
@@ -642,7 +641,6 @@ def detect(
         index = torch.zeros(cube.shape, dtype=torch.int64)
         return DPADetection(DPAState(empty, index, index - 1, True), [], threshold)
     state = accumulate(frames, weights, b, g, var_table=var_table, smooth=smooth, **options)
-    _check_overflow("b", state.asf, _gain_detail(weights, b, g))
     if target_free is not None:
         threshold = cfar_threshold(
             target_free,
@@ -677,7 +675,6 @@ def detect(
             one = accumulate(
                 masked.unsqueeze(0), weights, b, g, var_table=var_table, smooth=smooth, **options
             ).as_batched()
-            _check_overflow("b", one.asf, _gain_detail(weights, b, g))
             origin = one.origin.reshape(1, n_t, -1)
             zero = torch.zeros(1, dtype=torch.int64, device=origin.device)
             return _follow(origin, zero, end.view(1).to(origin.device))[0]

@@ -50,7 +50,7 @@ class DPAState:
     """Result of :func:`accumulate`: the ASF, the direction map and the tracking matrix.
 
     The tensors keep the batching of the input frames: ``(B, T, H, W)`` for a batched input and
-    ``(T, H, W)`` for an unbatched one (DESIGN section 2); ``batched`` records which, and
+    ``(T, H, W)`` for an unbatched one (as every hocnet function); ``batched`` records which, and
     :meth:`as_batched` always gives the ``(B, T, H, W)`` form.
 
     Attributes:
@@ -551,7 +551,9 @@ def _check_memory(b_t: torch.Tensor, g_t: torch.Tensor, weights: torch.Tensor) -
     """``b`` within the memory range of eq. (12)-(14) (:func:`~hocnet.dpa.matrices.b_limit`)."""
     limit = b_limit(weights.detach(), float(g_t.detach()))
     b = float(b_t.detach())
-    if b > limit * (1 + 1e-9):
+    # rounding of the matrices: float32 sums of 1 can be 1 + 1.2e-7, which must not refuse b = 1
+    tol = max(1e-9, 16 * torch.finfo(weights.dtype).eps)
+    if b > limit * (1 + tol):
         raise ValueError(
             f"`b`: expected a value in [0, {limit:.6g}] (the memory range of eq. (12)-(14) of "
             f"[NR08] at g = {float(g_t.detach()):g}: above it the effective memory coefficient "

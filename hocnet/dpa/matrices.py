@@ -12,8 +12,9 @@ with them entry by entry. The row index grows downwards, so **+y points down** o
 image. A target that moved by ``(dx, dy)`` from ``q`` to ``p`` came from the offset
 ``(i, j) = (-dx, -dy)``.
 
-Directions: a move ``(dx, dy) = p - q`` has the bearing ``atan2(dy, dx)`` (DESIGN section 2), so
-the directions 1..8 at 0, 45, ..., 315 degrees turn counter-clockwise in the ``(x, y)`` frame,
+Directions (section 2.2.2 of [NR08]: directions 1-8 at 0-315 degrees in steps of 45, direction 1
+the arrow -> of Figure 2, direction 9 in place; our reading: a move ``(dx, dy) = p - q`` has the
+bearing ``atan2(dy, dx)``), so the directions 1..8 turn counter-clockwise in the ``(x, y)`` frame,
 which is *clockwise* on screen: direction 1 is +x (right, Figure 2's arrow), direction 3
 (90 degrees) is +y (down), direction 5 is -x (left), direction 7 is -y (up). Direction 9 is "in
 place". In tensors, direction ``d`` is stored at index ``d - 1`` (index 8 is direction 9).

@@ -118,3 +118,25 @@ def test_natural_key_vs_lexicographic():
     assert sorted(names, key=natural_key) == ["f_9.png", "f_10.png", "f_100.png"]
     padded = ["f_010.png", "f_009.png", "f_100.png"]
     assert sorted(padded, key=natural_key) == sorted(padded)
+
+
+class TestFrameFilesAndExports:
+    def test_frame_files_order(self, clip):
+        from hocnet.data.frames import frame_files
+
+        folder, _ = clip
+        assert [p.name for p in frame_files(folder)] == ["frame1.png", "frame2.png", "frame10.png"]
+        assert [p.name for p in frame_files(str(folder / "frame1*"))] == [
+            "frame1.png",
+            "frame10.png",
+        ]
+        assert frame_files(folder / "frame2.png") == [folder / "frame2.png"]
+        with pytest.raises(FileNotFoundError, match="`source`"):
+            frame_files(folder / "absent")
+
+    def test_reexported(self):
+        import hocnet.data
+        import hocnet.data.io
+
+        assert hocnet.data.io.load_frames is load_frames
+        assert hocnet.data.load_frames is load_frames

@@ -1,4 +1,5 @@
 import math
+import re
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from hocnet.dpa.backtrack import (
     detect,
 )
 from hocnet.dpa.functional import DPAState, accumulate
-from hocnet.dpa.matrices import effective_memory, probability_matrices
+from hocnet.dpa.matrices import b_limit, effective_memory, probability_matrices
 from hocnet.dpa.metrics import frame_thresholds, tracking_success
 
 
@@ -177,10 +178,16 @@ class TestBacktrack:
         assert bool(tracking_success(path, truth, fraction=1.0).all())
 
     def test_recovers_jittered_target(self):
-        seq = _straight_scene(7, jitter=0.5, snr_db=20.0)
+        # a 1.34 px/frame target with U[-0.5, 0.5] jitter at 20 dB through the paper's 7 x 7
+        # matrices and direction step (eq. 7-8 pick the origin with W_basic, which favours short
+        # moves): measured 14 of these 20 scenes tracked in >= 80 % of the frames (the
+        # `"source"` step: 17 of 20 per-seed scenes); the median distance to the truth is 0.72 px
+        seq = _straight_scene(0, batch=20, jitter=0.5, snr_db=20.0)
         path = backtrack(accumulate(anti_mean(seq.frames), W7, B7, 0.5))
-        dist = torch.linalg.vector_norm(path.double() - seq.positions[0], dim=-1)
-        assert float(dist.max()) <= 1.5, dist
+        truth = seq.positions[:, 0]
+        dist = torch.linalg.vector_norm(path.double() - truth, dim=-1)
+        assert int(tracking_success(path, truth).sum()) >= 13, dist
+        assert float(dist.median()) <= 1.0, dist
 
     def test_exceptions(self):
         state = _random_state(0)
@@ -262,23 +269,27 @@ class TestDetect:
             asf = state.asf[track.batch, torch.arange(6), y, x]
             np.testing.assert_array_equal(track.scores.numpy(), asf.numpy())
 
-    @pytest.mark.parametrize("seed", range(2))
-    def test_finds_two_targets(self, seed):
-        seq = _two_targets(seed, batch=2)
+    def test_finds_two_targets(self):
+        # targets at 1.1 and 1.0 px/frame (20 and 16 dB, 10 frames), paper DPA with 7 x 7
+        # matrices: both targets back-tracked in >= 90 % of the frames in 15 of these 20 scenes
+        # (the misses lose a target's first frames)
+        seq = _two_targets(0, batch=20)
         frames = anti_mean(seq.frames)
         result = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=3)
-        assert [t.batch for t in result.tracks] == [0, 0, 1, 1]
-        assert [t.id for t in result.tracks] == [1, 2, 3, 4]
-        for b in range(2):
+        assert [t.batch for t in result.tracks] == [b for b in range(20) for _ in range(2)]
+        assert [t.id for t in result.tracks] == list(range(1, 41))
+        found = 0
+        for b in range(20):
             tracks = [t for t in result.tracks if t.batch == b]
             truth = seq.positions[b]  # (2, T, 2)
-            matched = set()
+            matched, ok = set(), True
             for track in tracks:
                 dist = torch.linalg.vector_norm(track.positions.double() - truth, dim=-1)
                 n = int(dist[:, -1].argmin())
                 matched.add(n)
-                assert bool(tracking_success(track.positions, truth[n], fraction=0.9))
-            assert matched == {0, 1}
+                ok &= bool(tracking_success(track.positions, truth[n], fraction=0.9))
+            found += ok and matched == {0, 1}
+        assert found >= 14, found
 
     def test_nms_suppresses_neighbours(self):
         seq = _two_targets(3)
@@ -445,9 +456,16 @@ class TestCfarThreshold:
 # ----------------------------------------------------------------------------- issue 8 and 9
 
 
-def _crossing(seed, snr_db=18.0):
-    """Two targets on crossing diagonals meeting at frame 12 of 25 (issue 8)."""
-    targets = [IRTarget(10.0, 10.0, 1.0, 1.0, snr_db), IRTarget(34.0, 10.0, -1.0, 1.0, snr_db)]
+def _crossing(seed, speed=1.0, snr_db=18.0):
+    """Two targets on crossing diagonals (``speed`` px/frame per axis) meeting at frame 12 of 25.
+
+    ``speed=1`` is the scene of issue 8.
+    """
+    d = 12.0 * speed
+    targets = [
+        IRTarget(22.0 - d, 10.0, speed, speed, snr_db),
+        IRTarget(22.0 + d, 10.0, -speed, speed, snr_db),
+    ]
     seq = simulate_ir((25, 48, 48), targets, clouds="clear", seed=seed)
     return anti_mean(seq.frames), seq.positions
 
@@ -464,25 +482,37 @@ def _one_track_per_target(tracks, truth):
     return sorted(followed) == list(range(truth.shape[0]))
 
 
-W7C = probability_matrices(7, v_max=2.5)
-
-
 class TestCrossingTargets:
-    # seeds where plain back-tracking fails (one track follows one target and then the other,
-    # sharing about half of its pixels with the other track): measured 0, 2, 6, 7 for g = 1
-    # and 1, 2, 6, 7 for g = 0 out of seeds 0..7
-    @pytest.mark.parametrize(("g", "seeds"), [(1.0, (0, 2, 6)), (0.0, (1, 2, 7))])
-    def test_one_track_per_target(self, g, seeds):
-        b = effective_memory(W7C, g)
-        for seed in seeds:
-            frames, truth = _crossing(seed)
-            plain = detect(frames, W7C, b, g, max_targets=2, exclusive=False)
-            assert not _one_track_per_target(plain.tracks, truth)  # the failure of issue 8
-            result = detect(frames, W7C, b, g, max_targets=2)
+    # Measured over seeds 0..19 with the eq. (5) matrices (7 x 7, v_max = 2) at b = EMC 0.8 of
+    # direction 9: plain back-tracking gives one track per target in 0 of 20 scenes in every
+    # setting below (one track follows one target and then the other). Exclusive re-tracking:
+    #   0.5 px/frame per axis, paper direction step: g = 1: 11 / 20, g = 0: 5 / 20
+    #   1 px/frame per axis (issue 8's scene), `direction_step="source"`, g = 1: 9 / 20
+    # (with the paper step at 1.41 px/frame a single such target is on its truth in only 56 %
+    # of the frames at g = 1: eq. (7)-(8) pick the origin with W_basic, which favours short
+    # moves, so issue 8's scene is outside the paper DPA's range and 0 / 20 either way). The
+    # re-tracked track loses its target where the other track's masked pixels cover it around
+    # the crossing. Never did re-tracking break a scene that plain back-tracking got right.
+    # The test uses seeds 0..9 (not chosen) and asserts a rate at most one scene below the
+    # measured one on these seeds (6, 2 and 4 of 10).
+    @pytest.mark.parametrize(
+        ("speed", "g", "step", "least"),
+        [(0.5, 1.0, "paper", 5), (0.5, 0.0, "paper", 1), (1.0, 1.0, "source", 3)],
+    )
+    def test_one_track_per_target(self, speed, g, step, least):
+        b = effective_memory(W7, g)
+        separated = 0
+        for seed in range(10):
+            frames, truth = _crossing(seed, speed)
+            plain = detect(frames, W7, b, g, max_targets=2, exclusive=False, direction_step=step)
+            assert not _one_track_per_target(plain.tracks, truth), seed  # the failure of issue 8
+            result = detect(frames, W7, b, g, max_targets=2, direction_step=step)
             assert len(result.tracks) == 2
-            assert _one_track_per_target(result.tracks, truth), seed
-            assert any(t.retracked for t in result.tracks)
             assert [t.score for t in result.tracks] == [t.score for t in plain.tracks]
+            if _one_track_per_target(result.tracks, truth):
+                separated += 1
+                assert any(t.retracked for t in result.tracks)
+        assert separated >= least, separated
 
     def test_separate_targets_unchanged(self):
         seq = _two_targets(0)
@@ -534,22 +564,36 @@ class TestDetectIssue9:
         # per-pixel Pfa 1e-3 on 8 x 576 pixels: a handful of false alarms, not 5 per scene
         assert len(result.tracks) <= 12
 
-    def test_overflow_names_b(self):
+    def test_b_above_the_memory_range_names_b(self):
+        # issue 9's b = 1e30 (and b = 3 at g = 1) are now refused up front by `accumulate`
         frames = torch.randn(30, 12, 12, generator=torch.Generator().manual_seed(0))
-        with pytest.raises(ValueError, match=r"`b`: the accumulated score \(ASF\) overflowed"):
+        limit = b_limit(W5, 0.0)
+        with pytest.raises(ValueError, match=r"`b`: expected a value in \[0, 7\.99.*eq\. \(12\)"):
             detect(frames, W5, 1e30, 0.0)
-        # issue 9: a long sequence with an ordinary b whose sum recursion blows up
-        noise = torch.randn(140, 24, 24, generator=torch.Generator().manual_seed(0))
-        noise[:, 12, 12] += 5.0
-        state = accumulate(noise, W7, 3.0, 1.0)
-        first = int(torch.nonzero(~torch.isfinite(state.asf).flatten(1).all(dim=1))[0])
-        with pytest.raises(ValueError, match=rf"`b`: .*overflowed.* first in frame {first}\b"):
-            detect(noise, W7, 3.0, 1.0)
-        with pytest.raises(ValueError, match=rf"`state`: .*overflowed.* first in frame {first}\b"):
-            backtrack(state)
+        with pytest.raises(ValueError, match=r"`b`: expected a value in \[0, 1\]"):
+            detect(frames, W7, 3.0, 1.0)
+        assert detect(frames, W5, limit, 0.0).tracks  # the end of the range is accepted
+
+    def test_overflow_names_b(self):
+        # b at the end of the memory range (EMC 1 in directions 1-8) has an EMC of 1.39 in
+        # direction 9 at g = 0: on a long sequence the in-place scores grow geometrically until
+        # float32 overflows (measured: frame 268 of 300), which the recursion reports
+        noise = torch.randn(300, 12, 12, generator=torch.Generator().manual_seed(0))
+        b = b_limit(W5, 0.0)
+        with pytest.raises(ValueError, match=r"`b`: the accumulated score overflowed") as info:
+            detect(noise, W5, b, 0.0)
+        first = int(re.search(r"at frame (\d+)", str(info.value)).group(1))
+        assert 1 <= first < 300
+        # the frame named is the first one: one frame fewer is finite
+        assert bool(torch.isfinite(accumulate(noise[:first], W5, b, 0.0).asf).all())
+        with pytest.raises(ValueError, match=rf"`b`: .*overflowed.* at frame {first}\b"):
+            accumulate(noise[: first + 1], W5, b, 0.0)
 
 
 def test_cfar_threshold_overflow_names_b():
     frames = torch.randn(30, 12, 12, generator=torch.Generator().manual_seed(0))
-    with pytest.raises(ValueError, match="`b`: the accumulated score"):
+    with pytest.raises(ValueError, match=r"`b`: expected a value in \[0, 7\.99"):
         cfar_threshold(frames, W5, 1e30, 0.0)
+    noise = torch.randn(300, 12, 12, generator=torch.Generator().manual_seed(0))
+    with pytest.raises(ValueError, match=r"`b`: the accumulated score overflowed"):
+        cfar_threshold(noise, W5, b_limit(W5, 0.0), 0.0)

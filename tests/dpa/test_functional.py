@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hocnet.dpa.functional import DPAState, accumulate
-from hocnet.dpa.matrices import probability_matrices, var_table
+from hocnet.dpa.matrices import b_limit, probability_matrices, var_table
 from hocnet.dpa.reference import accumulate_reference
 
 F64 = torch.float64
@@ -399,6 +399,13 @@ class TestEmptyAndMemoryRange:
             accumulate(frames, probability_matrices(), 1e30, 0.0)
         state = accumulate(frames, probability_matrices(), 1.0, 1.0)  # the bound itself is fine
         assert bool(torch.isfinite(state.asf).all())
+        # float32 5 x 5 matrices: direction 1 sums to 1 + 1.2e-7, b_limit(g = 1) = 1 - 3.7e-9;
+        # b = 1 (EMC 1, the end of the paper's range) must not be refused for the rounding
+        w5 = probability_matrices(5, v_max=1.0)
+        assert b_limit(w5, 1.0) < 1.0
+        accumulate(frames[:4], w5, 1.0, 1.0)
+        with pytest.raises(ValueError, match=r"`b`: expected a value in \[0, 1\]"):
+            accumulate(frames[:4], w5, 1.0001, 1.0)
 
     @pytest.mark.parametrize("step", STEPS)
     def test_overflow_stops_with_an_error_naming_b(self, step):

@@ -142,8 +142,17 @@ class TestPaperValues:
         truth = torch.zeros(1, 5, 2)
         path = torch.tensor([[[0, 0], [1, 1], [2, 2], [0, 1], [0, 0]]])
         assert p.on_truth(path, truth).tolist() == [0.8]
-        option = p.direction_option()
-        assert option is None or isinstance(option, dict)
+        assert p.direction_option() == {"direction_step": "source"}
+        # the detected pixel is the highest of the nine blocks around the target, not of the
+        # frame: a brighter pixel outside them (another target) is ignored
+        asf = torch.zeros(2, 3, 40, 60)
+        asf[:, -1, 10, 40] = 9.0  # outside the 3 x 3 blocks of 10 x 10 around (15, 15)
+        asf[:, -1, 2, 1] = 5.0  # inside (blocks span x, y in [0, 30))
+        asf[1, -1, 29, 29] = 6.0
+        truth = torch.full((2, 3, 2), 15.0)
+        assert p.nine_block_start(asf, truth, 10).tolist() == [[1, 2], [29, 29]]
+        # 10 x 20 blocks (rows x columns) span x in [-15, 45): (40, 10) is inside
+        assert p.nine_block_start(asf, truth, (10, 20)).tolist() == [[40, 10], [40, 10]]
         flat = torch.full((3, 3), 1 / 9)
         assert p.emc_b(flat, 0.0) == pytest.approx(7.2) and p.emc_b(flat, 1.0) == pytest.approx(0.8)
         slope, intercept = p.memory_constants(flat)
@@ -160,8 +169,13 @@ class TestBSweep:
         rows = check_outputs("dpa-b-sweep", md, tmp_path)
         variants = {r["variant"] for r in rows}
         assert {"paper DPA", "equal gain"} <= variants
-        # per scene and seed: every variant at the 3 + 3 b values of the quick grid
-        assert len(rows) == 2 * len(variants) * 6 * 2
+        # per scene and seed: every variant at the b values of the quick grid within the memory
+        # range of eq. (12)-(14): b = 8 (g = 0, b_max 7.99) and b = 1.2 (g = 1, b_max 1) skipped
+        assert len(rows) == 2 * len(variants) * 4 * 2
+        assert {float(r["b"]) for r in rows} == {0.0, 4.8, 0.8}
+        text = md.read_text()
+        assert "b = 8 at g = 0, b = 1.2 at g = 1: outside the memory range of eq. (12)-(14)" in text
+        assert text.count("| outside the memory range of eq. (12)-(14) |") == 2 * 2 * 2
         assert {r["tracked"] for r in rows} <= {"0", "1"}
         assert all(math.isfinite(float(r["a_s"])) for r in rows)
         # b = 0 switches the accumulation off: A_S is the single frame's for every variant
@@ -196,7 +210,7 @@ class TestBSweep:
         module = load("dpa-b-sweep")
         rows = check_outputs("dpa-b-sweep", module.run(out_dir=tmp_path), tmp_path)
         variants = {r["variant"] for r in rows}
-        assert len(rows) == 2 * len(variants) * (37 + 21) * module.SEEDS
+        assert len(rows) == 2 * len(variants) * (40 + 21) * module.SEEDS  # b = 8 is skipped
 
 
 class TestSampling:
