@@ -11,7 +11,9 @@ information that is required"). A forward ``Y^(l)(t)`` depends on scans ``t .. t
 backward ``Y^(l)(t)`` on scans ``t - 2l .. t``, so each value is computed once, as soon as its last
 scan arrives, and stays valid while its first scan is in the window. A pushed scan ``n`` makes
 evaluable, per level ``l = 1 .. k``: the forward entry at ``t = n - 2l`` and the backward entry at
-``t = n``; these ``2k`` entries are all the layer work of a push. The chain support
+``t = n``. These ``2k`` entries, computed from one neighbour look-up between scans ``n - 1`` and
+``n`` (the pairs within the velocity window, filtered to the survivors of each level), are all
+the layer work of a push. The chain support
 (:func:`~hocnet.hoc.functional.chain_support`) is a union over its roots, so it decomposes the
 same way: the marking tree ``M_r`` of the forward roots at scan ``r`` (``Y^(k)(r)``, scans
 ``r .. r + 2k``) and of the backward roots at ``r`` (scans ``r - 2k .. r``) is computed once, when
@@ -24,12 +26,19 @@ What is cached, keyed by absolute scan number and stored as sorted flat pixel in
 (memory grows with the number of on-points in the window, not with the number of pushed scans):
 
 - the on-points of every scan in the window (level 0);
+- the links of every pair of successive scans: the on-point pairs within the velocity window
+  (read in both time directions);
 - per direction and level ``l``: the points of ``Y^(l)(t)`` and the accepted triples of
   ``Y^(l-1)`` rooted at scan ``t`` (the edges the marking pass walks);
 - per direction: the marking tree ``M_r`` of every root scan ``r`` in the window.
 
+Entries of scans that have left the window are dropped. With ``method="conv"`` the layer
+entries and trees come from the connectionist layer on the 3 (trees: ``2k + 1``) scans involved,
+and no links or triples are kept.
+
 Track identification (section III-B) is one call of :func:`~hocnet.hoc.identify.identify_tracks`
-on the window's support cube: it is not incremental.
+on the window's ``(window, H, W)`` support cube: it is not incremental (that code is being
+rewritten to the paper's procedure, issue 7).
 """
 
 from __future__ import annotations
@@ -41,18 +50,14 @@ from typing import Any, Literal
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
-from hocnet.hoc.functional import (
-    Method,
-    _allowed_cached,
-    hoc_layer,
-    support_from_levels,
-)
+from hocnet.hoc.functional import hoc_layer, support_from_levels
 from hocnet.hoc.identify import HOCResult, Track, identify_tracks
-from hocnet.hoc.kernels import get_direction_mask_kernels, get_shift_kernels
+from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
 from hocnet.hoc.scoring import DEFAULT_THRESHOLD
 
 __all__ = ["StreamResult", "StreamingDetector"]
 
+Method = Literal["auto", "conv", "sparse"]
 Support = Literal["chain", "mhoc"]
 
 
@@ -227,9 +232,12 @@ class StreamingDetector:
 
     Push ``(H, W)`` binary scans one at a time; once ``window`` scans have arrived, every
     ``stride``-th push returns the result for the latest ``window`` scans, equal to
-    :func:`~hocnet.hoc.identify.detect` on those scans with the same arguments. A push costs the
-    ``2k`` new layer entries and two marking trees (see the module notes for what is cached),
-    then one :func:`~hocnet.hoc.identify.identify_tracks` call on the window when a result is due.
+    :func:`~hocnet.hoc.identify.detect` on that ``(window, H, W)`` cube with the same arguments
+    (with ``support="chain"``). A push costs one neighbour look-up between the previous and the
+    new scan, the ``2k`` layer entries it makes evaluable and one marking tree per direction (see
+    the module notes for what is cached; none of this depends on ``window``), then, when a
+    result is due, the ``(window, H, W)`` support cube and one
+    :func:`~hocnet.hoc.identify.identify_tracks` call on it (not incremental).
 
     Args:
         window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
@@ -245,8 +253,9 @@ class StreamingDetector:
             (:func:`~hocnet.hoc.functional.hoc_layer`, :func:`~hocnet.hoc.functional.hoc_mark`)
             on the three (marking: ``2k + 1``) scans involved. Results are identical.
         support: the points handed to track identification: ``"chain"`` (the chain support of
-            :func:`~hocnet.hoc.functional.chain_support`, what ``detect`` uses) or ``"mhoc"`` (the
-            forward ``Y^(k)`` OR the backward ``Y^(k)``, the image of [LA98] section III-B).
+            :func:`~hocnet.hoc.functional.chain_support`, what ``detect`` uses today) or
+            ``"mhoc"`` (the forward ``Y^(k)`` OR the backward ``Y^(k)`` of the window, the image
+            [LA98] section III-B identifies tracks on; read from the cache at no extra cost).
         A1: movement-score constant of eq. (8).
         alpha1: movement-score scale of eq. (8).
         A2: curvature-score constant of eq. (9).
@@ -311,7 +320,8 @@ class StreamingDetector:
             "A2": check_number("A2", A2),
             "alpha2": check_number("alpha2", alpha2),
         }
-        self._allowed = _allowed_cached(self.v, self.delta, "cpu")
+        self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers
+        self._kernels: tuple[torch.Tensor, torch.Tensor] | None = None  # method="conv" only
         self.reset()
 
     def reset(self) -> None:
@@ -362,10 +372,13 @@ class StreamingDetector:
         y = torch.zeros(3, h * w)
         for i, p in enumerate(parts if s > 0 else parts[::-1]):
             y[i, p] = 1.0
-        masks = get_direction_mask_kernels(self.v, self.delta)
-        shifts = get_shift_kernels(self.v)
+        if self._kernels is None:
+            self._kernels = (
+                get_direction_mask_kernels(self.v, self.delta),
+                get_shift_kernels(self.v),
+            )
         direction = "forward" if s > 0 else "backward"
-        out = hoc_layer(y.reshape(1, 3, h, w), masks, shifts, direction=direction)
+        out = hoc_layer(y.reshape(1, 3, h, w), *self._kernels, direction=direction)
         return out[0, 0 if s > 0 else 2].reshape(-1).nonzero().squeeze(1)
 
     def _update_links(self, n: int) -> None:
