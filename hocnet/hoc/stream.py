@@ -110,6 +110,7 @@ class _Grid:
         self.wp = w + 2 * v
         self.image = torch.full(((h + 2 * v) * self.wp,), -1, dtype=torch.int32)
         self.flags = torch.zeros(h * w, dtype=torch.bool)
+        self.slots = torch.full((h * w,), -1, dtype=torch.int64)
         rng = torch.arange(-v, v + 1)
         # move m = (j + v) * (2v + 1) + (i + v) for (i, j) = (dx, dy): kernels.move_offsets order
         self.offsets = (rng[:, None] * self.wp + rng[None, :]).reshape(-1)
@@ -154,42 +155,51 @@ class _Grid:
         keep = self.member(src, src_set) & self.member(dst, dst_set)
         return src[keep], dst[keep], move[keep]
 
+    def join(self, first: Edges, second: Edges, allowed: torch.Tensor) -> Edges:
+        """Accepted triples ``(p0, p1, p2)``: ``p0 -> p1`` in ``first``, ``p1 -> p2`` in ``second``.
+
+        The sums of one HOC layer (eq. 5-6 of [LA98]) evaluated only at on-points: a first move
+        ``m1`` followed by a second move ``m2`` with ``allowed[m1, m2]`` (the join of
+        ``functional._sparse_triples``, restricted to one root scan). ``second`` must be sorted
+        by its source.
+
+        Returns:
+            ``(p0, p1, p2)``: ``(N,)`` int64 flat indices, one entry per accepted triple, sorted
+            by ``p0`` when ``first`` is sorted by its source.
+        """
+        a, b, m1 = first
+        b2, c, m2 = second
+        if a.numel() == 0 or b2.numel() == 0:
+            return _NO_EDGES
+        mids, counts = torch.unique_consecutive(b2, return_counts=True)
+        starts = torch.cumsum(counts, 0) - counts
+        self.slots[mids] = torch.arange(mids.numel())
+        try:
+            u = self.slots[b]  # the middle point's row in `mids`, -1 if it has no second move
+        finally:
+            self.slots[mids] = -1
+        has = u >= 0
+        u = u.clamp(min=0)
+        lo = starts[u]
+        fan = torch.where(has, counts[u], 0)  # second moves after each first move
+        ends = torch.cumsum(fan, 0)
+        total = int(ends[-1])
+        if total == 0:
+            return _NO_EDGES
+        # expand every first move into its second moves (searchsorted, not repeat_interleave, as
+        # in functional._sparse_triples)
+        slots = torch.arange(total)
+        f = torch.searchsorted(ends, slots, right=True)
+        g = lo[f] + slots - (ends - fan)[f]
+        ok = allowed[m1[f], m2[g]]
+        f, g = f[ok], g[ok]
+        return a[f], b[f], c[g]
+
     def reverse(self, edges: Edges) -> Edges:
         """The same pairs read the other way round in time (move ``-m``), sorted by source."""
         src, dst, move = edges
         order = torch.argsort(dst, stable=True)
         return dst[order], src[order], self.n_moves - 1 - move[order]
-
-
-def _join(first: Edges, second: Edges, allowed: torch.Tensor) -> Edges:
-    """Accepted triples ``(p0, p1, p2)``: ``p0 -> p1`` in ``first``, ``p1 -> p2`` in ``second``.
-
-    The sums of one HOC layer (eq. 5-6 of [LA98]) evaluated only at on-points: a first move
-    ``m1`` followed by a second move ``m2`` with ``allowed[m1, m2]``, the join of
-    ``functional._sparse_triples`` restricted to one root scan. ``second`` must be sorted by its
-    source.
-
-    Returns:
-        ``(p0, p1, p2)``: ``(N,)`` int64 flat indices, one entry per accepted triple.
-    """
-    a, b, m1 = first
-    b2, c, m2 = second
-    if a.numel() == 0 or b2.numel() == 0:
-        return _NO_EDGES
-    lo = torch.searchsorted(b2, b)
-    fan = torch.searchsorted(b2, b, right=True) - lo  # second moves after each first move
-    ends = torch.cumsum(fan, 0)
-    total = int(ends[-1])
-    if total == 0:
-        return _NO_EDGES
-    # expand every first move into its second moves (searchsorted, not repeat_interleave, as
-    # in functional._sparse_triples)
-    slots = torch.arange(total)
-    f = torch.searchsorted(ends, slots, right=True)
-    g = lo[f] + slots - (ends - fan)[f]
-    ok = allowed[m1[f], m2[g]]
-    f, g = f[ok], g[ok]
-    return a[f], b[f], c[g]
 
 
 class _Direction:
@@ -410,9 +420,9 @@ class StreamingDetector:
                 y0, y1, y2 = (below.get(t + s * i, _EMPTY) for i in range(3))
                 first = self._grid.restrict(first, y0, y1)
                 second = self._grid.restrict(second, y1, y2)
-            triples = _join(first, second, self._allowed)
+            triples = self._grid.join(first, second, self._allowed)
             cache.triples[level][t] = triples
-            cache.levels[level][t] = torch.unique(triples[0])
+            cache.levels[level][t] = torch.unique_consecutive(triples[0])  # p0 comes sorted
 
     def _tree_sparse(self, cache: _Direction, r: int) -> list[torch.Tensor]:
         """Marking tree of the roots at scan ``r``: its points at scans ``r + s * j``, j = 0..2k.

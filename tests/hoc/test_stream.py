@@ -131,9 +131,9 @@ class TestSparseHelpers:
         grid = stream._Grid(h, w, v)
         pts = [s.reshape(-1).nonzero().squeeze(1) for s in scans]
         allowed = allowed_moves(v, DELTA)
-        fwd = stream._join(grid.edges(pts[0], pts[1]), grid.edges(pts[1], pts[2]), allowed)
+        fwd = grid.join(grid.edges(pts[0], pts[1]), grid.edges(pts[1], pts[2]), allowed)
         # backward: the same links read the other way round
-        bwd = stream._join(
+        bwd = grid.join(
             grid.reverse(grid.edges(pts[1], pts[2])),
             grid.reverse(grid.edges(pts[0], pts[1])),
             allowed,
@@ -142,12 +142,14 @@ class TestSparseHelpers:
         def as_set(triples):
             rows = torch.stack(triples, 1).tolist()
             assert len(rows) == len({tuple(r) for r in rows})  # no triple twice
+            assert torch.equal(triples[0], triples[0].sort().values)  # sorted by root
             return {tuple((p // w, p % w) for p in r) for r in rows}
 
         arr = scans.numpy()
         assert as_set(fwd) == _triples_loop(arr[0], arr[1], arr[2], v, DELTA)
         assert as_set(bwd) == _triples_loop(arr[2], arr[1], arr[0], v, DELTA)
-        assert (grid.image == -1).all() and not grid.flags.any()  # scratch images cleared
+        # scratch images cleared
+        assert (grid.image == -1).all() and (grid.slots == -1).all() and not grid.flags.any()
 
     def test_no_wrap_at_the_border(self):
         grid = stream._Grid(4, 5, 1)
@@ -158,22 +160,22 @@ class TestSparseHelpers:
 class TestIncremental:
     def _count(self, monkeypatch, window, order):
         calls = {"edges": [], "join": 0, "tree": 0}
-        edges, join, tree = stream._Grid.edges, stream._join, StreamingDetector._tree_sparse
+        edges, join, tree = stream._Grid.edges, stream._Grid.join, StreamingDetector._tree_sparse
 
         def count_edges(self, a, b):
             calls["edges"].append((a.numel(), b.numel()))
             return edges(self, a, b)
 
-        def count_join(*args):
+        def count_join(self, *args):
             calls["join"] += 1
-            return join(*args)
+            return join(self, *args)
 
         def count_tree(self, cache, r):
             calls["tree"] += 1
             return tree(self, cache, r)
 
         monkeypatch.setattr(stream._Grid, "edges", count_edges)
-        monkeypatch.setattr(stream, "_join", count_join)
+        monkeypatch.setattr(stream._Grid, "join", count_join)
         monkeypatch.setattr(StreamingDetector, "_tree_sparse", count_tree)
         gen = torch.Generator().manual_seed(0)
         cube = torch.rand(3 * window, 24, 24, generator=gen) < 0.05
