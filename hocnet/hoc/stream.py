@@ -573,17 +573,22 @@ class StreamingDetector:
             offset = torch.repeat_interleave(lo - (torch.cumsum(count, 0) - count), count)
             cols = prev_labels[torch.arange(rows.numel()) + offset]
             n_prev = len(prev_ids)
-            overlap = torch.bincount(rows * n_prev + cols, minlength=len(tracks) * n_prev)
-            overlap = overlap.reshape(len(tracks), n_prev)
-            taken = torch.zeros(n_prev, dtype=torch.bool)
+            pair, overlap = torch.unique(rows * n_prev + cols, return_counts=True)
+            cur, prev = pair // n_prev, pair % n_prev
+            # candidates of each track: largest overlap first, then the earlier previous track
+            most = int(overlap.max()) if overlap.numel() else 0
+            order = torch.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
+            candidates: dict[int, list[int]] = {}
+            for i, j in zip(cur[order].tolist(), prev[order].tolist(), strict=True):
+                candidates.setdefault(i, []).append(j)
+            taken: set[int] = set()
             for i in range(len(tracks)):
-                row = overlap[i].masked_fill(taken, 0)
-                j = int(torch.argmax(row))
-                if row[j] > 0:
-                    taken[j] = True
-                    ids.append(prev_ids[j])
-                else:
+                j = next((j for j in candidates.get(i, ()) if j not in taken), None)
+                if j is None:
                     ids.append(self._new_id())
+                else:
+                    taken.add(j)
+                    ids.append(prev_ids[j])
         else:
             ids = [self._new_id() for _ in tracks]
         for tr, i in zip(tracks, ids, strict=True):

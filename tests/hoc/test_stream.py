@@ -254,6 +254,30 @@ class TestStreamingDetector:
         assert [[tr.id for tr in out.tracks] for out in outs[:2]] == [[1], [1]]
         assert sorted((int(tr.points[0, 1]), tr.id) for tr in outs[2].tracks) == [(2, 2), (8, 1)]
 
+    @pytest.mark.parametrize(("seed", "stride"), [(0, 1), (1, 2), (2, 3)])
+    def test_ids_against_a_loop_reference(self, seed, stride):
+        scene = paper_scene("fig5", 0.03, seed=seed)  # many short clutter tracks
+        outs = _stream(StreamingDetector(window=6, stride=stride, order=1), scene.cube)
+        previous, next_id, n_tracks, inherited = [], 1, 0, 0
+        for out in outs:
+            current, taken = [], set()
+            for tr in out.tracks:  # in order: the previous track with most common points
+                pts = {tuple(p) for p in tr.points.tolist()}
+                best, most = None, 0
+                for pid, ppts in previous:
+                    if pid not in taken and len(pts & ppts) > most:
+                        best, most = pid, len(pts & ppts)
+                if best is None:
+                    best, next_id = next_id, next_id + 1
+                else:
+                    inherited += 1
+                taken.add(best)
+                current.append((best, pts))
+                assert tr.id == best
+            previous = current
+            n_tracks += len(current)
+        assert n_tracks > 3 * len(outs) and 0 < inherited < n_tracks
+
     def test_absolute_scan_numbers(self):
         cube = torch.zeros(10, 8, 30, dtype=torch.bool)
         for t in range(10):
