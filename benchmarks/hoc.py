@@ -58,7 +58,7 @@ from _common import peak_memory_mb, percentile
 
 import hocnet.hoc.stream as hoc_stream
 from hocnet.hoc.functional import modified_hoc
-from hocnet.hoc.identify import detect
+from hocnet.hoc.identify import HOCResult, detect, identify_tracks
 from hocnet.hoc.reference import hoc_reference
 
 V = 4
@@ -363,6 +363,7 @@ STREAM_STRIDE = 1
 STREAM_PUSHES = 100  # measured pushes per configuration (each returns a window)
 QUICK_STREAM_PUSHES = 12
 STREAM_TARGETS = 8  # straight targets drawn into the clutter
+STREAM_SUPPORTS = ("chain", "mhoc")
 STREAM_TARGET_RATIO = {0.01: 2.0, 0.02: 4.0}  # median push / floor must be at most this
 
 
@@ -373,6 +374,7 @@ class StreamRow:
     sensor: str
     density: float
     order: int
+    support: str
     window: int
     stride: int
     pushes: int
@@ -421,13 +423,36 @@ def _same_result(a, b) -> bool:
     )
 
 
+def batch_result(window: torch.Tensor, order: int, support: str) -> HOCResult:
+    """The batch computation a streaming window must equal.
+
+    ``"chain"``: :func:`detect`. ``"mhoc"``: the paper's image (forward ``Y^(k)`` OR backward
+    ``Y^(k)``) and :func:`identify_tracks` on it, composed from the batch functions.
+    """
+    if support == "chain":
+        return detect(window, order=order)
+    image = modified_hoc(window, order, V, DELTA, "forward") | modified_hoc(
+        window, order, V, DELTA, "backward"
+    )
+    tracks, scores, cleaned = identify_tracks(image, V, DELTA, min_points=2 * order + 1)
+    return HOCResult(support=image, tracks=tracks, scores=scores, cleaned=cleaned)
+
+
 def run_stream_config(
-    shape: tuple[int, int], density: float, order: int, pushes: int, seed: int, quick: bool
+    shape: tuple[int, int],
+    density: float,
+    order: int,
+    support: str,
+    pushes: int,
+    seed: int,
+    quick: bool,
 ) -> StreamRow:
-    """Time one streaming configuration and check every window against batch ``detect``."""
+    """Time one streaming configuration and check every window against the batch result."""
     n_scans = STREAM_WINDOW + pushes
     scans = stream_scans(shape, n_scans, density, seed)
-    det = hoc_stream.StreamingDetector(window=STREAM_WINDOW, stride=STREAM_STRIDE, order=order)
+    det = hoc_stream.StreamingDetector(
+        window=STREAM_WINDOW, stride=STREAM_STRIDE, order=order, support=support
+    )
     spent: list[float] = []
     identify = hoc_stream.identify_tracks
 
@@ -456,7 +481,7 @@ def run_stream_config(
     for out in outs:
         window = scans[out.start : out.stop]
         t0 = time.perf_counter()
-        batch = detect(window, order=order)
+        batch = batch_result(window, order, support)
         batch_s.append(time.perf_counter() - t0)
         equal += _same_result(out.result, batch)
     floor_s, _, _ = timed(
@@ -468,6 +493,7 @@ def run_stream_config(
         sensor=f"{shape[1]}x{shape[0]}",
         density=density,
         order=order,
+        support=support,
         window=STREAM_WINDOW,
         stride=STREAM_STRIDE,
         pushes=len(push_s),
@@ -494,6 +520,7 @@ def stream_markdown(rows: list[StreamRow], header: list[str]) -> str:
         "sensor (WxH)",
         "clutter",
         "order",
+        "support",
         "pushes",
         "points/scan",
         "support/window",
@@ -502,7 +529,7 @@ def stream_markdown(rows: list[StreamRow], header: list[str]) -> str:
         "push p99 ms",
         "HOC part median ms",
         "identify median ms",
-        "batch detect median ms",
+        "batch median ms",
         "batch p99 ms",
         "max-pool floor ms",
         "push/floor",
@@ -523,6 +550,7 @@ def stream_markdown(rows: list[StreamRow], header: list[str]) -> str:
             r.sensor,
             f"{r.density:.0%}",
             str(r.order),
+            r.support,
             str(r.pushes),
             f"{r.points_per_scan:.0f}",
             f"{r.support_per_window:.0f}",
@@ -562,19 +590,20 @@ def stream_main(args: argparse.Namespace) -> int:
     max_pool_floor(warm[:1][None])
     rows = []
     loads = []
-    for density in densities:
-        for order in orders:
-            loads.append(os.getloadavg()[0])
-            row = run_stream_config(shape, density, order, pushes, args.seed, args.quick)
-            rows.append(row)
-            print(
-                f"{row.sensor} d={density:g} k={order}: push median {row.push_median_ms:.1f} "
-                f"ms (HOC {row.hoc_median_ms:.1f} + identify {row.identify_median_ms:.1f}), "
-                f"p99 {row.push_p99_ms:.1f} ms, batch {row.batch_median_ms:.1f} ms, floor "
-                f"{row.floor_ms:.1f} ms, equal {row.equal_windows}/{row.windows}",
-                file=sys.stderr,
-                flush=True,
-            )
+    configs = [(d, k, s) for s in args.supports for d in densities for k in orders]
+    for density, order, support in configs:
+        loads.append(os.getloadavg()[0])
+        row = run_stream_config(shape, density, order, support, pushes, args.seed, args.quick)
+        rows.append(row)
+        print(
+            f"{row.sensor} d={density:g} k={order} {support}: "
+            f"push median {row.push_median_ms:.1f} "
+            f"ms (HOC {row.hoc_median_ms:.1f} + identify {row.identify_median_ms:.1f}), "
+            f"p99 {row.push_p99_ms:.1f} ms, batch {row.batch_median_ms:.1f} ms, floor "
+            f"{row.floor_ms:.1f} ms, equal {row.equal_windows}/{row.windows}",
+            file=sys.stderr,
+            flush=True,
+        )
     total = time.perf_counter() - started
     load_after = os.getloadavg()
     omp = os.environ.get("OMP_NUM_THREADS", "unset")
@@ -588,7 +617,7 @@ def stream_main(args: argparse.Namespace) -> int:
         + ", ".join(f"{x:.1f}" for x in loads)
         + f"; the machine is shared with other jobs), total run {total:.0f} s.",
         f"- `StreamingDetector(window={STREAM_WINDOW}, stride={STREAM_STRIDE}, order=k)` with "
-        "`detect`'s defaults (v = 4, delta = pi/4, chain support, threshold 2.5), fed one "
+        "`detect`'s defaults (v = 4, delta = pi/4, threshold 2.5), fed one "
         f"(H, W) bool scan at a time: uniform clutter of the given density plus "
         f"{STREAM_TARGETS} straight targets at 1-3 px/scan (seed {args.seed}). After the first "
         f"{STREAM_WINDOW - 1} scans every push returns a window result; each of the "
@@ -596,7 +625,11 @@ def stream_main(args: argparse.Namespace) -> int:
         "- HOC part: the push minus its `identify_tracks` call (new layer entries, links, "
         "marking trees, window support cube, track-id association); identify: the one "
         "`identify_tracks` call on the window's support.",
-        "- batch detect: `hocnet.hoc.detect` on the same 10-scan window, every window; "
+        "- support: `chain` = the chain support `detect` uses today; `mhoc` = "
+        '`StreamingDetector(support="mhoc")`, the paper\'s image (forward Y^(k) OR backward '
+        "Y^(k), [LA98] III-B) handed to identification.",
+        "- batch: the same 10-scan window computed in one go, every window: `hocnet.hoc.detect` "
+        "(chain), or `modified_hoc` forward | backward + `identify_tracks` (mhoc); "
         "`windows == batch`: windows whose streaming result (support, cleaned cube, track points "
         "and scores) equals it.",
         f"- max-pool floor: one `max_pool2d(scan.float(), {POOL}, stride=1, padding={POOL // 2})` "
@@ -646,6 +679,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--stream",
         action="store_true",
         help="streaming rows instead: StreamingDetector push latency on a 640 x 512 sensor",
+    )
+    p.add_argument(
+        "--supports",
+        type=_csv_of(str),
+        default=STREAM_SUPPORTS,
+        help="with --stream: comma-separated StreamingDetector supports (default chain,mhoc)",
     )
     p.add_argument("--sizes", type=_csv_of(_parse_size), help="comma-separated TxHxW")
     p.add_argument("--densities", type=_csv_of(float), help="comma-separated clutter densities")
