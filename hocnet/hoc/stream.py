@@ -72,11 +72,15 @@ class StreamResult:
             numbers ``t in [0, window)`` in its ``(window, H, W)`` cubes and its tracks; track ids
             are kept across windows (a track inherits the id of the previous window's track it
             shares the most points with).
+        candidates: with ``support="mhoc"``, the ``(window, H, W)`` bool cube of the image
+            plus the points named by the top-layer moves of its points (the members of its
+            five-point sequences, [LA98] section III-B); ``None`` with ``support="chain"``.
     """
 
     start: int
     stop: int
     result: HOCResult
+    candidates: torch.Tensor | None = None
 
     @property
     def tracks(self) -> list[Track]:
@@ -424,17 +428,19 @@ class StreamingDetector:
             cache.triples[level][t] = triples
             cache.levels[level][t] = torch.unique_consecutive(triples[0])  # p0 comes sorted
 
-    def _tree_sparse(self, cache: _Direction, r: int) -> list[torch.Tensor]:
-        """Marking tree of the roots at scan ``r``: its points at scans ``r + s * j``, j = 0..2k.
+    def _tree_sparse(self, cache: _Direction, r: int, depth: int) -> list[torch.Tensor]:
+        """Marking tree of the roots at scan ``r``: its points at scans ``r + s * j``.
 
         The marking pass of :func:`~hocnet.hoc.functional.support_from_levels`, restricted to
-        one root scan: level by level from ``k`` down to 1, every triple of ``Y^(l-1)`` rooted
-        at a marked point marks its two other members.
+        one root scan and to the top ``depth`` levels: level by level from ``k`` down to
+        ``k - depth + 1``, every triple of ``Y^(l-1)`` rooted at a marked point marks its two
+        other members. ``depth = k``: the chain support's tree (``j = 0 .. 2k``); ``depth = 1``:
+        the roots and the points their top-layer moves name (``j = 0, 1, 2``).
         """
         k, s = self.order, cache.s
-        marks = [cache.levels[k][r]] + [_EMPTY] * (2 * k)
-        for level in range(k, 0, -1):
-            adds: list[list[torch.Tensor]] = [[] for _ in range(2 * k + 1)]
+        marks = [cache.levels[k][r]] + [_EMPTY] * (2 * depth)
+        for level in range(k, k - depth, -1):
+            adds: list[list[torch.Tensor]] = [[] for _ in range(2 * depth + 1)]
             for j in range(2 * (k - level) + 1):
                 if marks[j].numel() == 0:
                     continue
@@ -447,34 +453,32 @@ class StreamingDetector:
                     marks[j] = _union([marks[j], *extra])
         return marks
 
-    def _tree_conv(self, cache: _Direction, r: int) -> list[torch.Tensor]:
-        """Marking tree of the roots at scan ``r`` through :func:`hoc_mark` on ``2k + 1`` scans."""
+    def _tree_conv(self, cache: _Direction, r: int, depth: int) -> list[torch.Tensor]:
+        """:meth:`_tree_sparse` through :func:`hoc_mark` on the ``2 * depth + 1`` scans."""
         k, s = self.order, cache.s
         h, w = self._shape
-        first = r if s > 0 else r - 2 * k  # earliest scan of the sub-cube
+        n_t = 2 * depth + 1
+        first = r if s > 0 else r - 2 * depth  # earliest scan of the sub-cube
         levels = []
-        for level in range(k + 1):
-            cube = torch.zeros(2 * k + 1, h * w, dtype=torch.bool)
-            for i in range(2 * k + 1):
+        for level in range(k - depth, k + 1):
+            cube = torch.zeros(n_t, h * w, dtype=torch.bool)
+            for i in range(n_t):
                 t = first + i
-                # only the entries a batch run on these 2k + 1 scans can evaluate
-                ok = (t + 2 * level <= first + 2 * k) if s > 0 else (t - 2 * level >= first)
-                if level == k:
-                    ok = t == r
-                if ok and t in cache.levels[level]:
+                # cached values (marks reach only the evaluable ones); the top only at r
+                if t in cache.levels[level] and (level < k or t == r):
                     cube[i, cache.levels[level][t]] = True
-            levels.append(cube.reshape(1, 2 * k + 1, h, w))
+            levels.append(cube.reshape(1, n_t, h, w))
         direction = "forward" if s > 0 else "backward"
         marks = support_from_levels(levels, self.v, self.delta, direction=direction, method="conv")
-        flat = marks[0].reshape(2 * k + 1, -1)
-        return [flat[r + s * j - first].nonzero().squeeze(1) for j in range(2 * k + 1)]
+        flat = marks[0].reshape(n_t, -1)
+        return [flat[r + s * j - first].nonzero().squeeze(1) for j in range(n_t)]
 
     def _update_tree(self, cache: _Direction, n: int) -> None:
         r = n - 2 * self.order if cache.s > 0 else n
         if r < 0 or r not in cache.levels[self.order]:
             return
         tree = self._tree_conv if self.method == "conv" else self._tree_sparse
-        cache.trees[r] = tree(cache, r)
+        cache.trees[r] = tree(cache, r, self.order if self.support == "chain" else 1)
 
     # ------------------------------------------------------------------------- public
 
@@ -508,31 +512,32 @@ class StreamingDetector:
         self._update_links(n)
         for cache in self._dirs:
             self._update_levels(cache, n)
-            if self.support == "chain":
-                self._update_tree(cache, n)
+            self._update_tree(cache, n)
         if self.pushed < self.window or (self.pushed - self.window) % self.stride:
             return None
         return self._emit()
 
-    def _window_support(self, start: int) -> torch.Tensor:
-        """The ``(window, H, W)`` support of the window starting at absolute scan ``start``."""
+    def _window_cube(self, start: int, trees: bool) -> torch.Tensor:
+        """A ``(window, H, W)`` cube of the window starting at absolute scan ``start``.
+
+        ``trees``: the union of the cached marking trees of the window's roots (the chain
+        support, or with ``support="mhoc"`` the candidates); else the image, forward ``Y^(k)``
+        OR backward ``Y^(k)``. Forward roots ``start <= r <= n - 2k``, backward roots
+        ``start + 2k <= r <= n``, as the batch computation on the window.
+        """
         h, w = self._shape
         n, k = self.pushed - 1, self.order
         hw = h * w
         parts = []
-        fwd, bwd = self._dirs
-        if self.support == "chain":
-            for r in range(start, n - 2 * k + 1):
-                for j, pts in enumerate(fwd.trees.get(r, ())):
-                    parts.append(pts + (r + j - start) * hw)
-            for r in range(start + 2 * k, n + 1):
-                for j, pts in enumerate(bwd.trees.get(r, ())):
-                    parts.append(pts + (r - j - start) * hw)
-        else:
-            for r in range(start, n - 2 * k + 1):
-                parts.append(fwd.levels[k].get(r, _EMPTY) + (r - start) * hw)
-            for r in range(start + 2 * k, n + 1):
-                parts.append(bwd.levels[k].get(r, _EMPTY) + (r - start) * hw)
+        for cache, roots in zip(
+            self._dirs, (range(start, n - 2 * k + 1), range(start + 2 * k, n + 1)), strict=True
+        ):
+            for r in roots:
+                if trees:
+                    for j, pts in enumerate(cache.trees.get(r, ())):
+                        parts.append(pts + (r + cache.s * j - start) * hw)
+                else:
+                    parts.append(cache.levels[k].get(r, _EMPTY) + (r - start) * hw)
         cube = torch.zeros(self.window * hw, dtype=torch.bool)
         if parts:
             cube[torch.cat(parts)] = True
@@ -540,13 +545,18 @@ class StreamingDetector:
 
     def _emit(self) -> StreamResult:
         start = self.pushed - self.window
-        support = self._window_support(start)
+        candidates = None
+        if self.support == "chain":
+            support = self._window_cube(start, trees=True)
+        else:
+            support = self._window_cube(start, trees=False)
+            candidates = self._window_cube(start, trees=True)
         tracks, scores, cleaned = identify_tracks(
             support, self.v, self.delta, **self._identify_kwargs
         )
         self._associate(tracks, start)
         result = HOCResult(support=support, tracks=tracks, scores=scores, cleaned=cleaned)
-        return StreamResult(start=start, stop=self.pushed, result=result)
+        return StreamResult(start=start, stop=self.pushed, result=result, candidates=candidates)
 
     def _associate(self, tracks: list[Track], start: int) -> None:
         """Give each track the id of the previous window's track it shares most points with.

@@ -7,7 +7,14 @@ import torch
 
 import hocnet.hoc.stream as stream
 from hocnet.data.binary import paper_scene
-from hocnet.hoc import StreamingDetector, detect, hoc_levels, identify_tracks, modified_hoc
+from hocnet.hoc import (
+    StreamingDetector,
+    detect,
+    hoc_levels,
+    identify_tracks,
+    modified_hoc,
+    support_from_levels,
+)
 from hocnet.hoc.kernels import allowed_moves
 
 DELTA = math.pi / 4
@@ -61,21 +68,38 @@ class TestStreamingEqualsBatch:
         for out in outs:
             _assert_same(out.result, detect(cube[out.start : out.stop], order=2))
 
-    @pytest.mark.parametrize("order", [1, 2, 3])
-    def test_mhoc_support_is_forward_or_backward_top_level(self, order):
+    @pytest.mark.parametrize(
+        ("order", "method"), [(1, "auto"), (2, "auto"), (3, "auto"), (2, "conv")]
+    )
+    def test_mhoc_support_is_forward_or_backward_top_level(self, order, method):
         scene = paper_scene("fig5", 0.015, seed=7)
-        det = StreamingDetector(window=10, stride=1, order=order, support="mhoc")
-        for out in _stream(det, scene.cube):
-            w = scene.cube[out.start : out.stop]
+        cube = scene.cube if method == "auto" else scene.cube[:12, 10:40, 5:45]
+        det = StreamingDetector(window=10, stride=1, order=order, support="mhoc", method=method)
+        outs = _stream(det, cube)
+        assert len(outs) == cube.shape[0] - 9
+        for out in outs:
+            w = cube[out.start : out.stop]
             image = modified_hoc(w, order, direction="forward") | modified_hoc(
                 w, order, direction="backward"
             )
             assert torch.equal(out.result.support, image)
+            # candidates: the image plus the members of its top-layer triples, both directions
+            named = torch.zeros_like(w)
+            for direction in ("forward", "backward"):
+                levels = hoc_levels(w[None], order, 4, DELTA, direction=direction)
+                named |= support_from_levels(levels[-2:], 4, DELTA, direction=direction)[0]
+            assert torch.equal(out.candidates, named)
+            assert bool((image <= named).all())
             tracks, _, cleaned = identify_tracks(image, min_points=2 * order + 1)
             assert torch.equal(out.result.cleaned, cleaned)
             assert [t.points.tolist() for t in out.result.tracks] == [
                 t.points.tolist() for t in tracks
             ]
+
+    def test_chain_mode_has_no_candidates(self):
+        det = StreamingDetector(window=5, stride=1, order=2)
+        outs = _stream(det, torch.zeros(5, 8, 8, dtype=torch.bool))
+        assert outs[0].candidates is None
 
     @pytest.mark.parametrize("order", [1, 3])
     def test_cached_levels_equal_hoc_levels_of_the_window(self, order):
@@ -170,9 +194,9 @@ class TestIncremental:
             calls["join"] += 1
             return join(self, *args)
 
-        def count_tree(self, cache, r):
+        def count_tree(self, *args):
             calls["tree"] += 1
-            return tree(self, cache, r)
+            return tree(self, *args)
 
         monkeypatch.setattr(stream._Grid, "edges", count_edges)
         monkeypatch.setattr(stream._Grid, "join", count_join)
