@@ -34,6 +34,7 @@ __all__ = [
     "machine_line",
     "memory_note",
     "peak_memory_mb",
+    "percentile",
     "timed",
 ]
 
@@ -58,6 +59,17 @@ def timed(
         best, runs, spent = min(best, dt), runs + 1, spent + dt
         if runs >= max_runs or (runs >= min_runs and spent >= min_time):
             return best, runs, result
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """The ``q``-th percentile (0-100) of ``values``, linear interpolation (numpy's default)."""
+    ordered = sorted(values)
+    if not ordered:
+        return math.nan
+    pos = (len(ordered) - 1) * q / 100
+    lo = math.floor(pos)
+    hi = min(lo + 1, len(ordered) - 1)
+    return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
 
 
 def load_average() -> float:

@@ -1,39 +1,64 @@
-"""Continuous (sliding-window) operation of the HOC detector, section IV-A of [LA98].
+"""Continuous (sliding-window) operation of the HOC detector: section IV-A and Fig. 5 of [LA98].
 
-Scans arrive one at a time; a window of the latest ``window`` scans is processed every ``stride``
-scans (windows 1-10, 3-12, 5-14, ... for ``window=10, stride=2``). The layer outputs of scans
-still in the window are cached and reused: each pushed scan costs one forward and one backward
-evaluation per layer on three scans, not a recomputation of the whole window.
+[LA98] section IV-A ("Continuous Mode Operation") runs the detector with a limited memory: the
+newest scan replaces the oldest, and a decision is made on the scans in memory, "like a moving
+window process in the time domain". Its Fig. 5 processes 16 scans and reports the 10-scan
+intervals 1-10, 3-12, 5-14 and 7-16 (Fig. 5(c)-(f)): ``StreamingDetector(window=10, stride=2)``.
+Every window's result equals :func:`~hocnet.hoc.identify.detect` on the same scans.
 
-Why the cache is exact: a forward ``Y^(l)(t)`` depends on scans ``t .. t + 2l`` only, so it can be
-computed once, as soon as scan ``t + 2l`` arrives, and stays valid while scan ``t`` is in the
-window. A backward ``Y^(l)(t)`` depends on scans ``t - 2l .. t``: it is computed when scan ``t``
-arrives, and within a window starting at scan ``s`` it counts only while ``t - 2l >= s`` (the batch
-computation on the window cannot evaluate it earlier), so older entries are masked, not
-recomputed. Results are therefore identical to :func:`~hocnet.hoc.identify.detect` on the window.
+Incremental evaluation (our addition; the paper only says the network "records all the
+information that is required"). A forward ``Y^(l)(t)`` depends on scans ``t .. t + 2l`` only and a
+backward ``Y^(l)(t)`` on scans ``t - 2l .. t``, so each value is computed once, as soon as its last
+scan arrives, and stays valid while its first scan is in the window. A pushed scan ``n`` makes
+evaluable, per level ``l = 1 .. k``: the forward entry at ``t = n - 2l`` and the backward entry at
+``t = n``. These ``2k`` entries, computed from one neighbour look-up between scans ``n - 1`` and
+``n`` (the pairs within the velocity window, filtered to the survivors of each level), are all
+the layer work of a push. The chain support
+(:func:`~hocnet.hoc.functional.chain_support`) is a union over its roots, so it decomposes the
+same way: the marking tree ``M_r`` of the forward roots at scan ``r`` (``Y^(k)(r)``, scans
+``r .. r + 2k``) and of the backward roots at ``r`` (scans ``r - 2k .. r``) is computed once, when
+scan ``r + 2k`` (forward) or ``r`` (backward) arrives. A window ``[s, n]`` is the union of the
+forward trees with ``s <= r <= n - 2k`` and the backward trees with ``s + 2k <= r <= n``; backward
+entries that reach before ``s`` are left out, exactly as the batch computation on the window
+cannot evaluate them.
+
+What is cached, keyed by absolute scan number and stored as sorted flat pixel indices ``y * W + x``
+(memory grows with the number of on-points in the window, not with the number of pushed scans):
+
+- the on-points of every scan in the window (level 0);
+- the links of every pair of successive scans: the on-point pairs within the velocity window
+  (read in both time directions);
+- per direction and level ``l``: the points of ``Y^(l)(t)`` and the accepted triples of
+  ``Y^(l-1)`` rooted at scan ``t`` (the edges the marking pass walks);
+- per direction: the marking tree ``M_r`` of every root scan ``r`` in the window.
+
+Entries of scans that have left the window are dropped. With ``method="conv"`` the layer
+entries and trees come from the connectionist layer on the 3 (trees: ``2k + 1``) scans involved,
+and no links or triples are kept.
+
+Track identification (section III-B) is one call of :func:`~hocnet.hoc.identify.identify_tracks`
+on the window's ``(window, H, W)`` support cube: it is not incremental (that code is being
+rewritten to the paper's procedure, issue 7).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
+from typing import Any, Literal
 
 import torch
 
-from hocnet._check import as_cube, check_int, check_number
-from hocnet.hoc.functional import (
-    Method,
-    _allowed_cached,
-    _resolve_method,
-    _sparse_triples,
-    hoc_levels,
-    support_from_levels,
-)
+from hocnet._check import as_cube, check_choice, check_int, check_number
+from hocnet.hoc.functional import hoc_layer, support_from_levels
 from hocnet.hoc.identify import HOCResult, Track, identify_tracks
+from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
 from hocnet.hoc.scoring import DEFAULT_THRESHOLD
 
 __all__ = ["StreamResult", "StreamingDetector"]
+
+Method = Literal["auto", "conv", "sparse"]
+Support = Literal["chain", "mhoc"]
 
 
 @dataclass
@@ -44,14 +69,18 @@ class StreamResult:
         start: absolute scan number of the window's first scan (0-based).
         stop: absolute scan number one past the window's last scan.
         result: :class:`~hocnet.hoc.identify.HOCResult` for the window, with window-local scan
-            numbers ``t in [0, window)`` in its cubes and tracks; track ids are kept across
-            windows (a track inherits the id of the previous window's track it shares the most
-            points with).
+            numbers ``t in [0, window)`` in its ``(window, H, W)`` cubes and its tracks; track ids
+            are kept across windows (a track inherits the id of the previous window's track it
+            shares the most points with).
+        candidates: with ``support="mhoc"``, the ``(window, H, W)`` bool cube of the image
+            plus the points named by the top-layer moves of its points (the members of its
+            five-point sequences, [LA98] section III-B); ``None`` with ``support="chain"``.
     """
 
     start: int
     stop: int
     result: HOCResult
+    candidates: torch.Tensor | None = None
 
     @property
     def tracks(self) -> list[Track]:
@@ -64,20 +93,192 @@ class StreamResult:
         return out
 
 
+# ----------------------------------------------------------------------------- private helpers
+
+_EMPTY = torch.zeros(0, dtype=torch.long)
+Edges = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+_NO_EDGES: Edges = (_EMPTY, _EMPTY, _EMPTY)
+
+
+class _Grid:
+    """Neighbour look-up between two ``(H, W)`` scans through a reusable padded index image.
+
+    The on-points of the later scan (sorted flat indices ``y * W + x``) are written into a
+    ``(H + 2v) x (W + 2v)`` int32 image (``-1`` elsewhere, so nothing wraps and out-of-image
+    neighbours are empty, as in :mod:`hocnet.hoc.functional`); the image is cleared again after
+    use, so a look-up costs ``(2v + 1)^2`` reads per point, not the frame size.
+    """
+
+    def __init__(self, h: int, w: int, v: int) -> None:
+        self.h, self.w, self.v = h, w, v
+        self.wp = w + 2 * v
+        self.image = torch.full(((h + 2 * v) * self.wp,), -1, dtype=torch.int32)
+        self.flags = torch.zeros(h * w, dtype=torch.bool)
+        self.slots = torch.full((h * w,), -1, dtype=torch.int64)
+        rng = torch.arange(-v, v + 1)
+        # move m = (j + v) * (2v + 1) + (i + v) for (i, j) = (dx, dy): kernels.move_offsets order
+        self.offsets = (rng[:, None] * self.wp + rng[None, :]).reshape(-1)
+        self.n_moves = self.offsets.numel()
+
+    def _padded(self, points: torch.Tensor) -> torch.Tensor:
+        return (points // self.w + self.v) * self.wp + points % self.w + self.v
+
+    def edges(self, a: torch.Tensor, b: torch.Tensor) -> Edges:
+        """Every pair ``(p, q)``, ``p`` in ``a``, ``q`` in ``b``, ``q - p`` in the velocity window.
+
+        Args:
+            a: ``(N,)`` sorted flat indices of the on-points of one scan.
+            b: ``(N',)`` sorted flat indices of the on-points of another scan.
+
+        Returns:
+            ``(src, dst, move)``: ``(E,)`` int64 flat indices of ``p`` and ``q`` and the move
+            index of ``q - p``, sorted by ``src``.
+        """
+        if a.numel() == 0 or b.numel() == 0:
+            return _NO_EDGES
+        pos = self._padded(b)
+        self.image[pos] = torch.arange(b.numel(), dtype=torch.int32)
+        try:
+            nb = self.image[self._padded(a)[:, None] + self.offsets[None, :]]
+            row, move = (nb >= 0).nonzero(as_tuple=True)  # row-major: ascending row
+            return a[row], b[nb[row, move].long()], move
+        finally:
+            self.image[pos] = -1
+
+    def member(self, x: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+        """``(N,)`` bool: which of the flat indices ``x`` are among ``points`` (one frame)."""
+        self.flags[points] = True
+        try:
+            return self.flags[x]
+        finally:
+            self.flags[points] = False
+
+    def restrict(self, edges: Edges, src_set: torch.Tensor, dst_set: torch.Tensor) -> Edges:
+        """The edges with both ends in the given point sets; order kept."""
+        src, dst, move = edges
+        keep = self.member(src, src_set) & self.member(dst, dst_set)
+        return src[keep], dst[keep], move[keep]
+
+    def join(self, first: Edges, second: Edges, allowed: torch.Tensor) -> Edges:
+        """Accepted triples ``(p0, p1, p2)``: ``p0 -> p1`` in ``first``, ``p1 -> p2`` in ``second``.
+
+        The sums of one HOC layer (eq. 5-6 of [LA98]) evaluated only at on-points: a first move
+        ``m1`` followed by a second move ``m2`` with ``allowed[m1, m2]`` (the join of
+        ``functional._sparse_triples``, restricted to one root scan). ``second`` must be sorted
+        by its source.
+
+        Returns:
+            ``(p0, p1, p2)``: ``(N,)`` int64 flat indices, one entry per accepted triple, sorted
+            by ``p0`` when ``first`` is sorted by its source.
+        """
+        a, b, m1 = first
+        b2, c, m2 = second
+        if a.numel() == 0 or b2.numel() == 0:
+            return _NO_EDGES
+        mids, counts = torch.unique_consecutive(b2, return_counts=True)
+        starts = torch.cumsum(counts, 0) - counts
+        self.slots[mids] = torch.arange(mids.numel())
+        try:
+            u = self.slots[b]  # the middle point's row in `mids`, -1 if it has no second move
+        finally:
+            self.slots[mids] = -1
+        has = u >= 0
+        u = u.clamp(min=0)
+        lo = starts[u]
+        fan = torch.where(has, counts[u], 0)  # second moves after each first move
+        ends = torch.cumsum(fan, 0)
+        total = int(ends[-1])
+        if total == 0:
+            return _NO_EDGES
+        # expand every first move into its second moves (searchsorted, not repeat_interleave, as
+        # in functional._sparse_triples)
+        slots = torch.arange(total)
+        f = torch.searchsorted(ends, slots, right=True)
+        g = lo[f] + slots - (ends - fan)[f]
+        ok = allowed[m1[f], m2[g]]
+        f, g = f[ok], g[ok]
+        return a[f], b[f], c[g]
+
+    def reverse(self, edges: Edges) -> Edges:
+        """The same pairs read the other way round in time (move ``-m``), sorted by source."""
+        src, dst, move = edges
+        order = torch.argsort(dst, stable=True)
+        return dst[order], src[order], self.n_moves - 1 - move[order]
+
+
+class _Direction:
+    """Cache of one direction (``s = +1`` forward, ``-1`` backward), keyed by absolute scan.
+
+    Attributes:
+        s: time step of the layers, +1 (forward: scans ``t + 1, t + 2``) or -1 (backward).
+        levels: ``levels[l][t]``: sorted flat indices of ``Y^(l)(t)``; ``levels[0]`` is the
+            detector's dict of input scans.
+        links: ``links[t]``: pairs of on-points of scans ``t`` and ``t + s`` within the velocity
+            window (:meth:`_Grid.edges`), sorted by the point at ``t``.
+        triples: ``triples[l][t]``: the accepted triples of ``Y^(l-1)`` rooted at scan ``t``.
+        trees: ``trees[r]``: the marking tree of the roots ``Y^(k)(r)``, its points at scans
+            ``r, r + s, ..., r + 2ks``.
+    """
+
+    def __init__(self, s: int, order: int, scans: dict[int, torch.Tensor]) -> None:
+        self.s = s
+        self.levels: list[dict[int, torch.Tensor]] = [scans] + [{} for _ in range(order)]
+        self.links: dict[int, Edges] = {}
+        self.triples: list[dict[int, Edges]] = [{} for _ in range(order + 1)]
+        self.trees: dict[int, list[torch.Tensor]] = {}
+
+    def drop_before(self, first: int) -> None:
+        """Forget every entry of a scan before ``first`` (level 0 is owned by the detector)."""
+        for cache in (*self.levels[1:], *self.triples[1:], self.links, self.trees):
+            for t in [t for t in cache if t < first]:
+                del cache[t]
+
+
+def _union(parts: list[torch.Tensor]) -> torch.Tensor:
+    return torch.unique(torch.cat(parts)) if len(parts) > 1 else parts[0]
+
+
+# ----------------------------------------------------------------------------- detector
+
+
 class StreamingDetector:
-    """Sliding-window modified-HOC detector with cached layer outputs.
+    """Sliding-window modified-HOC detector, incremental per pushed scan ([LA98] IV-A, Fig. 5).
+
+    Push ``(H, W)`` binary scans one at a time; once ``window`` scans have arrived, every
+    ``stride``-th push returns the result for the latest ``window`` scans, equal to
+    :func:`~hocnet.hoc.identify.detect` on that ``(window, H, W)`` cube with the same arguments
+    (with ``support="chain"``). A push costs one neighbour look-up between the previous and the
+    new scan, the ``2k`` layer entries it makes evaluable and one marking tree per direction (see
+    the module notes for what is cached; none of this depends on ``window``), then, when a
+    result is due, the ``(window, H, W)`` support cube and one
+    :func:`~hocnet.hoc.identify.identify_tracks` call on it (not incremental).
 
     Args:
-        window: scans per window (``>= 2 * order + 1``).
-        stride: scans between two processed windows.
-        order: HOC order ``k``.
-        v: velocity window half-width.
-        delta: curvature limit in ``(0, pi]``.
-        threshold: track acceptance threshold (see :func:`~hocnet.hoc.identify.detect`).
-        min_points: smallest accepted track length, default ``2 * order + 1``.
-        method: HOC implementation: ``"conv"`` runs the connectionist layers for the per-scan
-            updates and the marking pass; ``"auto"`` and ``"sparse"`` use the sparse path for the
-            updates (three scans at a time) and choose by density for the marking pass.
+        window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
+        stride: scans between two returned windows (``>= 1``); 2 in [LA98] Fig. 5.
+        order: HOC order ``k >= 1``.
+        v: velocity window half-width in pixels per scan (``>= 1``).
+        delta: curvature limit in radians, in ``(0, pi]``.
+        threshold: smallest accepted track score (see :func:`~hocnet.hoc.identify.detect`).
+        min_points: smallest accepted track length (``>= 1``), default ``2 * order + 1``.
+        max_tracks_per_point: tracks that may share a point (``>= 1``).
+        method: layer implementation: ``"auto"`` and ``"sparse"`` evaluate the new layer entries
+            and marking trees on the on-points only; ``"conv"`` runs the connectionist layer
+            (:func:`~hocnet.hoc.functional.hoc_layer`, :func:`~hocnet.hoc.functional.hoc_mark`)
+            on the three (marking: ``2k + 1``) scans involved. Results are identical.
+        support: the points handed to track identification: ``"chain"`` (the chain support of
+            :func:`~hocnet.hoc.functional.chain_support`, what ``detect`` uses today) or
+            ``"mhoc"`` (the forward ``Y^(k)`` OR the backward ``Y^(k)`` of the window, the image
+            [LA98] section III-B identifies tracks on; read from the cache at no extra cost).
+        A1: movement-score constant of eq. (8).
+        alpha1: movement-score scale of eq. (8).
+        A2: curvature-score constant of eq. (9).
+        alpha2: curvature-score scale of eq. (9).
+
+    Raises:
+        TypeError: an argument of the wrong type (named in the message).
+        ValueError: an argument out of range (named in the message); from :meth:`push`, a scan
+            that is not one binary ``(H, W)`` frame or whose size differs from the first scan.
 
     Examples:
         >>> det = StreamingDetector(window=6, stride=2, order=2, v=2)
@@ -100,137 +301,311 @@ class StreamingDetector:
         delta: float = math.pi / 4,
         threshold: float = DEFAULT_THRESHOLD,
         min_points: int | None = None,
+        max_tracks_per_point: int = 2,
         method: Method = "auto",
+        support: Support = "chain",
+        A1: float = 9.0,
+        alpha1: float = 1 / 3,
+        A2: float = 2.12,
+        alpha2: float = 2.0,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
         self.stride = check_int("stride", stride, minimum=1)
         self.v = check_int("v", v, minimum=1)
         self.delta = check_number("delta", delta, low=0.0, high=math.pi, low_inclusive=False)
+        self.method = check_choice("method", method, ("auto", "conv", "sparse"))
+        self.support = check_choice("support", support, ("chain", "mhoc"))
         self.threshold = check_number("threshold", threshold)
         self.min_points = (
-            2 * self.order + 1 if min_points is None else check_int("min_points", min_points)
+            2 * self.order + 1
+            if min_points is None
+            else check_int("min_points", min_points, minimum=1)
         )
-        self.method = method
-        _resolve_method(method, torch.zeros(1))  # validate the name now
-        self._allowed = _allowed_cached(self.v, self.delta, "cpu")
+        self.max_tracks_per_point = check_int(
+            "max_tracks_per_point", max_tracks_per_point, minimum=1
+        )
+        self._identify_kwargs: dict[str, Any] = {
+            "threshold": self.threshold,
+            "min_points": self.min_points,
+            "max_tracks_per_point": self.max_tracks_per_point,
+            "A1": check_number("A1", A1),
+            "alpha1": check_number("alpha1", alpha1),
+            "A2": check_number("A2", A2),
+            "alpha2": check_number("alpha2", alpha2),
+        }
+        self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers
+        self._kernels: tuple[torch.Tensor, torch.Tensor] | None = None  # method="conv" only
         self.reset()
 
     def reset(self) -> None:
-        """Forget all scans."""
+        """Forget all scans (the next push starts a new stream at scan 0; ids restart at 1)."""
         self.pushed = 0
         self._shape: tuple[int, int] | None = None
-        # _fwd[l] / _bwd[l]: deque of (scan number, (H, W) bool) for level l (0 = input scans)
-        self._fwd: list[deque] = [deque(maxlen=self.window) for _ in range(self.order + 1)]
-        self._bwd: list[deque] = [deque(maxlen=self.window) for _ in range(self.order + 1)]
-        self._previous: list[Track] = []
+        self._grid: _Grid | None = None
+        self._scans: dict[int, torch.Tensor] = {}
+        self._dirs = (
+            _Direction(1, self.order, self._scans),
+            _Direction(-1, self.order, self._scans),
+        )
+        self._previous: tuple[torch.Tensor, torch.Tensor, list[int]] | None = None
         self._next_id = 1
 
-    def _layer(self, scans: list[torch.Tensor], direction: str) -> torch.Tensor:
-        """One layer evaluated at the first (forward) or last (backward) of three scans."""
-        at = 0 if direction == "forward" else 2
-        if not scans[at].any():
-            return torch.zeros_like(scans[at])
-        cube = torch.stack(scans)[None]
-        if self.method == "conv":
-            return hoc_levels(cube, 1, self.v, self.delta, direction=direction, method="conv")[1][
-                0, at
-            ]
-        roots = torch.zeros_like(cube)
-        roots[0, at] = cube[0, at]
-        s = 1 if direction == "forward" else -1
-        flat, p0, _, _ = _sparse_triples(cube, self._allowed, self.v, s, roots=roots)
-        out = torch.zeros(cube.numel(), dtype=torch.bool)
-        out[flat[p0]] = True
-        return out.reshape(cube.shape)[0, at]
+    # ------------------------------------------------------------------------- input
+
+    def _frame(self, scan: Any) -> torch.Tensor:
+        """Validate one ``(H, W)`` binary scan; return its on-points as sorted flat indices."""
+        if not isinstance(scan, torch.Tensor):
+            try:
+                scan = torch.as_tensor(scan)
+            except (TypeError, ValueError, RuntimeError):
+                raise TypeError(
+                    f"`scan`: expected a tensor or array of shape (H, W), got {type(scan).__name__}"
+                ) from None
+        if scan.dim() != 2:
+            raise ValueError(
+                f"`scan`: expected one scan of shape (H, W), got shape {tuple(scan.shape)}"
+            )
+        cube, _ = as_cube("scan", scan[None], binary=True)
+        frame = cube[0, 0].cpu()
+        shape = (int(frame.shape[0]), int(frame.shape[1]))
+        if self._shape is None:
+            self._shape = shape
+            self._grid = _Grid(*shape, self.v)
+        elif shape != self._shape:
+            raise ValueError(
+                f"`scan`: expected shape {self._shape} like the previous scans, got {shape}"
+            )
+        return frame.reshape(-1).nonzero().squeeze(1)
+
+    # ------------------------------------------------------------------------- layers
+
+    def _conv_entry(self, parts: list[torch.Tensor], s: int) -> torch.Tensor:
+        """One connectionist layer evaluated at the first of three scans (in layer direction)."""
+        h, w = self._shape
+        y = torch.zeros(3, h * w)
+        for i, p in enumerate(parts if s > 0 else parts[::-1]):
+            y[i, p] = 1.0
+        if self._kernels is None:
+            self._kernels = (
+                get_direction_mask_kernels(self.v, self.delta),
+                get_shift_kernels(self.v),
+            )
+        direction = "forward" if s > 0 else "backward"
+        out = hoc_layer(y.reshape(1, 3, h, w), *self._kernels, direction=direction)
+        return out[0, 0 if s > 0 else 2].reshape(-1).nonzero().squeeze(1)
+
+    def _update_links(self, n: int) -> None:
+        """Pairs between scans ``n - 1`` and ``n``: the only neighbour look-up of a push."""
+        if n == 0 or self.method == "conv":
+            return
+        fwd, bwd = self._dirs
+        fwd.links[n - 1] = self._grid.edges(self._scans[n - 1], self._scans[n])
+        bwd.links[n] = self._grid.reverse(fwd.links[n - 1])
+
+    def _update_levels(self, cache: _Direction, n: int) -> None:
+        """Compute the level entries that scan ``n`` makes evaluable in one direction.
+
+        Forward: ``Y^(l)(n - 2l)``; backward: ``Y^(l)(n)``, for ``l = 1 .. k``.
+        """
+        s = cache.s
+        for level in range(1, self.order + 1):
+            t = n - 2 * level if s > 0 else n
+            if t < 0:
+                continue
+            below = cache.levels[level - 1]
+            if self.method == "conv":
+                parts = [below.get(t + s * i, _EMPTY) for i in range(3)]
+                cache.levels[level][t] = self._conv_entry(parts, s)
+                continue
+            first = cache.links.get(t, _NO_EDGES)
+            second = cache.links.get(t + s, _NO_EDGES)
+            if level > 1:  # the links between points that survived the level below
+                y0, y1, y2 = (below.get(t + s * i, _EMPTY) for i in range(3))
+                first = self._grid.restrict(first, y0, y1)
+                second = self._grid.restrict(second, y1, y2)
+            triples = self._grid.join(first, second, self._allowed)
+            cache.triples[level][t] = triples
+            cache.levels[level][t] = torch.unique_consecutive(triples[0])  # p0 comes sorted
+
+    def _tree_sparse(self, cache: _Direction, r: int, depth: int) -> list[torch.Tensor]:
+        """Marking tree of the roots at scan ``r``: its points at scans ``r + s * j``.
+
+        The marking pass of :func:`~hocnet.hoc.functional.support_from_levels`, restricted to
+        one root scan and to the top ``depth`` levels: level by level from ``k`` down to
+        ``k - depth + 1``, every triple of ``Y^(l-1)`` rooted at a marked point marks its two
+        other members. ``depth = k``: the chain support's tree (``j = 0 .. 2k``); ``depth = 1``:
+        the roots and the points their top-layer moves name (``j = 0, 1, 2``).
+        """
+        k, s = self.order, cache.s
+        marks = [cache.levels[k][r]] + [_EMPTY] * (2 * depth)
+        for level in range(k, k - depth, -1):
+            adds: list[list[torch.Tensor]] = [[] for _ in range(2 * depth + 1)]
+            for j in range(2 * (k - level) + 1):
+                if marks[j].numel() == 0:
+                    continue
+                a, b, c = cache.triples[level][r + s * j]
+                hit = self._grid.member(a, marks[j])
+                adds[j + 1].append(b[hit])
+                adds[j + 2].append(c[hit])
+            for j, extra in enumerate(adds):
+                if extra:
+                    marks[j] = _union([marks[j], *extra])
+        return marks
+
+    def _tree_conv(self, cache: _Direction, r: int, depth: int) -> list[torch.Tensor]:
+        """:meth:`_tree_sparse` through :func:`hoc_mark` on the ``2 * depth + 1`` scans."""
+        k, s = self.order, cache.s
+        h, w = self._shape
+        n_t = 2 * depth + 1
+        first = r if s > 0 else r - 2 * depth  # earliest scan of the sub-cube
+        levels = []
+        for level in range(k - depth, k + 1):
+            cube = torch.zeros(n_t, h * w, dtype=torch.bool)
+            for i in range(n_t):
+                t = first + i
+                # cached values (marks reach only the evaluable ones); the top only at r
+                if t in cache.levels[level] and (level < k or t == r):
+                    cube[i, cache.levels[level][t]] = True
+            levels.append(cube.reshape(1, n_t, h, w))
+        direction = "forward" if s > 0 else "backward"
+        marks = support_from_levels(levels, self.v, self.delta, direction=direction, method="conv")
+        flat = marks[0].reshape(n_t, -1)
+        return [flat[r + s * j - first].nonzero().squeeze(1) for j in range(n_t)]
+
+    def _update_tree(self, cache: _Direction, n: int) -> None:
+        r = n - 2 * self.order if cache.s > 0 else n
+        if r < 0 or r not in cache.levels[self.order]:
+            return
+        tree = self._tree_conv if self.method == "conv" else self._tree_sparse
+        cache.trees[r] = tree(cache, r, self.order if self.support == "chain" else 1)
+
+    # ------------------------------------------------------------------------- public
 
     def push(self, scan: torch.Tensor) -> StreamResult | None:
-        """Add one ``(H, W)`` binary scan; return the window result when one is due.
+        """Add one scan; return the window result when one is due.
+
+        Args:
+            scan: one ``(H, W)`` binary scan (bool or 0/1 numbers, tensor or array), the same
+                ``(H, W)`` as the first scan.
 
         Returns:
-            :class:`StreamResult` when the window is full and ``stride`` scans have arrived
-            since the last result, else ``None``.
+            :class:`StreamResult` when at least ``window`` scans have arrived and ``stride``
+            scans have arrived since the last result (the first at the ``window``-th push), else
+            ``None``.
+
+        Raises:
+            TypeError: ``scan`` is not array-like or not real/boolean.
+            ValueError: ``scan`` is not 2-D (a ``(T, H, W)`` stack is refused, push its scans
+                one by one), is empty, holds values other than 0/1, or its size differs from the
+                first scan's. A refused scan leaves the detector unchanged.
         """
-        cube, _ = as_cube("scan", scan[None] if torch.is_tensor(scan) else [scan], binary=True)
-        frame = cube[0, 0].cpu()
-        if self._shape is None:
-            self._shape = tuple(frame.shape)
-        elif tuple(frame.shape) != self._shape:
-            raise ValueError(
-                f"`scan`: expected shape {self._shape} like the previous scans, "
-                f"got {tuple(frame.shape)}"
-            )
+        points = self._frame(scan)
         n = self.pushed
         self.pushed += 1
-        self._fwd[0].append((n, frame))
-        self._bwd[0].append((n, frame))
-        for level in range(1, self.order + 1):
-            below = self._fwd[level - 1]
-            t = n - 2 * level  # forward level-l output that became computable
-            if t >= 0 and len(below) >= 3 and below[-3][0] == t:
-                value = self._layer([below[-3][1], below[-2][1], below[-1][1]], "forward")
-                self._fwd[level].append((t, value))
-            below = self._bwd[level - 1]
-            if len(below) >= 3 and below[-3][0] == n - 2:
-                value = self._layer([below[-3][1], below[-2][1], below[-1][1]], "backward")
-                self._bwd[level].append((n, value))
+        first = n + 1 - self.window  # the first scan any current or future window can hold
+        for t in [t for t in self._scans if t < first]:
+            del self._scans[t]
+        self._scans[n] = points
+        for cache in self._dirs:
+            cache.drop_before(first)
+        self._update_links(n)
+        for cache in self._dirs:
+            self._update_levels(cache, n)
+            self._update_tree(cache, n)
         if self.pushed < self.window or (self.pushed - self.window) % self.stride:
             return None
         return self._emit()
 
-    def _levels(self, cache: list[deque], start: int, backward: bool) -> list[torch.Tensor]:
+    def _window_cube(self, start: int, trees: bool) -> torch.Tensor:
+        """A ``(window, H, W)`` cube of the window starting at absolute scan ``start``.
+
+        ``trees``: the union of the cached marking trees of the window's roots (the chain
+        support, or with ``support="mhoc"`` the candidates); else the image, forward ``Y^(k)``
+        OR backward ``Y^(k)``. Forward roots ``start <= r <= n - 2k``, backward roots
+        ``start + 2k <= r <= n``, as the batch computation on the window.
+        """
         h, w = self._shape
-        levels = []
-        for level, entries in enumerate(cache):
-            cube = torch.zeros(self.window, h, w, dtype=torch.bool)
-            for t, value in entries:
-                if t < start or (backward and t - 2 * level < start):
-                    continue
-                cube[t - start] = value
-            levels.append(cube[None])
-        return levels
+        n, k = self.pushed - 1, self.order
+        hw = h * w
+        parts = []
+        for cache, roots in zip(
+            self._dirs, (range(start, n - 2 * k + 1), range(start + 2 * k, n + 1)), strict=True
+        ):
+            for r in roots:
+                if trees:
+                    for j, pts in enumerate(cache.trees.get(r, ())):
+                        parts.append(pts + (r + cache.s * j - start) * hw)
+                else:
+                    parts.append(cache.levels[k].get(r, _EMPTY) + (r - start) * hw)
+        cube = torch.zeros(self.window * hw, dtype=torch.bool)
+        if parts:
+            cube[torch.cat(parts)] = True
+        return cube.reshape(self.window, h, w)
 
     def _emit(self) -> StreamResult:
         start = self.pushed - self.window
-        frames = self._levels(self._fwd, start, backward=False)[0]
-        method = _resolve_method(self.method, frames)
-        support = torch.zeros_like(frames)
-        for direction, cache in (("forward", self._fwd), ("backward", self._bwd)):
-            levels = self._levels(cache, start, backward=direction == "backward")
-            support |= support_from_levels(
-                levels, self.v, self.delta, direction=direction, method=method
-            )
+        candidates = None
+        if self.support == "chain":
+            support = self._window_cube(start, trees=True)
+        else:
+            support = self._window_cube(start, trees=False)
+            candidates = self._window_cube(start, trees=True)
         tracks, scores, cleaned = identify_tracks(
-            support[0],
-            self.v,
-            self.delta,
-            threshold=self.threshold,
-            min_points=self.min_points,
+            support, self.v, self.delta, **self._identify_kwargs
         )
         self._associate(tracks, start)
-        result = HOCResult(support=support[0], tracks=tracks, scores=scores, cleaned=cleaned)
-        return StreamResult(start=start, stop=self.pushed, result=result)
+        result = HOCResult(support=support, tracks=tracks, scores=scores, cleaned=cleaned)
+        return StreamResult(start=start, stop=self.pushed, result=result, candidates=candidates)
 
     def _associate(self, tracks: list[Track], start: int) -> None:
-        """Give each track the id of the previous window's track it shares most points with."""
-        previous = {tr.id: {tuple(p) for p in tr.points.tolist()} for tr in self._previous}
-        taken: set[int] = set()
-        kept = []
-        for tr in tracks:
-            pts = {(t + start, y, x) for t, y, x in tr.points.tolist()}
-            best, overlap = None, 0
-            for pid, ppts in previous.items():
-                common = len(pts & ppts)
-                if pid not in taken and common > overlap:
-                    best, overlap = pid, common
-            if best is None:
-                best = self._next_id
-                self._next_id += 1
-            taken.add(best)
-            tr.id = best
-            absolute = tr.points.clone()
-            absolute[:, 0] += start
-            kept.append(
-                Track(points=absolute, id=best, score=tr.score, point_scores=tr.point_scores)
+        """Give each track the id of the previous window's track it shares most points with.
+
+        Tracks are taken in order; each takes the not yet taken previous track with the largest
+        overlap (the first one on ties), or a new id when it shares no point with any.
+        """
+        h, w = self._shape
+        if tracks:
+            pts = torch.cat([tr.points for tr in tracks])
+            keys = ((pts[:, 0] + start) * h + pts[:, 1]) * w + pts[:, 2]
+            labels = torch.repeat_interleave(
+                torch.arange(len(tracks)), torch.tensor([len(tr) for tr in tracks])
             )
-        self._previous = kept
+        else:
+            keys = labels = _EMPTY
+        ids: list[int] = []
+        if self._previous is not None and self._previous[2] and tracks:
+            prev_keys, prev_labels, prev_ids = self._previous
+            lo = torch.searchsorted(prev_keys, keys)
+            hi = torch.searchsorted(prev_keys, keys, right=True)
+            count = hi - lo
+            rows = torch.repeat_interleave(labels, count)
+            offset = torch.repeat_interleave(lo - (torch.cumsum(count, 0) - count), count)
+            cols = prev_labels[torch.arange(rows.numel()) + offset]
+            n_prev = len(prev_ids)
+            pair, overlap = torch.unique(rows * n_prev + cols, return_counts=True)
+            cur, prev = pair // n_prev, pair % n_prev
+            # candidates of each track: largest overlap first, then the earlier previous track
+            most = int(overlap.max()) if overlap.numel() else 0
+            order = torch.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
+            candidates: dict[int, list[int]] = {}
+            for i, j in zip(cur[order].tolist(), prev[order].tolist(), strict=True):
+                candidates.setdefault(i, []).append(j)
+            taken: set[int] = set()
+            for i in range(len(tracks)):
+                j = next((j for j in candidates.get(i, ()) if j not in taken), None)
+                if j is None:
+                    ids.append(self._new_id())
+                else:
+                    taken.add(j)
+                    ids.append(prev_ids[j])
+        else:
+            ids = [self._new_id() for _ in tracks]
+        for tr, i in zip(tracks, ids, strict=True):
+            tr.id = i
+        order = torch.argsort(keys)
+        self._previous = (keys[order], labels[order], ids)
+
+    def _new_id(self) -> int:
+        self._next_id += 1
+        return self._next_id - 1

@@ -1,65 +1,228 @@
+import math
 import tracemalloc
 
+import numpy as np
 import pytest
 import torch
 
+import hocnet.hoc.stream as stream
 from hocnet.data.binary import paper_scene
-from hocnet.hoc import StreamingDetector, detect
+from hocnet.hoc import (
+    StreamingDetector,
+    detect,
+    hoc_levels,
+    identify_tracks,
+    modified_hoc,
+    support_from_levels,
+)
+from hocnet.hoc.kernels import allowed_moves
+
+DELTA = math.pi / 4
 
 
-def _same(a, b):
-    return (
-        torch.equal(a.support, b.support)
-        and torch.equal(a.cleaned, b.cleaned)
-        and [t.points.tolist() for t in a.tracks] == [t.points.tolist() for t in b.tracks]
-        and [t.score for t in a.tracks] == pytest.approx([t.score for t in b.tracks])
-    )
+def _assert_same(a, b):
+    """Two HOCResults are equal: cubes bit for bit, tracks point for point."""
+    assert torch.equal(a.support, b.support)
+    assert torch.equal(a.cleaned, b.cleaned)
+    assert torch.equal(a.scores.isnan(), b.scores.isnan())
+    assert torch.equal(a.scores.nan_to_num(), b.scores.nan_to_num())
+    assert [t.points.tolist() for t in a.tracks] == [t.points.tolist() for t in b.tracks]
+    assert [t.score for t in a.tracks] == [t.score for t in b.tracks]
+    for ta, tb in zip(a.tracks, b.tracks, strict=True):
+        assert torch.equal(ta.point_scores, tb.point_scores)
 
 
-class TestStreamingDetector:
+def _stream(det, cube):
+    return [out for t in range(cube.shape[0]) if (out := det.push(cube[t])) is not None]
+
+
+class TestStreamingEqualsBatch:
     @pytest.mark.parametrize("seed", range(3))
-    @pytest.mark.parametrize(("window", "stride", "order"), [(10, 2, 2), (7, 1, 3), (9, 3, 1)])
-    def test_equals_batch_on_every_window(self, seed, window, stride, order):
-        scene = paper_scene("fig5", 0.012, seed=seed)
-        det = StreamingDetector(window=window, stride=stride, order=order)
-        windows = 0
-        for t in range(scene.cube.shape[0]):
-            out = det.push(scene.cube[t])
-            if out is None:
+    @pytest.mark.parametrize("order", [1, 2, 3])
+    @pytest.mark.parametrize("stride", [1, 2])
+    def test_every_window_equals_detect(self, seed, order, stride):
+        scene = paper_scene("fig5", 0.015, seed=seed)  # (16, 60, 60), tracks start and stop
+        for window in (2 * order + 2, 10):
+            det = StreamingDetector(window=window, stride=stride, order=order)
+            outs = _stream(det, scene.cube)
+            assert len(outs) == (16 - window) // stride + 1
+            for out in outs:
+                assert out.stop - out.start == window
+                _assert_same(out.result, detect(scene.cube[out.start : out.stop], order=order))
+
+    @pytest.mark.parametrize("seed", range(2))
+    def test_dense_clutter_and_options(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        cube = torch.rand(14, 40, 48, generator=gen) < 0.04
+        kw = {"v": 3, "delta": math.pi / 3, "threshold": 2.0, "min_points": 4}
+        det = StreamingDetector(window=8, stride=1, order=2, **kw)
+        for out in _stream(det, cube):
+            _assert_same(out.result, detect(cube[out.start : out.stop], order=2, **kw))
+
+    def test_conv_method_equals_detect(self):
+        scene = paper_scene("fig5", 0.02, seed=5)
+        cube = scene.cube[:12, 10:40, 5:45]
+        det = StreamingDetector(window=7, stride=1, order=2, method="conv")
+        outs = _stream(det, cube)
+        assert len(outs) == 6
+        for out in outs:
+            _assert_same(out.result, detect(cube[out.start : out.stop], order=2))
+
+    @pytest.mark.parametrize(
+        ("order", "method"), [(1, "auto"), (2, "auto"), (3, "auto"), (2, "conv")]
+    )
+    def test_mhoc_support_is_forward_or_backward_top_level(self, order, method):
+        scene = paper_scene("fig5", 0.015, seed=7)
+        cube = scene.cube if method == "auto" else scene.cube[:12, 10:40, 5:45]
+        det = StreamingDetector(window=10, stride=1, order=order, support="mhoc", method=method)
+        outs = _stream(det, cube)
+        assert len(outs) == cube.shape[0] - 9
+        for out in outs:
+            w = cube[out.start : out.stop]
+            image = modified_hoc(w, order, direction="forward") | modified_hoc(
+                w, order, direction="backward"
+            )
+            assert torch.equal(out.result.support, image)
+            # candidates: the image plus the members of its top-layer triples, both directions
+            named = torch.zeros_like(w)
+            for direction in ("forward", "backward"):
+                levels = hoc_levels(w[None], order, 4, DELTA, direction=direction)
+                named |= support_from_levels(levels[-2:], 4, DELTA, direction=direction)[0]
+            assert torch.equal(out.candidates, named)
+            assert bool((image <= named).all())
+            tracks, _, cleaned = identify_tracks(image, min_points=2 * order + 1)
+            assert torch.equal(out.result.cleaned, cleaned)
+            assert [t.points.tolist() for t in out.result.tracks] == [
+                t.points.tolist() for t in tracks
+            ]
+
+    def test_chain_mode_has_no_candidates(self):
+        det = StreamingDetector(window=5, stride=1, order=2)
+        outs = _stream(det, torch.zeros(5, 8, 8, dtype=torch.bool))
+        assert outs[0].candidates is None
+
+    @pytest.mark.parametrize("order", [1, 3])
+    def test_cached_levels_equal_hoc_levels_of_the_window(self, order):
+        gen = torch.Generator().manual_seed(3)
+        cube = torch.rand(15, 30, 30, generator=gen) < 0.05
+        window = 2 * order + 3
+        det = StreamingDetector(window=window, stride=1, order=order, v=2)
+        for t in range(15):
+            if det.push(cube[t]) is None:
                 continue
-            windows += 1
-            assert out.stop - out.start == window
-            batch = detect(scene.cube[out.start : out.stop], order=order)
-            assert _same(out.result, batch)
-        assert windows == (16 - window) // stride + 1
+            start = t + 1 - window
+            w = cube[start : t + 1][None]
+            for cache, direction in zip(det._dirs, ("forward", "backward"), strict=True):
+                batch = hoc_levels(w, order, 2, DELTA, direction=direction)
+                for level in range(order + 1):
+                    mine = torch.zeros(window, 30 * 30, dtype=torch.bool)
+                    for u, pts in cache.levels[level].items():
+                        lo = start + 2 * level if direction == "backward" else start
+                        if u >= lo:  # the batch run cannot evaluate earlier backward entries
+                            mine[u - start, pts] = True
+                    assert torch.equal(mine.reshape(window, 30, 30), batch[level][0])
 
-    def test_paper_windows(self):
-        scene = paper_scene("fig5", 0.0, seed=0)
-        det = StreamingDetector(window=10, stride=2, order=2)
-        spans = []
-        for t in range(16):
-            out = det.push(scene.cube[t])
-            if out is not None:
-                spans.append((out.start + 1, out.stop))  # 1-based as in the paper
-        assert spans == [(1, 10), (3, 12), (5, 14), (7, 16)]
 
-    def test_ids_persist_across_windows(self):
-        cube = torch.zeros(14, 16, 40, dtype=torch.bool)
-        for t in range(14):
-            cube[t, 8, 2 + 2 * t] = True
-        det = StreamingDetector(window=8, stride=2, order=2)
-        ids = [out.tracks[0].id for t in range(14) if (out := det.push(cube[t])) is not None]
-        assert len(ids) == 4 and set(ids) == {1}
+def _turn(i1, j1, i2, j2):
+    if (i1, j1) == (0, 0) or (i2, j2) == (0, 0):
+        return 0.0
+    d = abs(math.atan2(j2, i2) - math.atan2(j1, i1)) % (2 * math.pi)
+    return min(d, 2 * math.pi - d)
 
-    def test_absolute_scan_numbers(self):
-        cube = torch.zeros(10, 8, 30, dtype=torch.bool)
-        for t in range(10):
-            cube[t, 4, 1 + 2 * t] = True
-        det = StreamingDetector(window=6, stride=4, order=2)
-        outs = [o for t in range(10) if (o := det.push(cube[t])) is not None]
-        assert outs[-1].start == 4
-        assert outs[-1].tracks[0].points[0, 0].item() == 4
-        assert outs[-1].result.tracks[0].points[0, 0].item() == 0
+
+def _triples_loop(a, b, c, v, delta):
+    """Accepted triples of one layer, straight from eq. (5)-(6): loops over pixels."""
+    out = set()
+    for y0, x0 in zip(*np.nonzero(a), strict=True):
+        for y1, x1 in zip(*np.nonzero(b), strict=True):
+            i1, j1 = x1 - x0, y1 - y0
+            if max(abs(i1), abs(j1)) > v:
+                continue
+            for y2, x2 in zip(*np.nonzero(c), strict=True):
+                i2, j2 = x2 - x1, y2 - y1
+                if max(abs(i2), abs(j2)) <= v and _turn(i1, j1, i2, j2) <= delta + 1e-9:
+                    out.add(((y0, x0), (y1, x1), (y2, x2)))
+    return out
+
+
+class TestSparseHelpers:
+    @pytest.mark.parametrize("seed", range(4))
+    @pytest.mark.parametrize("v", [1, 2])
+    def test_links_and_join_against_loop(self, seed, v):
+        h, w = 9, 11
+        gen = torch.Generator().manual_seed(seed)
+        scans = torch.rand(3, h, w, generator=gen) < 0.3
+        grid = stream._Grid(h, w, v)
+        pts = [s.reshape(-1).nonzero().squeeze(1) for s in scans]
+        allowed = allowed_moves(v, DELTA)
+        fwd = grid.join(grid.edges(pts[0], pts[1]), grid.edges(pts[1], pts[2]), allowed)
+        # backward: the same links read the other way round
+        bwd = grid.join(
+            grid.reverse(grid.edges(pts[1], pts[2])),
+            grid.reverse(grid.edges(pts[0], pts[1])),
+            allowed,
+        )
+
+        def as_set(triples):
+            rows = torch.stack(triples, 1).tolist()
+            assert len(rows) == len({tuple(r) for r in rows})  # no triple twice
+            assert torch.equal(triples[0], triples[0].sort().values)  # sorted by root
+            return {tuple((p // w, p % w) for p in r) for r in rows}
+
+        arr = scans.numpy()
+        assert as_set(fwd) == _triples_loop(arr[0], arr[1], arr[2], v, DELTA)
+        assert as_set(bwd) == _triples_loop(arr[2], arr[1], arr[0], v, DELTA)
+        # scratch images cleared
+        assert (grid.image == -1).all() and (grid.slots == -1).all() and not grid.flags.any()
+
+    def test_no_wrap_at_the_border(self):
+        grid = stream._Grid(4, 5, 1)
+        src, dst, _ = grid.edges(torch.tensor([4]), torch.tensor([5]))  # (0, 4) -> (1, 0)
+        assert src.numel() == 0 and dst.numel() == 0
+
+
+class TestIncremental:
+    def _count(self, monkeypatch, window, order):
+        calls = {"edges": [], "join": 0, "tree": 0}
+        edges, join, tree = stream._Grid.edges, stream._Grid.join, StreamingDetector._tree_sparse
+
+        def count_edges(self, a, b):
+            calls["edges"].append((a.numel(), b.numel()))
+            return edges(self, a, b)
+
+        def count_join(self, *args):
+            calls["join"] += 1
+            return join(self, *args)
+
+        def count_tree(self, *args):
+            calls["tree"] += 1
+            return tree(self, *args)
+
+        monkeypatch.setattr(stream._Grid, "edges", count_edges)
+        monkeypatch.setattr(stream._Grid, "join", count_join)
+        monkeypatch.setattr(StreamingDetector, "_tree_sparse", count_tree)
+        gen = torch.Generator().manual_seed(0)
+        cube = torch.rand(3 * window, 24, 24, generator=gen) < 0.05
+        det = StreamingDetector(window=window, stride=1000, order=order)  # layers only
+        for t in range(2 * window):
+            det.push(cube[t])
+        per_push = []
+        for t in range(2 * window, 3 * window):
+            for key in ("join", "tree"):
+                calls[key] = 0
+            calls["edges"] = []
+            det.push(cube[t])
+            new = int(cube[t].sum())
+            per_push.append((len(calls["edges"]), calls["join"], calls["tree"]))
+            assert calls["edges"] == [(int(cube[t - 1].sum()), new)]  # scans n - 1 and n only
+        return per_push
+
+    @pytest.mark.parametrize("order", [1, 2, 3])
+    def test_push_work_does_not_depend_on_the_window(self, monkeypatch, order):
+        for window in (2 * order + 1, 12, 20):
+            per_push = self._count(monkeypatch, window, order)
+            # one look-up of the new scan, 2k new layer entries, one new tree per direction
+            assert set(per_push) == {(1, 2 * order, 2)}
 
     def test_memory_stays_flat(self):
         det = StreamingDetector(window=10, stride=100, order=2, v=2)
@@ -74,21 +237,153 @@ class TestStreamingDetector:
         tracemalloc.start()
         run(500)
         first, _ = tracemalloc.get_traced_memory()
-        run(9000)
+        run(4000)
         second, _ = tracemalloc.get_traced_memory()
         tracemalloc.stop()
-        assert det.pushed == 10_000
-        assert len(det._fwd[0]) == 10
+        assert det.pushed == 5000
+        assert sorted(det._scans) == list(range(4990, 5000))
+        for cache in det._dirs:
+            for d in (*cache.levels, *cache.triples, cache.links, cache.trees):
+                assert all(4990 <= t < 5000 for t in d)
         assert second - first < 64 * 1024  # no growth with the number of pushed scans
 
-    def test_errors(self):
-        with pytest.raises(ValueError, match="`window`"):
-            StreamingDetector(window=4, order=2)
-        with pytest.raises(ValueError, match="`stride`"):
-            StreamingDetector(stride=0)
+
+class TestStreamingDetector:
+    def test_paper_windows(self):
+        scene = paper_scene("fig5", 0.0, seed=0)
+        det = StreamingDetector(window=10, stride=2, order=2)
+        spans = [(out.start + 1, out.stop) for out in _stream(det, scene.cube)]
+        assert spans == [(1, 10), (3, 12), (5, 14), (7, 16)]  # 1-based, [LA98] section IV-A
+
+    def test_ids_persist_across_windows(self):
+        cube = torch.zeros(14, 16, 40, dtype=torch.bool)
+        for t in range(14):
+            cube[t, 8, 2 + 2 * t] = True
+            cube[t, 2, 37 - 2 * t] = True
+        det = StreamingDetector(window=8, stride=2, order=2)
+        outs = _stream(det, cube)
+        assert len(outs) == 4
+        for out in outs:
+            by_row = {int(tr.points[0, 1]): tr.id for tr in out.tracks}
+            assert by_row == {2: 1, 8: 2}
+
+    def test_new_track_gets_a_new_id(self):
+        cube = torch.zeros(12, 16, 40, dtype=torch.bool)
+        for t in range(12):
+            cube[t, 8, 2 + 2 * t] = True
+        for t in range(6, 12):
+            cube[t, 2, 2 + 3 * (t - 6)] = True
+        det = StreamingDetector(window=6, stride=3, order=2)
+        outs = _stream(det, cube)
+        assert [[tr.id for tr in out.tracks] for out in outs[:2]] == [[1], [1]]
+        assert sorted((int(tr.points[0, 1]), tr.id) for tr in outs[2].tracks) == [(2, 2), (8, 1)]
+
+    @pytest.mark.parametrize(("seed", "stride"), [(0, 1), (1, 2), (2, 3)])
+    def test_ids_against_a_loop_reference(self, seed, stride):
+        scene = paper_scene("fig5", 0.03, seed=seed)  # many short clutter tracks
+        outs = _stream(StreamingDetector(window=6, stride=stride, order=1), scene.cube)
+        previous, next_id, n_tracks, inherited = [], 1, 0, 0
+        for out in outs:
+            current, taken = [], set()
+            for tr in out.tracks:  # in order: the previous track with most common points
+                pts = {tuple(p) for p in tr.points.tolist()}
+                best, most = None, 0
+                for pid, ppts in previous:
+                    if pid not in taken and len(pts & ppts) > most:
+                        best, most = pid, len(pts & ppts)
+                if best is None:
+                    best, next_id = next_id, next_id + 1
+                else:
+                    inherited += 1
+                taken.add(best)
+                current.append((best, pts))
+                assert tr.id == best
+            previous = current
+            n_tracks += len(current)
+        assert n_tracks > 3 * len(outs) and 0 < inherited < n_tracks
+
+    def test_absolute_scan_numbers(self):
+        cube = torch.zeros(10, 8, 30, dtype=torch.bool)
+        for t in range(10):
+            cube[t, 4, 1 + 2 * t] = True
+        det = StreamingDetector(window=6, stride=4, order=2)
+        outs = _stream(det, cube)
+        assert outs[-1].start == 4
+        assert outs[-1].tracks[0].points[0, 0].item() == 4
+        assert outs[-1].result.tracks[0].points[0, 0].item() == 0
+
+    def test_numpy_and_float_scans(self):
+        cube = torch.zeros(6, 10, 20, dtype=torch.bool)
+        for t in range(6):
+            cube[t, 5, 2 + t] = True
+        det = StreamingDetector(window=6, order=2)
+        outs = [det.push(cube[t].numpy().astype(np.float32)) for t in range(6)]
+        assert len(outs[-1].tracks) == 1
+
+    def test_reset(self):
         det = StreamingDetector(window=5, order=2)
         det.push(torch.zeros(6, 6))
-        with pytest.raises(ValueError, match="`scan`: expected shape"):
+        det.reset()
+        det.push(torch.zeros(7, 6))  # a new stream may have a new size
+        assert det.pushed == 1
+
+
+class TestErrors:
+    @pytest.mark.parametrize(
+        ("kwargs", "error", "name"),
+        [
+            ({"window": 4, "order": 2}, ValueError, "window"),
+            ({"window": 2.5}, TypeError, "window"),
+            ({"stride": 0}, ValueError, "stride"),
+            ({"stride": "2"}, TypeError, "stride"),
+            ({"order": 0}, ValueError, "order"),
+            ({"v": 0}, ValueError, "v"),
+            ({"delta": 0.0}, ValueError, "delta"),
+            ({"delta": 4.0}, ValueError, "delta"),
+            ({"delta": None}, TypeError, "delta"),
+            ({"threshold": math.nan}, ValueError, "threshold"),
+            ({"min_points": -5}, ValueError, "min_points"),
+            ({"min_points": 0}, ValueError, "min_points"),
+            ({"min_points": 2.0}, TypeError, "min_points"),
+            ({"max_tracks_per_point": 0}, ValueError, "max_tracks_per_point"),
+            ({"method": "fast"}, ValueError, "method"),
+            ({"support": "all"}, ValueError, "support"),
+            ({"A1": "nine"}, TypeError, "A1"),
+            ({"alpha1": math.inf}, ValueError, "alpha1"),
+            ({"A2": None}, TypeError, "A2"),
+            ({"alpha2": math.nan}, ValueError, "alpha2"),
+        ],
+    )
+    def test_bad_constructor_argument_raises_at_construction(self, kwargs, error, name):
+        with pytest.raises(error, match=f"^`{name}`: expected"):
+            StreamingDetector(**kwargs)
+
+    @pytest.mark.parametrize(
+        ("scan", "error", "message"),
+        [
+            (torch.zeros(3, 8, 8), ValueError, r"\(H, W\), got shape \(3, 8, 8\)"),
+            (torch.zeros(1, 8, 8), ValueError, r"\(H, W\), got shape \(1, 8, 8\)"),
+            (torch.zeros(8), ValueError, r"one scan of shape \(H, W\), got shape \(8,\)"),
+            (torch.zeros(0, 8), ValueError, "non-empty"),
+            (torch.full((8, 8), 0.5), ValueError, "binary"),
+            (torch.full((8, 8), math.nan), ValueError, "finite"),
+            (torch.zeros(8, 8, dtype=torch.complex64), TypeError, "dtype"),
+            ("scan", TypeError, "str"),
+        ],
+    )
+    def test_bad_scan(self, scan, error, message):
+        det = StreamingDetector(window=5, order=2)
+        det.push(torch.zeros(8, 8))
+        with pytest.raises(error, match=f"^`scan`: expected .*{message}"):
+            det.push(scan)
+        assert det.pushed == 1  # a refused scan changes nothing
+        assert det.push(torch.zeros(8, 8)) is None and det.pushed == 2
+
+    def test_frame_size_change(self):
+        det = StreamingDetector(window=5, order=2)
+        det.push(torch.zeros(6, 6))
+        with pytest.raises(ValueError, match=r"`scan`: expected shape \(6, 6\) .* got \(7, 6\)"):
             det.push(torch.zeros(7, 6))
-        with pytest.raises(ValueError, match="`scan`"):
-            det.push(torch.full((6, 6), 0.5))
+        with pytest.raises(ValueError, match="`scan`: expected shape"):
+            det.push(torch.zeros(6, 7))
+        assert det.pushed == 1
