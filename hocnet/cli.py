@@ -44,6 +44,7 @@ import shutil
 import sys
 import time
 import uuid
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1372,7 +1373,20 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         start = time.perf_counter()
         params["progress"] = stages.enabled
         with _torch_threads(PIPELINE_THREADS):
-            detection = method.run(cube, params)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                detection = method.run(cube, params)
+            messages = list(
+                dict.fromkeys(
+                    _one_line(str(w.message))
+                    for w in caught
+                    if issubclass(w.category, (UserWarning, RuntimeWarning))
+                )
+            )
+            for message in messages:  # e.g. a density above the HOC's bound: said, and kept
+                print(f"{PROG}: warning: {message}", file=sys.stderr)
+            if messages:
+                detection.params["warnings"] = messages
         params.pop("progress", None)
         detection.params.pop("progress", None)
         runtime = time.perf_counter() - start

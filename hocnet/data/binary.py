@@ -5,7 +5,7 @@ image, eq. (1): ``F = S + (1 - S) N``, i.e. the cube is the logical OR of the ta
 and the clutter points ``N``. This module draws such cubes together with the ground truth: which
 pixel belongs to which target, and each target's drawn track.
 
-Conventions (see also ``DESIGN.md`` section 2):
+Conventions (our reading; [LA98] section IV does not fix them):
 
 * Cubes are ``(B, T, H, W)`` ``bool``; an unbatched call (``batch=None``) returns ``(T, H, W)``.
   ``T`` is scans, ``H`` rows (``y``), ``W`` columns (``x``).

@@ -21,7 +21,7 @@ from hocnet.hoc.functional import (
     scans_needed,
     support_from_levels,
 )
-from hocnet.hoc.identify import HOCResult, Track, detect, identify_tracks
+from hocnet.hoc.identify import HOCResult, Track, detect, identify_tracks, mhoc_candidates
 from hocnet.hoc.kernels import (
     allowed_moves,
     get_direction_mask_kernels,
@@ -66,6 +66,7 @@ __all__ = [
     "hoc_levels",
     "hoc_mark",
     "identify_tracks",
+    "mhoc_candidates",
     "mhoc_image",
     "modified_hoc",
     "move_offsets",

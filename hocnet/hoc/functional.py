@@ -1015,11 +1015,25 @@ def mhoc_image(
     cube, batched = as_cube("frames", frames, binary=True)
     order, v, delta = _check_common(order, v, delta)
     image = torch.zeros_like(cube)
-    if _beyond_scans(cube, order, delta, method):
-        return restore_batch(image, batched)
-    for direction in ("forward", "backward"):
-        image |= hoc_levels(cube, order, v, delta, direction=direction, method=method)[-1]
+    for _, levels in _mhoc_levels(cube, order, v, delta, method):
+        image |= levels[-1]
     return restore_batch(image, batched)
+
+
+def _mhoc_levels(
+    cube: torch.Tensor, order: int, v: int, delta: float | None, method: str
+) -> list[tuple[int, list[torch.Tensor]]]:
+    """``[(+1, forward levels), (-1, backward levels)]`` of :func:`mhoc_image` (checked input).
+
+    Empty when the cube has too few scans for ``Y^(order)``. Shared with
+    :func:`hocnet.hoc.identify.mhoc_candidates`, which also reads the level below the top.
+    """
+    if _beyond_scans(cube, order, delta, method):
+        return []
+    return [
+        (step, hoc_levels(cube, order, v, delta, direction=direction, method=method))
+        for direction, step in (("forward", 1), ("backward", -1))
+    ]
 
 
 def support_from_levels(

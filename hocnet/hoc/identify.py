@@ -59,17 +59,17 @@ from hocnet._check import as_cube, check_choice, check_int, check_number, restor
 from hocnet.hoc.functional import (
     Method,
     _allowed_cached,
+    _mhoc_levels,
     _resolve_method,
     _sparse_triples,
     chain_support,
-    hoc_levels,
+    density_bound,
 )
 from hocnet.hoc.scoring import COMBINE, DEFAULT_THRESHOLD, point_score
 
 __all__ = [
     "HOCResult",
     "Track",
-    "density_bound",
     "detect",
     "identify_tracks",
     "mhoc_candidates",
@@ -129,7 +129,8 @@ class HOCResult:
             the triples through it (NaN where there is no such triple or no point).
         cleaned: bool cube shaped like the input: the points of the accepted tracks.
         saturated: whether some scene's clutter density is above the paper's discrimination
-            bound (:func:`density_bound`) or the identification work cap was hit.
+            bound (:func:`~hocnet.hoc.functional.density_bound`) or the identification work
+            cap was hit.
         warnings: the reasons, one line each (also issued with :func:`warnings.warn`).
     """
 
@@ -139,27 +140,6 @@ class HOCResult:
     cleaned: torch.Tensor
     saturated: bool = False
     warnings: list[str] = field(default_factory=list)
-
-
-def density_bound(v: int = 4, delta: float | None = math.pi / 4) -> float:
-    """Clutter density above which the HOC cannot discriminate, section IV-B of [LA98].
-
-    The original HOC (``delta=None``) correlates whenever one pixel of the ``(2v + 1)^2``
-    velocity window is on: bound ``1 / (2v + 1)^2`` (1/81 = 1.23 % for ``v = 4``). The modified
-    HOC's second window is the fraction ``delta / pi`` of it (a quarter for ``pi/4``, our
-    reading of "1/4 of the entire velocity window"): bound ``pi / (delta (2v + 1)^2)``, which the
-    paper rounds to 4.92 % for ``v = 4, delta = pi/4``.
-
-    Examples:
-        >>> round(100 * density_bound(4, None), 2), round(100 * density_bound(4), 2)
-        (1.23, 4.94)
-    """
-    v = check_int("v", v, minimum=1)
-    window = (2 * v + 1) ** 2
-    if delta is None:
-        return 1.0 / window
-    delta = check_number("delta", delta, low=0.0, high=math.pi, low_inclusive=False)
-    return min(1.0, math.pi / delta / window)
 
 
 # ----------------------------------------------------------------------------- shared helpers
@@ -854,18 +834,15 @@ def _mhoc_image(
     method: Method,
     skip: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The modified-HOC image (forward OR backward ``Y^(k)``) and the points its moves name.
+    """The modified-HOC image (:func:`~hocnet.hoc.functional.mhoc_image`) and its named points.
 
-    Private so that it can later call ``functional.mhoc_image``; computed here from
-    :func:`~hocnet.hoc.functional.hoc_levels` in both directions. Scenes flagged in ``skip``
+    Both from the same forward and backward levels (computed once). Scenes flagged in ``skip``
     (``(B,)`` bool, saturated) get no named points (bounded work).
     """
-    resolved = _resolve_method(method, cube)
     image = torch.zeros_like(cube)
     named = torch.zeros_like(cube)
     allowed = _allowed_cached(v, delta, "cpu")
-    for direction, step in (("forward", 1), ("backward", -1)):
-        levels = hoc_levels(cube, order, v, delta, direction=direction, method=resolved)
+    for step, levels in _mhoc_levels(cube, order, v, delta, _resolve_method(method, cube)):
         top = levels[-1].cpu()
         image |= top
         if not bool(top.any()):
@@ -945,7 +922,8 @@ def detect(
     Runs the forward and backward order-``k`` network, then identifies and scores tracks
     (section III-B; :func:`identify_tracks`).
 
-    Above the paper's density bound (section IV-B, :func:`density_bound`: 4.92 % for
+    Above the paper's density bound (section IV-B,
+    :func:`~hocnet.hoc.functional.density_bound`: 4.92 % for
     ``v = 4, delta = pi/4``) the detector cannot discriminate: ``detect`` warns
     (:func:`warnings.warn`), sets ``saturated`` and records the reason in ``warnings``, and skips
     track identification of that scene (its ``cleaned`` is empty, no tracks), which keeps the
@@ -999,7 +977,7 @@ def detect(
         empty = restore_batch(cube.clone(), batched)
         nan = restore_batch(torch.zeros(cube.shape, dtype=torch.float64), batched)
         return HOCResult(support=empty, tracks=[], scores=nan, cleaned=empty.clone())
-    bound = density_bound(v, delta)
+    bound = density_bound("modified", v, delta)
     density = cube.float().mean(dim=(1, 2, 3))
     dense = density > bound
     notes: list[str] = []

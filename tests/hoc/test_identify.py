@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from hocnet.data.binary import paper_scene
 from hocnet.hoc import chain_support, detect, identify_tracks
-from hocnet.hoc.identify import density_bound, mhoc_candidates
+from hocnet.hoc.functional import density_bound
+from hocnet.hoc.identify import mhoc_candidates
 from hocnet.hoc.kernels import allowed_moves, move_offsets
 from hocnet.hoc.reference import turn_reference
 
@@ -224,8 +225,8 @@ class TestDetect:
         assert result.tracks == [] and not result.cleaned.any()
 
     def test_density_bound(self):
-        assert density_bound(4, None) == pytest.approx(1 / 81)
-        assert density_bound(4, math.pi / 4) == pytest.approx(4 / 81)
+        assert density_bound("original", 4) == pytest.approx(1 / 81)
+        assert density_bound("modified", 4, math.pi / 4) == pytest.approx(4 / 81)
 
     @pytest.mark.parametrize(
         "seed",
