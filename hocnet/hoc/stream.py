@@ -36,24 +36,27 @@ Entries of scans that have left the window are dropped. With ``method="conv"`` t
 entries and trees come from the connectionist layer on the 3 (trees: ``2k + 1``) scans involved,
 and no links or triples are kept.
 
-Track identification (section III-B) is one call of :func:`~hocnet.hoc.identify.identify_tracks`
-on the window's ``(window, H, W)`` support cube: it is not incremental (that code is being
-rewritten to the paper's procedure, issue 7).
+Track identification (section III-B) is one call of the identification of
+:func:`~hocnet.hoc.identify.detect` on the window's candidate points (image plus the points its
+top-layer moves name, ``support="mhoc"``) or its chain support; it is not incremental, but works
+on the window's point lists only. A window denser than the modified HOC's bound
+(:func:`~hocnet.hoc.functional.density_bound`) is flagged and not identified, as in ``detect``.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
-from hocnet.hoc.functional import hoc_layer, support_from_levels
-from hocnet.hoc.identify import HOCResult, Track, identify_tracks
+from hocnet.hoc.functional import density_bound, hoc_layer, support_from_levels
+from hocnet.hoc.identify import MAX_CANDIDATES, HOCResult, Identify, Track, _identify
 from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
-from hocnet.hoc.scoring import DEFAULT_THRESHOLD
+from hocnet.hoc.scoring import COMBINE, DEFAULT_THRESHOLD
 
 __all__ = ["StreamResult", "StreamingDetector"]
 
@@ -247,11 +250,11 @@ class StreamingDetector:
     Push ``(H, W)`` binary scans one at a time; once ``window`` scans have arrived, every
     ``stride``-th push returns the result for the latest ``window`` scans, equal to
     :func:`~hocnet.hoc.identify.detect` on that ``(window, H, W)`` cube with the same arguments
-    (with ``support="chain"``). A push costs one neighbour look-up between the previous and the
-    new scan, the ``2k`` layer entries it makes evaluable and one marking tree per direction (see
-    the module notes for what is cached; none of this depends on ``window``), then, when a
-    result is due, the ``(window, H, W)`` support cube and one
-    :func:`~hocnet.hoc.identify.identify_tracks` call on it (not incremental).
+    (``support``, ``identify``, ``combine``, ...). A push costs one neighbour look-up between
+    the previous and the new scan, the ``2k`` layer entries it makes evaluable and one marking
+    tree per direction (see the module notes for what is cached; none of this depends on
+    ``window``), then, when a result is due, the window's candidate points and one track
+    identification on them (not incremental).
 
     Args:
         window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
@@ -266,14 +269,18 @@ class StreamingDetector:
             and marking trees on the on-points only; ``"conv"`` runs the connectionist layer
             (:func:`~hocnet.hoc.functional.hoc_layer`, :func:`~hocnet.hoc.functional.hoc_mark`)
             on the three (marking: ``2k + 1``) scans involved. Results are identical.
-        support: the points handed to track identification: ``"chain"`` (the chain support of
-            :func:`~hocnet.hoc.functional.chain_support`, what ``detect`` uses today) or
-            ``"mhoc"`` (the forward ``Y^(k)`` OR the backward ``Y^(k)`` of the window, the image
-            [LA98] section III-B identifies tracks on; read from the cache at no extra cost).
+        support: as in :func:`~hocnet.hoc.identify.detect`: ``"mhoc"`` (default, [LA98]
+            section III-B: the forward ``Y^(k)`` OR the backward ``Y^(k)`` of the window, read
+            from the cache) or ``"chain"`` (our addition, the chain support of
+            :func:`~hocnet.hoc.functional.chain_support`).
         A1: movement-score constant of eq. (8).
         alpha1: movement-score scale of eq. (8).
         A2: curvature-score constant of eq. (9).
         alpha2: curvature-score scale of eq. (9).
+        identify: track identification, ``"paper"``, ``"greedy"`` or ``"assignment"``
+            (:func:`~hocnet.hoc.identify.identify_tracks`).
+        combine: point-score combination (:func:`~hocnet.hoc.scoring.point_score`).
+        max_candidates: cap on candidate tracks per window.
 
     Raises:
         TypeError: an argument of the wrong type (named in the message).
@@ -303,11 +310,14 @@ class StreamingDetector:
         min_points: int | None = None,
         max_tracks_per_point: int = 2,
         method: Method = "auto",
-        support: Support = "chain",
+        support: Support = "mhoc",
         A1: float = 9.0,
         alpha1: float = 1 / 3,
         A2: float = 2.12,
         alpha2: float = 2.0,
+        identify: Identify = "paper",
+        combine: str = "mean",
+        max_candidates: int = MAX_CANDIDATES,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
@@ -326,6 +336,8 @@ class StreamingDetector:
             "max_tracks_per_point", max_tracks_per_point, minimum=1
         )
         self._identify_kwargs: dict[str, Any] = {
+            "v": self.v,
+            "delta": self.delta,
             "threshold": self.threshold,
             "min_points": self.min_points,
             "max_tracks_per_point": self.max_tracks_per_point,
@@ -333,7 +345,11 @@ class StreamingDetector:
             "alpha1": check_number("alpha1", alpha1),
             "A2": check_number("A2", A2),
             "alpha2": check_number("alpha2", alpha2),
+            "method": check_choice("identify", identify, ("paper", "greedy", "assignment")),
+            "combine": check_choice("combine", combine, COMBINE),
+            "max_candidates": check_int("max_candidates", max_candidates, minimum=1),
         }
+        self._bound = density_bound("modified", self.v, self.delta)
         self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers
         self._kernels: tuple[torch.Tensor, torch.Tensor] | None = None  # method="conv" only
         self.reset()
@@ -544,18 +560,54 @@ class StreamingDetector:
         return cube.reshape(self.window, h, w)
 
     def _emit(self) -> StreamResult:
+        """The window's result, as :func:`~hocnet.hoc.identify.detect` computes it."""
         start = self.pushed - self.window
+        h, w = self._shape
+        count = sum(int(self._scans[t].numel()) for t in range(start, self.pushed))
+        # detect's float32 mean of the cube (exact: an integer count over the cube size)
+        density = float(torch.tensor(float(count)) / (self.window * h * w))
+        dense = density > self._bound
         candidates = None
-        if self.support == "chain":
-            support = self._window_cube(start, trees=True)
-        else:
+        if dense:  # detect shows the image and skips identification (bounded work)
             support = self._window_cube(start, trees=False)
-            candidates = self._window_cube(start, trees=True)
-        tracks, scores, cleaned = identify_tracks(
-            support, self.v, self.delta, **self._identify_kwargs
-        )
+            if self.support == "mhoc":
+                candidates = support.clone()
+            work, roots = None, None
+        elif self.support == "chain":
+            support = work = self._window_cube(start, trees=True)
+            roots = None
+        else:
+            support = roots = self._window_cube(start, trees=False)
+            candidates = work = self._window_cube(start, trees=True)
+        notes = []
+        if dense:
+            notes.append(
+                f"clutter density {100 * density:.2f} % is above the modified "
+                f"HOC's discrimination bound {100 * self._bound:.2f} % ([LA98] section IV-B): the "
+                "detector cannot tell targets from clutter here; track identification skipped"
+            )
+            tracks: list[Track] = []
+            scores = torch.full(support.shape, math.nan, dtype=torch.float64)
+            cleaned = torch.zeros_like(support)
+        else:
+            tracks, scores, cleaned, capped = _identify(work, roots=roots, **self._identify_kwargs)
+            if capped:
+                notes.append(
+                    "track identification enumerated more than "
+                    f"{self._identify_kwargs['max_candidates']} candidate tracks in a scene; "
+                    "chains followed their best continuation only"
+                )
+        for note in notes:
+            warnings.warn(note, RuntimeWarning, stacklevel=3)
         self._associate(tracks, start)
-        result = HOCResult(support=support, tracks=tracks, scores=scores, cleaned=cleaned)
+        result = HOCResult(
+            support=support,
+            tracks=tracks,
+            scores=scores,
+            cleaned=cleaned,
+            saturated=bool(notes),
+            warnings=notes,
+        )
         return StreamResult(start=start, stop=self.pushed, result=result, candidates=candidates)
 
     def _associate(self, tracks: list[Track], start: int) -> None:
