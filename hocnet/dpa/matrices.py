@@ -18,6 +18,9 @@ bearing ``atan2(dy, dx)``), so the directions 1..8 turn counter-clockwise in the
 which is *clockwise* on screen: direction 1 is +x (right, Figure 2's arrow), direction 3
 (90 degrees) is +y (down), direction 5 is -x (left), direction 7 is -y (up). Direction 9 is "in
 place". In tensors, direction ``d`` is stored at index ``d - 1`` (index 8 is direction 9).
+The paper does not say which way the directions turn (its Figure 4 is not legible in our copy);
+the counter-clockwise-on-screen reading is equally possible. The algorithm is mirror-invariant
+(the Var table and the penalties depend only on angle differences), so only the labels differ.
 """
 
 from __future__ import annotations

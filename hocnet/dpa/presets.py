@@ -135,7 +135,12 @@ class DPAPreset:
 PAPER = DPAPreset(name="paper")
 """[NR08]'s DPA: 7 x 7, ``v_max`` 2 (+ 0.5 jitter), ``p`` 0.5, ``x`` 3, g = 0, b from direction 9's
 EMC of 0.8 (4.67), the paper's direction step, no gain equalisation, anti-mean whitening, no
-registration, no background removal."""
+registration, no background removal.
+
+These are the matrices of [NR08] section 2.2 (0-2 px/frame design), from which the paper's eq. (15)
+constants come. The paper's section-3 experiments assume 0-1 px/frame and use 5 x 5 matrices
+("hence 5 x 5 probability matrices were used"): ``PAPER.replace(window=5, v_max=1.0)``. Both are
+the paper's; the 7 x 7 set is the default because eq. (15) is printed for it."""
 
 RECOMMENDED = DPAPreset(
     name="recommended",

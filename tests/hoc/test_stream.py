@@ -50,6 +50,26 @@ class TestStreamingEqualsBatch:
                 assert out.stop - out.start == window
                 _assert_same(out.result, detect(scene.cube[out.start : out.stop], order=order))
 
+    def test_chain_support_equals_detect(self):
+        scene = paper_scene("fig5", 0.015, seed=1)
+        det = StreamingDetector(window=10, stride=2, order=2, support="chain", identify="greedy")
+        for out in _stream(det, scene.cube):
+            want = detect(scene.cube[out.start : out.stop], support="chain", identify="greedy")
+            _assert_same(out.result, want)
+
+    def test_saturated_window_equals_detect(self):
+        gen = torch.Generator().manual_seed(4)
+        cube = torch.rand(8, 30, 30, generator=gen) < 0.06  # above the 4.94 % bound
+        det = StreamingDetector(window=6, stride=1, order=1)
+        with pytest.warns(RuntimeWarning, match="discrimination bound"):
+            outs = _stream(det, cube)
+        for out in outs:
+            with pytest.warns(RuntimeWarning):
+                want = detect(cube[out.start : out.stop], order=1)
+            _assert_same(out.result, want)
+            assert out.result.saturated and want.saturated
+            assert out.result.warnings == want.warnings
+
     @pytest.mark.parametrize("seed", range(2))
     def test_dense_clutter_and_options(self, seed):
         gen = torch.Generator().manual_seed(seed)
@@ -90,14 +110,15 @@ class TestStreamingEqualsBatch:
                 named |= support_from_levels(levels[-2:], 4, DELTA, direction=direction)[0]
             assert torch.equal(out.candidates, named)
             assert bool((image <= named).all())
-            tracks, _, cleaned = identify_tracks(image, min_points=2 * order + 1)
+            # identification on the candidates, rooted at the image ([LA98] section III-B)
+            tracks, _, cleaned = identify_tracks(named, roots=image, min_points=2 * order + 1)
             assert torch.equal(out.result.cleaned, cleaned)
             assert [t.points.tolist() for t in out.result.tracks] == [
                 t.points.tolist() for t in tracks
             ]
 
     def test_chain_mode_has_no_candidates(self):
-        det = StreamingDetector(window=5, stride=1, order=2)
+        det = StreamingDetector(window=5, stride=1, order=2, support="chain")
         outs = _stream(det, torch.zeros(5, 8, 8, dtype=torch.bool))
         assert outs[0].candidates is None
 
