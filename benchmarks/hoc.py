@@ -40,6 +40,7 @@ import os
 import platform
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from datetime import UTC, datetime
@@ -58,7 +59,7 @@ from _common import peak_memory_mb, percentile
 
 import hocnet.hoc.stream as hoc_stream
 from hocnet.hoc.functional import modified_hoc
-from hocnet.hoc.identify import HOCResult, detect, identify_tracks
+from hocnet.hoc.identify import HOCResult, detect
 from hocnet.hoc.reference import hoc_reference
 
 V = 4
@@ -363,7 +364,7 @@ STREAM_STRIDE = 1
 STREAM_PUSHES = 100  # measured pushes per configuration (each returns a window)
 QUICK_STREAM_PUSHES = 12
 STREAM_TARGETS = 8  # straight targets drawn into the clutter
-STREAM_SUPPORTS = ("chain", "mhoc")
+STREAM_SUPPORTS = ("mhoc", "chain")
 STREAM_TARGET_RATIO = {0.01: 2.0, 0.02: 4.0}  # median push / floor must be at most this
 
 
@@ -424,18 +425,10 @@ def _same_result(a, b) -> bool:
 
 
 def batch_result(window: torch.Tensor, order: int, support: str) -> HOCResult:
-    """The batch computation a streaming window must equal.
-
-    ``"chain"``: :func:`detect`. ``"mhoc"``: the paper's image (forward ``Y^(k)`` OR backward
-    ``Y^(k)``) and :func:`identify_tracks` on it, composed from the batch functions.
-    """
-    if support == "chain":
-        return detect(window, order=order)
-    image = modified_hoc(window, order, V, DELTA, "forward") | modified_hoc(
-        window, order, V, DELTA, "backward"
-    )
-    tracks, scores, cleaned = identify_tracks(image, V, DELTA, min_points=2 * order + 1)
-    return HOCResult(support=image, tracks=tracks, scores=scores, cleaned=cleaned)
+    """The batch computation a streaming window must equal: :func:`detect` with ``support``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the streaming side warns alike
+        return detect(window, order=order, support=support)
 
 
 def run_stream_config(
@@ -454,7 +447,7 @@ def run_stream_config(
         window=STREAM_WINDOW, stride=STREAM_STRIDE, order=order, support=support
     )
     spent: list[float] = []
-    identify = hoc_stream.identify_tracks
+    identify = hoc_stream._identify
 
     def timed_identify(*args, **kwargs):  # the identification share of a push
         t0 = time.perf_counter()
@@ -462,7 +455,7 @@ def run_stream_config(
         spent.append(time.perf_counter() - t0)
         return out
 
-    hoc_stream.identify_tracks = timed_identify
+    hoc_stream._identify = timed_identify
     try:
         for t in range(STREAM_WINDOW - 1):  # fill the window (no result yet)
             det.push(scans[t])
@@ -475,7 +468,7 @@ def run_stream_config(
             identify_s.append(sum(spent))
             outs.append(out)
     finally:
-        hoc_stream.identify_tracks = identify
+        hoc_stream._identify = identify
     # the first push of the loop completes the first window: it is measured like the others
     batch_s, equal = [], 0
     for out in outs:
@@ -622,14 +615,15 @@ def stream_main(args: argparse.Namespace) -> int:
         f"{STREAM_TARGETS} straight targets at 1-3 px/scan (seed {args.seed}). After the first "
         f"{STREAM_WINDOW - 1} scans every push returns a window result; each of the "
         f"{pushes + 1} such pushes is timed on its own (wall clock).",
-        "- HOC part: the push minus its `identify_tracks` call (new layer entries, links, "
-        "marking trees, window support cube, track-id association); identify: the one "
-        "`identify_tracks` call on the window's support.",
-        "- support: `chain` = the chain support `detect` uses today; `mhoc` = "
-        '`StreamingDetector(support="mhoc")`, the paper\'s image (forward Y^(k) OR backward '
-        "Y^(k), [LA98] III-B) handed to identification.",
-        "- batch: the same 10-scan window computed in one go, every window: `hocnet.hoc.detect` "
-        "(chain), or `modified_hoc` forward | backward + `identify_tracks` (mhoc); "
+        "- HOC part: the push minus its track identification call (new layer entries, links, "
+        "marking trees, window cubes, track-id association); identify: the one identification "
+        "call on the window's candidate points.",
+        "- support: `mhoc` (the default of `detect` and `StreamingDetector`, [LA98] III-B) = the "
+        "image (forward Y^(k) OR backward Y^(k)) plus the points its top-layer moves name, "
+        "identified by the paper's five-point sequences; `chain` = the chain support (our "
+        "addition).",
+        "- batch: the same 10-scan window computed in one go, every window: "
+        "`hocnet.hoc.detect(window, order=k, support=...)`; "
         "`windows == batch`: windows whose streaming result (support, cleaned cube, track points "
         "and scores) equals it.",
         f"- max-pool floor: one `max_pool2d(scan.float(), {POOL}, stride=1, padding={POOL // 2})` "
@@ -684,7 +678,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--supports",
         type=_csv_of(str),
         default=STREAM_SUPPORTS,
-        help="with --stream: comma-separated StreamingDetector supports (default chain,mhoc)",
+        help="with --stream: comma-separated StreamingDetector supports (default mhoc,chain)",
     )
     p.add_argument("--sizes", type=_csv_of(_parse_size), help="comma-separated TxHxW")
     p.add_argument("--densities", type=_csv_of(float), help="comma-separated clutter densities")

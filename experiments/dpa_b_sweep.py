@@ -414,8 +414,7 @@ def run(
         "",
         _range_table(summaries, scenes, table, grid),
         "",
-        f"Paper: {P.PAPER_B_NOTE} Goal (issue 8): ends within 0.4 (g = 0) and 0.1 (g = 1) of the "
-        "paper's.",
+        f"Paper: {P.PAPER_B_NOTE} Goal: ends within 0.4 (g = 0) and 0.1 (g = 1) of the paper's.",
         "",
         "## b per direction and eq. (15), beside the paper's",
         "",

@@ -3,7 +3,7 @@
 For every density and seed, one scene ``paper_scene("table2", density, seed=base + i)`` is run
 through the modified HOC detector (``hocnet.hoc.detect``, v = 4, delta = pi/4) at orders 2 and 3
 (the same scenes for both orders). Reported per density and order (mean ± std over the scenes):
-input points, points remaining and clutter rejection after the HOC (the chain support) and after
+input points, points remaining and clutter rejection after the HOC (the MHOC image) and after
 track identification (the ``cleaned`` cube), target points lost, tracks found versus the 2 true
 ones, true tracks found (80 % point overlap) and false tracks.
 
@@ -285,8 +285,9 @@ def run(
         "seed=seed)`); the same scenes for both orders.",
         "- Detector: `hocnet.hoc.detect(cube, order=k, v=4, delta=pi/4)`, track threshold 2.5, "
         "tracks of at least 2k + 1 points.",
-        "- *After HOC* = the chain support (every input point on an accepted (2k+1)-point chain, "
-        "forward and backward); *after identification* = the points of the accepted tracks "
+        "- *After HOC* = the detector's support, the MHOC image (forward OR backward Y^(k), [LA98] "
+        "section III-B; order 3 covers only scans 1-4 and 7-10 of 10, hence its lost points); "
+        "*after identification* = the points of the accepted tracks "
         "(`cleaned`).",
         "- Clutter rejection = removed clutter points / input clutter points. Target points lost "
         "= input target points not in the output, summed over all scenes of the row.",

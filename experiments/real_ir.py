@@ -420,7 +420,7 @@ def run(
             "- HOC support + intensity (our variant): the same HOC support, ranked by the "
             "pre-processed intensity instead of the point score.",
             f"- Mean seconds per clip (one torch thread): {', '.join(seconds)}.",
-            f"- Goal (issue 10): Pd >= {GOAL_PD} at <= 1 FA/frame on every clip, mean >= "
+            f"- Goal: Pd >= {GOAL_PD} at <= 1 FA/frame on every clip, mean >= "
             f"single-frame + {GOAL_GAIN}.",
             "",
             "Pd at <= 1 false alarm per frame:",

@@ -1231,7 +1231,7 @@ class TestRealFrames:
         ("setup", "extra", "match"),
         [
             ("text", [], r"CUBE: expected only image frames .* got the file notes\.txt"),
-            ("empty", [], r"CUBE: expected a folder with image frames, got empty"),
+            ("empty", [], r"CUBE: expected a folder with image frames, got an empty folder"),
             ("sizes", [], r"CUBE: expected frames of one size"),
             ("noglob", [], r"CUBE: expected a pattern matching image files"),
             ("ok", ["--method", "hoc"], r"binary values.*--threshold-pfa"),

@@ -65,7 +65,9 @@ def _image_files(source: str, path: Path | None) -> list[Path]:
             key=lambda p: natural_key(p.name),
         )
         if not files:
-            raise ValueError(f"`source`: expected a folder with image frames, got empty {source}")
+            raise ValueError(
+                f"`source`: expected a folder with image frames, got an empty folder {source}"
+            )
     else:
         matches = [Path(p) for p in glob.glob(source)]
         files = sorted((p for p in matches if p.is_file()), key=lambda p: natural_key(p.name))

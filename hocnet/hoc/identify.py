@@ -368,8 +368,10 @@ def _select_tracks(
     min_points: int,
     batch: int,
     image: list[bool] | None = None,
-) -> list[Track]:
+) -> list[tuple[Track, list[int]]]:
     """Score candidate tracks, reject short and low ones, drop tracks covered by better ones.
+
+    Returns the kept tracks with their point indices (into ``flat``).
 
     With ``image`` (per candidate point: in the MHOC image), a track must also be in Case 1 of
     section III-B "for most of the scans": more than half of its points in the image.
@@ -383,21 +385,27 @@ def _select_tracks(
         pts = [a[path[0]], b[path[0]]] + [c[k] for k in path]
         if len(pts) < min_points:
             continue
-        track, score = _make_track(pts, [sl[k] for k in path], coords, batch)
+        pscores = [sl[k] for k in path]
+        score = float(torch.tensor(pscores, dtype=torch.float64).mean())  # interior points
         if score < threshold:
             continue
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
-        cands.append((score, len(pts), pts, track))
+        cands.append((score, len(pts), pts, pscores))
     cands.sort(key=lambda item: (-item[0], -item[1]))
     covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
     tracks = []
-    for _, _, pts, track in cands:
+    for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
         covered.update(pts)
-        tracks.append(track)
-        cleaned[flat[torch.tensor(pts)]] = True
+        # Track objects only for the kept candidates (the others cost no tensor work)
+        track, _ = _make_track(pts, pscores, coords, batch)
+        track.score = score
+        tracks.append((track, pts))
+    if tracks:
+        kept = torch.tensor([q for _, pts in tracks for q in pts])
+        cleaned[flat[kept]] = True
     return tracks
 
 
@@ -460,24 +468,38 @@ def _best_paths(
     owner = _group_best(members, values, n)
     chosen = owner[points & (owner >= 0)] % k
     chosen = torch.unique(chosen[flat_best[chosen] >= -1e-9])
+    if chosen.numel() == 0:
+        return []
+    nb, nf = arg[chosen] // L, arg[chosen] % L
+    # walk the pointers of all chosen chains at once, one step per column
+    back = _walk(bptr, chosen, nb)
+    fwd = _walk(fptr, chosen, nf)
     paths = []
-    bl, fl = bptr.tolist(), fptr.tolist()
-    for kk, a in zip(chosen.tolist(), arg[chosen].tolist()):
-        nb, nf = divmod(a, L)
-        back, cur = [], kk
-        for ell in range(nb, 0, -1):
-            cur = bl[cur][ell]
-            back.append(cur)
-        fwd, cur = [], kk
-        for ell in range(nf, 0, -1):
-            cur = fl[cur][ell]
-            fwd.append(cur)
-        paths.append([*reversed(back), kk, *fwd])
+    for i, kk in enumerate(chosen.tolist()):
+        paths.append([*reversed(back[i]), kk, *fwd[i]])
     return paths
 
 
+def _walk(ptr: torch.Tensor, start: torch.Tensor, steps: torch.Tensor) -> list[list[int]]:
+    """Follow ``ptr[cur, ell]`` for ``ell = steps .. 1`` from every ``start`` (vectorised)."""
+    n_steps = int(steps.max()) if steps.numel() else 0
+    cur = start.clone()
+    rem = steps.clone()
+    cols = []
+    for _ in range(n_steps):
+        on = rem > 0
+        nxt = ptr[cur, rem.clamp_min(0)]
+        cur = torch.where(on, nxt, cur)
+        cols.append(torch.where(on, cur, -1))
+        rem = rem - 1
+    if not cols:
+        return [[] for _ in range(start.numel())]
+    table = torch.stack(cols, dim=1).tolist()
+    return [[k for k in row if k >= 0] for row in table]
+
+
 def _extensions(
-    tracks: list[Track],
+    tracks: list[tuple[Track, list[int]]],
     n: int,
     p0: torch.Tensor,
     p1: torch.Tensor,
@@ -506,23 +528,28 @@ def _extensions(
     lost = is_root & ~cleaned[flat]
     if not bool(lost.any()) or not tracks:
         return []
-    point_tracks: dict[tuple[int, ...], list[int]] = {}
+    paths = _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
+    if not paths:
+        return []
+    # tracks hold candidate points (indices into ``flat``): key them by index, not by coords
+    scan_of = coords[:, 0].tolist()
+    point_tracks: dict[int, list[int]] = {}
     scans: list[set[int]] = []
-    for t_idx, tr in enumerate(tracks):
-        scans.append(set(tr.points[:, 0].tolist()))
-        for row in tr.points.tolist():
-            point_tracks.setdefault(tuple(row), []).append(t_idx)
-    keys = [tuple(c) for c in coords.tolist()]
+    for t_idx, (_, pts) in enumerate(tracks):
+        scans.append({scan_of[q] for q in pts})
+        for q in pts:
+            point_tracks.setdefault(q, []).append(t_idx)
+    a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
     out = []
-    for path in _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost):
-        pts = [int(p0[path[0]]), int(p1[path[0]])] + [int(p2[k]) for k in path]
-        shared = {ti for p in pts for ti in point_tracks.get(keys[p], [])}
+    for path in paths:
+        pts = [a0[path[0]], a1[path[0]]] + [a2[k] for k in path]
+        shared = {ti for p in pts for ti in point_tracks.get(p, [])}
         if not shared:
             continue
         covered_scans = set().union(*(scans[ti] for ti in shared))
         ends = {min(covered_scans), max(covered_scans)}
-        new = [p for p in pts if keys[p] not in point_tracks]
-        if all(keys[p][0] not in covered_scans or keys[p][0] in ends for p in new):
+        new = [p for p in pts if p not in point_tracks]
+        if all(scan_of[p] not in covered_scans or scan_of[p] in ends for p in new):
             out.append(path)
     return out
 
@@ -579,6 +606,7 @@ def _identify_sequences(
     tracks = _select_tracks(
         paths, p0, p1, p2, s, coords, flat, cleaned, threshold, min_points, batch, image_list
     )
+    flat_l = flat.tolist()
     if rescue:
         extra = _extensions(
             tracks,
@@ -600,8 +628,10 @@ def _identify_sequences(
         tracks += _select_tracks(
             extra, p0, p1, p2, s, coords, flat, cleaned, threshold, min_points, batch, image_list
         )
-    tracks.sort(key=lambda tr: tuple(tr.points[0].tolist()) + tuple(tr.points[-1].tolist()))
-    return tracks, scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), capped
+    # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
+    kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
+    out = [tr for tr, _ in kept]
+    return out, scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), capped
 
 
 def _assignment_links(
@@ -818,10 +848,13 @@ def _identify(
         empty_f = torch.zeros(cube.shape, dtype=torch.float64)
         empty_b = torch.zeros(cube.shape, dtype=torch.bool)
         return [], restore_batch(empty_f, batched), restore_batch(empty_b, batched), False
+    # one scene: a view, not a copy of the (T, H, W) cubes
+    score_cube = scores[0][None] if len(scores) == 1 else torch.stack(scores)
+    clean_cube = cleaned[0][None] if len(cleaned) == 1 else torch.stack(cleaned)
     return (
         all_tracks,
-        restore_batch(torch.stack(scores), batched),
-        restore_batch(torch.stack(cleaned), batched),
+        restore_batch(score_cube, batched),
+        restore_batch(clean_cube, batched),
         capped,
     )
 
