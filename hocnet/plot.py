@@ -230,7 +230,15 @@ def _draw_tracks(
     """
     handles: list[Any] = []
     truth_points = {tuple(int(c) for c in row) for pts, _, _ in true_tracks for row in pts}
-    many = len(tracks) > _MAX_LEGEND_TRACKS
+    false = [bool(true_tracks) and _is_false(pts, truth_points) for pts, _, _ in tracks]
+    # Legend: every track up to _MAX_LEGEND_TRACKS; beyond that the false ones first, then the
+    # best-scoring ones, and one "+ N more" line, so a false track is never hidden in a count.
+    order = sorted(
+        range(len(tracks)),
+        key=lambda k: (not false[k], -(tracks[k][2] if tracks[k][2] is not None else 0.0), k),
+    )
+    listed = set(order[:_MAX_LEGEND_TRACKS])
+    entries: dict[int, Any] = {}
     for k, (pts, track_id, score) in enumerate(tracks):
         color = _TRACK_COLORS[k % len(_TRACK_COLORS)]
         name = f"{track_id}" if track_id is not None else f"{k + 1}"
@@ -264,17 +272,25 @@ def _draw_tracks(
                 bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": color, "lw": 0.8},
                 zorder=6,
             )
-        if not many:
+        if k in listed:
             text = f"track {name}: {len(pts)} pts"
             if score is not None:
                 text += f", score {score:.2f}"
-            if true_tracks and _is_false(pts, truth_points):
+            if false[k]:
                 text += " (false)"
-            handles.append(Line2D([], [], marker="o", color=color, lw=2.2, ms=4.5, label=text))
-    if many:
+            entries[k] = Line2D([], [], marker="o", color=color, lw=2.2, ms=4.5, label=text)
+    keys = sorted(entries) if len(tracks) <= _MAX_LEGEND_TRACKS else order[:_MAX_LEGEND_TRACKS]
+    handles.extend(entries[k] for k in keys)
+    if len(tracks) > len(listed):
+        more = len(tracks) - len(listed)
         handles.append(
             Line2D(
-                [], [], marker="o", color=_TRACK_COLORS[0], lw=2.2, label=f"{len(tracks)} tracks"
+                [],
+                [],
+                marker="o",
+                color=_TRACK_COLORS[0],
+                lw=2.2,
+                label=f"+ {more} more track{'s' * (more != 1)} ({len(tracks)} in all)",
             )
         )
     for pts, _, _ in true_tracks:

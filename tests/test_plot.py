@@ -177,9 +177,16 @@ class TestPlotTracks:
         assert fig.axes[0].get_title() == "0 tracks"
         assert_png(tmp_path / "n.png")
 
-    def test_many_tracks_one_legend_entry(self):
+    def test_many_tracks_listed_up_to_the_cap(self):
         tracks = [np.array([[0, k, 0], [1, k, 1]]) for k in range(20)]
-        assert legend_texts(plot_tracks(tracks, (2, 20, 5))) == ["20 tracks"]
+        texts = legend_texts(plot_tracks(tracks, (2, 20, 5)))
+        assert len(texts) == 13 and texts[-1] == "+ 8 more tracks (20 in all)"
+
+    def test_false_tracks_listed_first_when_many(self):
+        truth = [np.array([[0, 0, 0], [1, 0, 1]])]
+        tracks = [np.array([[0, 0, 0], [1, 0, 1]])] * 14 + [np.array([[0, 9, 3], [1, 9, 4]])]
+        texts = legend_texts(plot_tracks(tracks, (2, 20, 5), true_tracks=truth))
+        assert texts[1] == "track 15: 2 pts (false)"  # after "true track"
 
     def test_into_given_axes(self):
         fig = Figure()
