@@ -5,12 +5,33 @@ IMM with a stop model (:mod:`hocnet.tracking.imm`) and belief functions with PCR
 pignistic transformation (:mod:`hocnet.tracking.belief`).
 """
 
+from hocnet.tracking.belief import (
+    conjunctive,
+    dempster,
+    from_dict,
+    observed_bba,
+    pcr5,
+    pcr5_sources,
+    pignistic,
+    to_dict,
+    vacuous,
+)
+from hocnet.tracking.imm import (
+    IMMStep,
+    imm_combine,
+    imm_mix,
+    imm_mixing_probabilities,
+    imm_mode_probabilities,
+    imm_step,
+    imm_track_log_likelihood,
+    pd_mode_log_likelihoods,
+)
 from hocnet.tracking.kalman import (
     constant_velocity,
     cv_gamma,
     ekf_update,
-    gaussian_log_likelihood,
     gate,
+    gaussian_log_likelihood,
     kalman_predict,
     kalman_update,
     mahalanobis2,
@@ -18,13 +39,30 @@ from hocnet.tracking.kalman import (
 )
 
 __all__ = [
+    "IMMStep",
+    "conjunctive",
     "constant_velocity",
     "cv_gamma",
+    "dempster",
     "ekf_update",
-    "gaussian_log_likelihood",
+    "from_dict",
     "gate",
+    "gaussian_log_likelihood",
+    "imm_combine",
+    "imm_mix",
+    "imm_mixing_probabilities",
+    "imm_mode_probabilities",
+    "imm_step",
+    "imm_track_log_likelihood",
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
+    "observed_bba",
+    "pcr5",
+    "pcr5_sources",
+    "pd_mode_log_likelihoods",
+    "pignistic",
     "stop_model",
+    "to_dict",
+    "vacuous",
 ]

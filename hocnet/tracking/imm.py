@@ -45,7 +45,9 @@ __all__ = [
 def _probabilities(name: str, value: Any, *, min_dim: int) -> torch.Tensor:
     t = as_float64(name, value, min_dim=min_dim)
     if t.numel() and bool((t < 0).any()):
-        raise ValueError(f"`{name}`: expected non-negative probabilities, got a minimum {t.min():g}")
+        raise ValueError(
+            f"`{name}`: expected non-negative probabilities, got a minimum {t.min():g}"
+        )
     return t
 
 
@@ -77,7 +79,9 @@ def imm_mixing_probabilities(mu: Any, trans: Any) -> tuple[torch.Tensor, torch.T
     trans = _probabilities("trans", trans, min_dim=2)
     r = mu.shape[-1]
     if trans.shape[-2:] != (r, r):
-        raise ValueError(f"`trans`: expected shape ({r}, {r}) or (N, {r}, {r}), got {tuple(trans.shape)}")
+        raise ValueError(
+            f"`trans`: expected shape ({r}, {r}) or (N, {r}, {r}), got {tuple(trans.shape)}"
+        )
     sums = trans.sum(-1)
     if trans.numel() and bool(((sums - 1.0).abs() > 1e-6).any()):
         worst = float(sums.flatten()[(sums - 1.0).abs().flatten().argmax()])
@@ -163,7 +167,9 @@ def pd_mode_log_likelihoods(
     if det.dtype != torch.bool:
         raise TypeError(f"`detected`: expected a bool tensor, got dtype {det.dtype}")
     if det.shape != ll.shape[:-1]:
-        raise ValueError(f"`detected`: expected shape {tuple(ll.shape[:-1])}, got {tuple(det.shape)}")
+        raise ValueError(
+            f"`detected`: expected shape {tuple(ll.shape[:-1])}, got {tuple(det.shape)}"
+        )
     pd = check_number("pd", pd, low=0.0, high=1.0, low_inclusive=False)
     r = ll.shape[-1]
     moving = torch.ones(r, dtype=torch.bool)
@@ -191,7 +197,8 @@ def imm_track_log_likelihood(mode_log_lik: Any, cbar: Any) -> torch.Tensor:
         ``(N,)`` float64 ``log Lambda``.
 
     Examples:
-        >>> imm_track_log_likelihood(torch.log(torch.tensor([[0.5, 1.0]])), torch.tensor([[0.5, 0.5]])).exp()
+        >>> lam = torch.log(torch.tensor([[0.5, 1.0]]))
+        >>> imm_track_log_likelihood(lam, torch.tensor([[0.5, 0.5]])).exp()
         tensor([0.7500], dtype=torch.float64)
     """
     ll = torch.as_tensor(mode_log_lik, dtype=DTYPE)
@@ -213,7 +220,8 @@ def imm_mode_probabilities(cbar: Any, mode_log_lik: Any) -> torch.Tensor:
         ValueError: a track whose modes all have zero likelihood (``c = 0``).
 
     Examples:
-        >>> imm_mode_probabilities(torch.tensor([[0.5, 0.5]]), torch.log(torch.tensor([[1.0, 3.0]])))
+        >>> lam = torch.log(torch.tensor([[1.0, 3.0]]))
+        >>> imm_mode_probabilities(torch.tensor([[0.5, 0.5]]), lam)
         tensor([[0.2500, 0.7500]], dtype=torch.float64)
     """
     cbar = _probabilities("cbar", cbar, min_dim=2)
@@ -338,8 +346,10 @@ def imm_step(
         >>> F0, Q0 = stop_model()
         >>> F, Q = torch.stack([F0, F1]), torch.stack([Q0, Q1])
         >>> H = torch.tensor([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
-        >>> out = imm_step(torch.full((3, 2), 0.5), torch.zeros(3, 2, 4), torch.eye(4).repeat(3, 2, 1, 1),
-        ...                torch.tensor([[0.9, 0.1], [0.1, 0.9]]), F, Q, torch.ones(3, 2), H, torch.eye(2))
+        >>> mu, x = torch.full((3, 2), 0.5), torch.zeros(3, 2, 4)
+        >>> P = torch.eye(4).repeat(3, 2, 1, 1)
+        >>> trans = torch.tensor([[0.9, 0.1], [0.1, 0.9]])
+        >>> out = imm_step(mu, x, P, trans, F, Q, torch.ones(3, 2), H, torch.eye(2))
         >>> out.x_comb.shape, out.mu.shape
         (torch.Size([3, 4]), torch.Size([3, 2]))
     """
@@ -350,21 +360,31 @@ def imm_step(
     Q = as_float64("Q", Q, min_dim=3, square=True)
     for name, t in (("F", F), ("Q", Q)):
         if t.shape[-3:] != (r, n, n):
-            raise ValueError(f"`{name}`: expected shape ({r}, {n}, {n}) or (N, {r}, {n}, {n}), got {tuple(t.shape)}")
+            raise ValueError(
+                f"`{name}`: expected shape ({r}, {n}, {n}) or (N, {r}, {n}, {n}), "
+                f"got {tuple(t.shape)}"
+            )
     x_pred, P_pred = kalman_predict(x0, P0, F, Q)
     z = as_float64("z", z, min_dim=2)
     if z.shape[0] != n_tracks:
-        raise ValueError(f"`z`: expected {n_tracks} rows (one per track), got shape {tuple(z.shape)}")
+        raise ValueError(
+            f"`z`: expected {n_tracks} rows (one per track), got shape {tuple(z.shape)}"
+        )
     if detected is None:
         det = torch.ones(n_tracks, dtype=torch.bool)
     else:
         det = torch.as_tensor(detected)
         if det.dtype != torch.bool or det.shape != (n_tracks,):
-            raise ValueError(f"`detected`: expected a bool tensor of shape ({n_tracks},), got {_describe_mask(det)}")
+            raise ValueError(
+                f"`detected`: expected a bool tensor of shape ({n_tracks},), "
+                f"got {_describe_mask(det)}"
+            )
     x_upd, P_upd, ll = kalman_update(x_pred, P_pred, z.unsqueeze(-2), H, R)
     if pd is None:
         if not bool(det.all()):
-            raise ValueError("`pd`: expected a detection probability when some tracks are not detected, got None")
+            raise ValueError(
+                "`pd`: expected a detection probability when some tracks are not detected, got None"
+            )
         mode_ll = ll
     else:
         mode_ll = pd_mode_log_likelihoods(ll, det, pd, stop_mode=stop_mode)

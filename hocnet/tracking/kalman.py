@@ -25,8 +25,8 @@ __all__ = [
     "constant_velocity",
     "cv_gamma",
     "ekf_update",
-    "gaussian_log_likelihood",
     "gate",
+    "gaussian_log_likelihood",
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
@@ -53,7 +53,9 @@ def as_float64(name: str, value: Any, *, min_dim: int = 0, square: bool = False)
         try:
             value = torch.as_tensor(value)
         except (TypeError, ValueError, RuntimeError):
-            raise TypeError(f"`{name}`: expected a real tensor or array, got {_describe(value)}") from None
+            raise TypeError(
+                f"`{name}`: expected a real tensor or array, got {_describe(value)}"
+            ) from None
     if value.is_complex() or value.dtype == torch.bool:
         raise TypeError(f"`{name}`: expected a real tensor, got dtype {value.dtype}")
     value = value.to(DTYPE)
@@ -62,7 +64,9 @@ def as_float64(name: str, value: Any, *, min_dim: int = 0, square: bool = False)
             f"`{name}`: expected at least {min_dim} axes, got shape {tuple(value.shape)}"
         )
     if square and value.shape[-1] != value.shape[-2]:
-        raise ValueError(f"`{name}`: expected square matrices (..., n, n), got {tuple(value.shape)}")
+        raise ValueError(
+            f"`{name}`: expected square matrices (..., n, n), got {tuple(value.shape)}"
+        )
     check_finite(name, value)
     return value
 
@@ -130,8 +134,8 @@ def constant_velocity(
 
     Examples:
         >>> F, Q = constant_velocity(1.0, 2.0)
-        >>> F[0], Q[0]
-        (tensor([1., 1., 0., 0.], dtype=torch.float64), tensor([1., 2., 0., 0.], dtype=torch.float64))
+        >>> F[0].tolist(), Q[0].tolist()
+        ([1.0, 1.0, 0.0, 0.0], [1.0, 2.0, 0.0, 0.0])
     """
     dt = check_number("dt", dt, low=0.0)
     f = torch.eye(4, dtype=DTYPE)
@@ -410,7 +414,8 @@ def kalman_update(
 
     Examples:
         >>> H = torch.tensor([[1.0, 0.0]])
-        >>> x, P, ll = kalman_update(torch.zeros(3, 2), torch.eye(2), torch.ones(3, 1), H, torch.eye(1))
+        >>> x0, P0, z = torch.zeros(3, 2), torch.eye(2), torch.ones(3, 1)
+        >>> x, P, ll = kalman_update(x0, P0, z, H, torch.eye(1))
         >>> x[:, 0], P[0, 0, 0]
         (tensor([0.5000, 0.5000, 0.5000], dtype=torch.float64), tensor(0.5000, dtype=torch.float64))
     """

@@ -58,7 +58,17 @@ def test_plain_imm_equals_filterpy_per_track():
     for _ in range(n_steps):
         truth = truth @ constant_velocity(10.0, 0.0)[0].numpy().T
         z = truth[:, [0, 2]] + rng.normal(size=(n_tracks, 2)) * 5
-        out = imm_step(mu, x, P, torch.tensor(TRANS), F, Q, torch.tensor(z), torch.tensor(H_POS), torch.tensor(R))
+        out = imm_step(
+            mu,
+            x,
+            P,
+            torch.tensor(TRANS),
+            F,
+            Q,
+            torch.tensor(z),
+            torch.tensor(H_POS),
+            torch.tensor(R),
+        )
         mu, x, P = out.mu, out.x, out.P
         for t, imm in enumerate(imms):
             imm.predict()
@@ -69,7 +79,9 @@ def test_plain_imm_equals_filterpy_per_track():
             for i, f in enumerate(imm.filters):
                 np.testing.assert_allclose(x[t, i].numpy(), f.x[:, 0], rtol=1e-8, atol=1e-8)
                 np.testing.assert_allclose(P[t, i].numpy(), f.P, rtol=1e-8, atol=1e-8)
-                np.testing.assert_allclose(out.mode_log_likelihood[t, i].item(), f.log_likelihood, rtol=1e-9)
+                np.testing.assert_allclose(
+                    out.mode_log_likelihood[t, i].item(), f.log_likelihood, rtol=1e-9
+                )
     # the runs separate the modes: not a trivially uniform mu
     assert float(mu.max() - mu.min()) > 0.1
 
@@ -110,8 +122,18 @@ def test_pd_imm_with_stop_model_matches_loop():
     detected = np.array([True, False, True, False, True])
     z = x0[:, [0, 2]] + rng.normal(size=(n_tracks, 2)) * 3
     out = imm_step(
-        torch.tensor(mu0), torch.tensor(xs), torch.tensor(Ps), torch.tensor(TRANS), F, Q, torch.tensor(z),
-        torch.tensor(H_POS), torch.tensor(R), detected=torch.tensor(detected), pd=0.9, stop_mode=0,
+        torch.tensor(mu0),
+        torch.tensor(xs),
+        torch.tensor(Ps),
+        torch.tensor(TRANS),
+        F,
+        Q,
+        torch.tensor(z),
+        torch.tensor(H_POS),
+        torch.tensor(R),
+        detected=torch.tensor(detected),
+        pd=0.9,
+        stop_mode=0,
     )
     for t in range(n_tracks):
         mu_ref, x_ref, P_ref, lam_ref = loop_imm_step(
@@ -156,8 +178,15 @@ def test_per_track_transition_matrices_and_empty_batch():
     assert cbar.tolist() == [[0.5, 0.5], [0.8, 0.2]]
     F, Q = models()
     out = imm_step(
-        torch.zeros(0, 3), torch.zeros(0, 3, 4), torch.zeros(0, 3, 4, 4), torch.tensor(TRANS), F, Q,
-        torch.zeros(0, 2), torch.tensor(H_POS), torch.tensor(R),
+        torch.zeros(0, 3),
+        torch.zeros(0, 3, 4),
+        torch.zeros(0, 3, 4, 4),
+        torch.tensor(TRANS),
+        F,
+        Q,
+        torch.zeros(0, 2),
+        torch.tensor(H_POS),
+        torch.tensor(R),
     )
     assert out.x_comb.shape == (0, 4) and out.mu.shape == (0, 3)
 
@@ -183,13 +212,26 @@ def test_errors():
     with pytest.raises(ValueError, match="`mode_log_lik`"):
         imm_mode_probabilities(torch.tensor([[0.5, 0.5]]), torch.full((1, 2), -float("inf")))
     F, Q = models()
-    args = (torch.full((2, 3), 1 / 3), torch.zeros(2, 3, 4), torch.eye(4).repeat(2, 3, 1, 1), torch.tensor(TRANS))
+    args = (
+        torch.full((2, 3), 1 / 3),
+        torch.zeros(2, 3, 4),
+        torch.eye(4).repeat(2, 3, 1, 1),
+        torch.tensor(TRANS),
+    )
     with pytest.raises(ValueError, match="`z`"):
         imm_step(*args, F, Q, torch.zeros(3, 2), torch.tensor(H_POS), torch.tensor(R))
     with pytest.raises(ValueError, match="`F`"):
         imm_step(*args, F[:2], Q, torch.zeros(2, 2), torch.tensor(H_POS), torch.tensor(R))
     with pytest.raises(ValueError, match="`pd`"):
-        imm_step(*args, F, Q, torch.zeros(2, 2), torch.tensor(H_POS), torch.tensor(R), detected=torch.tensor([True, False]))
+        imm_step(
+            *args,
+            F,
+            Q,
+            torch.zeros(2, 2),
+            torch.tensor(H_POS),
+            torch.tensor(R),
+            detected=torch.tensor([True, False]),
+        )
     # a deep copy of the inputs is left untouched
     a = copy.deepcopy(args)
     imm_step(*args, F, Q, torch.zeros(2, 2), torch.tensor(H_POS), torch.tensor(R))

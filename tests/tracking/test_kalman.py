@@ -8,8 +8,8 @@ from hocnet.tracking.kalman import (
     constant_velocity,
     cv_gamma,
     ekf_update,
-    gaussian_log_likelihood,
     gate,
+    gaussian_log_likelihood,
     kalman_predict,
     kalman_update,
     mahalanobis2,
@@ -35,7 +35,8 @@ def loop_update(x, P, z, H, R):
         A = np.eye(len(xi)) - K @ H
         out_P.append(A @ Pi @ A.T + K @ R @ K.T)
         out_ll.append(
-            -0.5 * (nu @ np.linalg.solve(S, nu) + np.log(np.linalg.det(S)) + len(zi) * np.log(2 * np.pi))
+            -0.5
+            * (nu @ np.linalg.solve(S, nu) + np.log(np.linalg.det(S)) + len(zi) * np.log(2 * np.pi))
         )
     return np.array(out_x), np.array(out_P), np.array(out_ll)
 
@@ -158,7 +159,9 @@ class TestKalman:
         for i in range(4):
             S = Js[i] @ P[i].numpy() @ Js[i].T + R.numpy()
             K = P[i].numpy() @ Js[i].T @ np.linalg.inv(S)
-            np.testing.assert_allclose(xu[i].numpy(), x[i].numpy() + K @ (z[i].numpy() - hs[i]), rtol=1e-9)
+            np.testing.assert_allclose(
+                xu[i].numpy(), x[i].numpy() + K @ (z[i].numpy() - hs[i]), rtol=1e-9
+            )
             A = np.eye(4) - K @ Js[i]
             np.testing.assert_allclose(
                 Pu[i].numpy(), A @ P[i].numpy() @ A.T + K @ R.numpy() @ K.T, rtol=1e-9, atol=1e-9
@@ -176,7 +179,9 @@ class TestKalman:
         with pytest.raises(ValueError, match="`P`"):
             kalman_predict(torch.zeros(2, 4), torch.eye(3), torch.eye(4), torch.eye(4))
         with pytest.raises(ValueError, match="`x`"):
-            kalman_predict(torch.tensor([0.0, float("nan"), 0, 0]), torch.eye(4), torch.eye(4), torch.eye(4))
+            kalman_predict(
+                torch.tensor([0.0, float("nan"), 0, 0]), torch.eye(4), torch.eye(4), torch.eye(4)
+            )
         with pytest.raises(TypeError, match="`x`"):
             kalman_predict("abc", torch.eye(4), torch.eye(4), torch.eye(4))
         with pytest.raises(ValueError, match="`R`"):
@@ -193,7 +198,9 @@ class TestLikelihoodAndGate:
         ll = gaussian_log_likelihood(nu, S)
         for i in range(6):
             assert math.isclose(
-                float(ll[i]), multivariate_normal(np.zeros(3), S[i].numpy()).logpdf(nu[i].numpy()), rel_tol=1e-11
+                float(ll[i]),
+                multivariate_normal(np.zeros(3), S[i].numpy()).logpdf(nu[i].numpy()),
+                rel_tol=1e-11,
             )
 
     def test_gate_tracks_by_measurements(self):
