@@ -2,7 +2,8 @@
 
 First increment: batched Kalman / EKF filtering and gating (:mod:`hocnet.tracking.kalman`), the
 IMM with a stop model (:mod:`hocnet.tracking.imm`) and belief functions with PCR5 and the
-pignistic transformation (:mod:`hocnet.tracking.belief`).
+pignistic transformation (:mod:`hocnet.tracking.belief`), and the road-segment model with the
+constrained estimate by projection (:mod:`hocnet.tracking.road`).
 """
 
 from hocnet.tracking.belief import (
@@ -37,6 +38,14 @@ from hocnet.tracking.kalman import (
     mahalanobis2,
     stop_model,
 )
+from hocnet.tracking.road import (
+    on_segment_probability,
+    project_estimate,
+    relaxed_road_noise_cov,
+    road_constant_velocity,
+    road_noise_cov,
+    segment_constraint,
+)
 
 __all__ = [
     "IMMStep",
@@ -58,10 +67,16 @@ __all__ = [
     "kalman_update",
     "mahalanobis2",
     "observed_bba",
+    "on_segment_probability",
     "pcr5",
     "pcr5_sources",
     "pd_mode_log_likelihoods",
     "pignistic",
+    "project_estimate",
+    "relaxed_road_noise_cov",
+    "road_constant_velocity",
+    "road_noise_cov",
+    "segment_constraint",
     "stop_model",
     "to_dict",
     "vacuous",
