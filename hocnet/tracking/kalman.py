@@ -244,12 +244,23 @@ def mahalanobis2(innovation: Any, S: Any) -> torch.Tensor:
     nu = as_float64("innovation", innovation, min_dim=1)
     S = as_float64("S", S, min_dim=2, square=True)
     _check_last("S", S, nu.shape[-1], "the measurement dimension of `innovation`")
-    L = _cholesky("S", S)
+    return _mahalanobis2_chol(nu, _cholesky("S", S))
+
+
+def _mahalanobis2_chol(nu: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+    """``nu' S^-1 nu`` from the Cholesky factor ``L`` of ``S`` (no validation)."""
     shape = torch.broadcast_shapes(nu.shape[:-1], L.shape[:-2])
     nu = nu.expand(*shape, nu.shape[-1])
     L = L.expand(*shape, *L.shape[-2:])
     w = torch.linalg.solve_triangular(L, nu.unsqueeze(-1), upper=False).squeeze(-1)
     return (w * w).sum(-1)
+
+
+def _gaussian_ll_chol(nu: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+    """``log N(nu; 0, S)`` from the Cholesky factor ``L`` of ``S`` (no validation)."""
+    d2 = _mahalanobis2_chol(nu, L)
+    logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    return -0.5 * (d2 + logdet + nu.shape[-1] * math.log(2.0 * math.pi))
 
 
 def _cholesky(name: str, S: torch.Tensor) -> torch.Tensor:
@@ -286,11 +297,7 @@ def gaussian_log_likelihood(innovation: Any, S: Any) -> torch.Tensor:
     nu = as_float64("innovation", innovation, min_dim=1)
     S = as_float64("S", S, min_dim=2, square=True)
     _check_last("S", S, nu.shape[-1], "the measurement dimension of `innovation`")
-    L = _cholesky("S", S)
-    d2 = mahalanobis2(nu, S)
-    logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
-    m = nu.shape[-1]
-    return -0.5 * (d2 + logdet + m * math.log(2.0 * math.pi))
+    return _gaussian_ll_chol(nu, _cholesky("S", S))
 
 
 def gate(innovation: Any, S: Any, threshold: float) -> torch.Tensor:
@@ -379,7 +386,7 @@ def ekf_update(
     else:
         P_upd = P - K @ S @ K.transpose(-1, -2)
     P_upd = _symmetrize(P_upd)
-    ll = gaussian_log_likelihood(nu, S)
+    ll = _gaussian_ll_chol(nu, L)
     return x_upd, P_upd, ll
 
 
