@@ -1,0 +1,83 @@
+"""Tracking after detection ([PD], Pannetier, Dezert et al.): batched numeric core.
+
+First increment: batched Kalman / EKF filtering and gating (:mod:`hocnet.tracking.kalman`), the
+IMM with a stop model (:mod:`hocnet.tracking.imm`) and belief functions with PCR5 and the
+pignistic transformation (:mod:`hocnet.tracking.belief`), and the road-segment model with the
+constrained estimate by projection (:mod:`hocnet.tracking.road`).
+"""
+
+from hocnet.tracking.belief import (
+    conjunctive,
+    dempster,
+    from_dict,
+    observed_bba,
+    pcr5,
+    pcr5_sources,
+    pignistic,
+    to_dict,
+    vacuous,
+)
+from hocnet.tracking.imm import (
+    IMMStep,
+    imm_combine,
+    imm_mix,
+    imm_mixing_probabilities,
+    imm_mode_probabilities,
+    imm_step,
+    imm_track_log_likelihood,
+    pd_mode_log_likelihoods,
+)
+from hocnet.tracking.kalman import (
+    constant_velocity,
+    cv_gamma,
+    ekf_update,
+    gate,
+    gaussian_log_likelihood,
+    kalman_predict,
+    kalman_update,
+    mahalanobis2,
+    stop_model,
+)
+from hocnet.tracking.road import (
+    on_segment_probability,
+    project_estimate,
+    relaxed_road_noise_cov,
+    road_constant_velocity,
+    road_noise_cov,
+    segment_constraint,
+)
+
+__all__ = [
+    "IMMStep",
+    "conjunctive",
+    "constant_velocity",
+    "cv_gamma",
+    "dempster",
+    "ekf_update",
+    "from_dict",
+    "gate",
+    "gaussian_log_likelihood",
+    "imm_combine",
+    "imm_mix",
+    "imm_mixing_probabilities",
+    "imm_mode_probabilities",
+    "imm_step",
+    "imm_track_log_likelihood",
+    "kalman_predict",
+    "kalman_update",
+    "mahalanobis2",
+    "observed_bba",
+    "on_segment_probability",
+    "pcr5",
+    "pcr5_sources",
+    "pd_mode_log_likelihoods",
+    "pignistic",
+    "project_estimate",
+    "relaxed_road_noise_cov",
+    "road_constant_velocity",
+    "road_noise_cov",
+    "segment_constraint",
+    "stop_model",
+    "to_dict",
+    "vacuous",
+]

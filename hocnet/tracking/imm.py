@@ -1,0 +1,401 @@
+"""Interacting Multiple Model (IMM) estimator batched over tracks, with the stop model M0.
+
+One call filters all ``N`` tracks and all ``r`` modes at once; shapes:
+
+- mode probabilities ``mu``: ``(N, r)``,
+- mode-matched states ``x``: ``(N, r, n)`` and covariances ``P``: ``(N, r, n, n)``,
+- transition matrix ``trans``: ``(r, r)`` or ``(N, r, r)`` with ``trans[..., i, j] = p_ij =
+  P(mode i at k-1 -> mode j at k)`` (rows sum to 1; the convention of Bar-Shalom et al. 2001 and
+  of filterpy's ``IMMEstimator`` code, ``cbar = mu @ M``),
+- model matrices ``F``, ``Q``: ``(r, n, n)`` or ``(N, r, n, n)``.
+
+Equations ([PD] section 24.4.2, the plain IMM of Bar-Shalom, Li and Kirubarajan 2001, section
+11.6.6): mixing probabilities (24.33), mixed estimates (24.34-24.35), mode-matched filtering,
+PD-aware mode likelihoods with the stop model (24.29-24.31), the track likelihood (24.32), the
+mode-probability update (24.36) and the combination (24.37). Road constraints (VS-IMMC) are not
+part of this module yet.
+
+Our reading of 24.34-24.35: the OCR prints ``x0_i = sum_j x_j mu_{i|j}``, which swaps the
+indices of (24.33) where ``mu_{i|j} = p_ij mu_i / cbar_j`` is the probability of mode ``i`` at
+``k-1`` given mode ``j`` at ``k``. We implement the standard form ``x0_j = sum_i mu_{i|j} x_i``
+and ``P0_j = sum_i mu_{i|j} [P_i + (x_i - x0_j)(x_i - x0_j)']``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import torch
+
+from hocnet._check import check_int, check_number
+from hocnet.tracking.kalman import DTYPE, as_float64, kalman_predict, kalman_update
+
+__all__ = [
+    "IMMStep",
+    "imm_combine",
+    "imm_mix",
+    "imm_mixing_probabilities",
+    "imm_mode_probabilities",
+    "imm_step",
+    "imm_track_log_likelihood",
+    "pd_mode_log_likelihoods",
+]
+
+
+def _probabilities(name: str, value: Any, *, min_dim: int) -> torch.Tensor:
+    t = as_float64(name, value, min_dim=min_dim)
+    if t.numel() and bool((t < 0).any()):
+        raise ValueError(
+            f"`{name}`: expected non-negative probabilities, got a minimum {t.min():g}"
+        )
+    return t
+
+
+def imm_mixing_probabilities(mu: Any, trans: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """Predicted mode probabilities ``cbar`` and mixing probabilities ``mu_{i|j}`` (eq. 24.33).
+
+    ``cbar_j = sum_i p_ij mu_i`` (the predicted mode probability ``mu_j(k|k-1)`` of 24.32) and
+    ``mu_{i|j} = p_ij mu_i / cbar_j``. A mode that no other mode can reach (``cbar_j = 0``) gets
+    zero mixing weights.
+
+    Args:
+        mu: ``(N, r)`` mode probabilities at ``k-1`` (rows sum to 1).
+        trans: ``(r, r)`` or ``(N, r, r)``, ``trans[..., i, j] = P(i -> j)`` (rows sum to 1).
+
+    Returns:
+        ``(cbar, omega)``: ``(N, r)`` and ``(N, r, r)`` with ``omega[n, i, j] = mu_{i|j}``.
+
+    Raises:
+        TypeError, ValueError: bad shapes, negative or non-finite entries, rows of ``trans``
+            that do not sum to 1 (tolerance 1e-6).
+
+    Examples:
+        >>> cbar, omega = imm_mixing_probabilities(torch.tensor([[0.5, 0.5]]),
+        ...                                        torch.tensor([[0.9, 0.1], [0.2, 0.8]]))
+        >>> cbar
+        tensor([[0.5500, 0.4500]], dtype=torch.float64)
+    """
+    mu = _probabilities("mu", mu, min_dim=2)
+    trans = _probabilities("trans", trans, min_dim=2)
+    r = mu.shape[-1]
+    if trans.shape[-2:] != (r, r):
+        raise ValueError(
+            f"`trans`: expected shape ({r}, {r}) or (N, {r}, {r}), got {tuple(trans.shape)}"
+        )
+    sums = trans.sum(-1)
+    if trans.numel() and bool(((sums - 1.0).abs() > 1e-6).any()):
+        worst = float(sums.flatten()[(sums - 1.0).abs().flatten().argmax()])
+        raise ValueError(
+            "`trans`: expected rows summing to 1 (trans[i, j] = P(i -> j)), got a row sum "
+            f"{worst:.9g}"
+        )
+    joint = mu.unsqueeze(-1) * trans  # (N, r, r): p_ij mu_i
+    cbar = joint.sum(-2)
+    safe = torch.where(cbar > 0, cbar, torch.ones_like(cbar))
+    omega = torch.where(cbar.unsqueeze(-2) > 0, joint / safe.unsqueeze(-2), torch.zeros_like(joint))
+    return cbar, omega
+
+
+def imm_mix(x: Any, P: Any, omega: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """Mixed initial conditions of the mode-matched filters (eq. 24.34-24.35, our reading).
+
+    ``x0_j = sum_i mu_{i|j} x_i`` and ``P0_j = sum_i mu_{i|j} [P_i + (x_i - x0_j)(x_i - x0_j)']``.
+
+    Args:
+        x: ``(N, r, n)`` mode-matched states at ``k-1``.
+        P: ``(N, r, n, n)`` mode-matched covariances.
+        omega: ``(N, r, r)`` mixing probabilities from :func:`imm_mixing_probabilities`.
+
+    Returns:
+        ``(x0, P0)``, shapes ``(N, r, n)`` and ``(N, r, n, n)``.
+
+    Raises:
+        TypeError, ValueError: bad shapes or values.
+
+    Examples:
+        >>> x0, P0 = imm_mix(torch.tensor([[[0.0], [2.0]]]), torch.zeros(1, 2, 1, 1),
+        ...                  torch.full((1, 2, 2), 0.5))
+        >>> x0[0, :, 0], P0[0, :, 0, 0]
+        (tensor([1., 1.], dtype=torch.float64), tensor([1., 1.], dtype=torch.float64))
+    """
+    x = as_float64("x", x, min_dim=3)
+    P = as_float64("P", P, min_dim=4, square=True)
+    omega = as_float64("omega", omega, min_dim=3)
+    r, n = x.shape[-2:]
+    if P.shape[-3:] != (r, n, n):
+        raise ValueError(f"`P`: expected shape (N, {r}, {n}, {n}), got {tuple(P.shape)}")
+    if omega.shape[-2:] != (r, r):
+        raise ValueError(f"`omega`: expected shape (N, {r}, {r}), got {tuple(omega.shape)}")
+    x0 = torch.einsum("...ij,...in->...jn", omega, x)
+    d = x.unsqueeze(-3) - x0.unsqueeze(-2)  # (N, j, i, n): x_i - x0_j
+    spread = P.unsqueeze(-4) + d.unsqueeze(-1) * d.unsqueeze(-2)  # (N, j, i, n, n)
+    P0 = torch.einsum("...ij,...jiab->...jab", omega, spread)
+    return x0, 0.5 * (P0 + P0.transpose(-1, -2))
+
+
+def pd_mode_log_likelihoods(
+    log_lik: Any, detected: Any, pd: float, *, stop_mode: int | None = 0
+) -> torch.Tensor:
+    """PD-aware mode likelihoods with the stop model, eq. 24.30-24.31, in log form.
+
+    Moving modes ``i != stop_mode``: ``Lambda_i = PD p(z | M_i)`` when the track is detected and
+    ``1 - PD`` when not (24.30). Stop mode: ``Lambda_0 = delta_{m_j, 0}``, i.e. 1 when the track
+    is not detected (a stopped target is below the GMTI minimum detectable velocity) and 0 when it
+    is (24.31). ``stop_mode=None`` treats all modes as moving.
+
+    Args:
+        log_lik: ``(N, r)`` Gaussian log-likelihoods ``log p(z | M_i)`` (ignored where not
+            detected; any finite value).
+        detected: ``(N,)`` bool, whether a measurement is associated with the track.
+        pd: detection probability in (0, 1].
+        stop_mode: index of M0 in the mode axis, or ``None``.
+
+    Returns:
+        ``(N, r)`` float64 ``log Lambda_i`` (``-inf`` for the stop mode of detected tracks).
+
+    Raises:
+        TypeError, ValueError: bad shapes, ``pd`` outside (0, 1], ``stop_mode`` out of range.
+
+    Examples:
+        >>> ll = pd_mode_log_likelihoods(torch.zeros(2, 2), torch.tensor([True, False]), 0.9)
+        >>> ll.exp()
+        tensor([[0.0000, 0.9000],
+                [1.0000, 0.1000]], dtype=torch.float64)
+    """
+    ll = as_float64("log_lik", log_lik, min_dim=2)
+    det = torch.as_tensor(detected)
+    if det.dtype != torch.bool:
+        raise TypeError(f"`detected`: expected a bool tensor, got dtype {det.dtype}")
+    if det.shape != ll.shape[:-1]:
+        raise ValueError(
+            f"`detected`: expected shape {tuple(ll.shape[:-1])}, got {tuple(det.shape)}"
+        )
+    pd = check_number("pd", pd, low=0.0, high=1.0, low_inclusive=False)
+    r = ll.shape[-1]
+    moving = torch.ones(r, dtype=torch.bool)
+    if stop_mode is not None:
+        stop_mode = check_int("stop_mode", stop_mode, minimum=0, maximum=r - 1)
+        moving[stop_mode] = False
+    log_pd = torch.log(torch.tensor(pd, dtype=DTYPE))
+    log_miss = torch.log1p(torch.tensor(-pd, dtype=DTYPE))
+    neg_inf = torch.tensor(-torch.inf, dtype=DTYPE)
+    zero = torch.tensor(0.0, dtype=DTYPE)
+    d = det.unsqueeze(-1)
+    moving_ll = torch.where(d, log_pd + ll, log_miss)
+    stop_ll = torch.where(d, neg_inf, zero).expand_as(ll)
+    return torch.where(moving, moving_ll, stop_ll)
+
+
+def imm_track_log_likelihood(mode_log_lik: Any, cbar: Any) -> torch.Tensor:
+    """Track likelihood ``Lambda = sum_i Lambda_i mu_i(k|k-1)`` (eq. 24.32), in log form.
+
+    Args:
+        mode_log_lik: ``(N, r)`` ``log Lambda_i`` (``-inf`` allowed).
+        cbar: ``(N, r)`` predicted mode probabilities ``mu_i(k|k-1)``.
+
+    Returns:
+        ``(N,)`` float64 ``log Lambda``.
+
+    Examples:
+        >>> lam = torch.log(torch.tensor([[0.5, 1.0]]))
+        >>> imm_track_log_likelihood(lam, torch.tensor([[0.5, 0.5]])).exp()
+        tensor([0.7500], dtype=torch.float64)
+    """
+    ll = torch.as_tensor(mode_log_lik, dtype=DTYPE)
+    cbar = _probabilities("cbar", cbar, min_dim=2)
+    return torch.logsumexp(ll + torch.log(cbar), dim=-1)
+
+
+def imm_mode_probabilities(cbar: Any, mode_log_lik: Any) -> torch.Tensor:
+    """Mode-probability update ``mu_i(k) = Lambda_i cbar_i / c`` (eq. 24.36), computed stably.
+
+    Args:
+        cbar: ``(N, r)`` predicted mode probabilities.
+        mode_log_lik: ``(N, r)`` mode log-likelihoods ``log Lambda_i`` (``-inf`` allowed).
+
+    Returns:
+        ``(N, r)`` float64, rows summing to 1.
+
+    Raises:
+        ValueError: a track whose modes all have zero likelihood (``c = 0``).
+
+    Examples:
+        >>> lam = torch.log(torch.tensor([[1.0, 3.0]]))
+        >>> imm_mode_probabilities(torch.tensor([[0.5, 0.5]]), lam)
+        tensor([[0.2500, 0.7500]], dtype=torch.float64)
+    """
+    cbar = _probabilities("cbar", cbar, min_dim=2)
+    ll = torch.as_tensor(mode_log_lik, dtype=DTYPE)
+    if bool(torch.isnan(ll).any()) or bool((ll == torch.inf).any()):
+        raise ValueError("`mode_log_lik`: expected finite values or -inf, got NaN/+inf")
+    a = ll + torch.log(cbar)
+    total = torch.logsumexp(a, dim=-1, keepdim=True)
+    if a.numel() and bool(torch.isinf(total).any()):
+        raise ValueError(
+            "`mode_log_lik`: expected at least one mode with non-zero likelihood per track, got "
+            f"{int(torch.isinf(total).sum())} tracks with none"
+        )
+    return torch.exp(a - total)
+
+
+def imm_combine(mu: Any, x: Any, P: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """Combined estimate ``x = sum_i mu_i x_i`` (eq. 24.37) and its covariance.
+
+    ``P = sum_i mu_i [P_i + (x_i - x)(x_i - x)']`` (Bar-Shalom et al. 2001, eq. 11.6.6-21; the
+    chapter prints only the mean).
+
+    Args:
+        mu: ``(N, r)``.
+        x: ``(N, r, n)``.
+        P: ``(N, r, n, n)``.
+
+    Returns:
+        ``(x, P)`` of shapes ``(N, n)`` and ``(N, n, n)``.
+
+    Examples:
+        >>> xc, Pc = imm_combine(torch.tensor([[0.5, 0.5]]), torch.tensor([[[0.0], [2.0]]]),
+        ...                      torch.zeros(1, 2, 1, 1))
+        >>> xc, Pc
+        (tensor([[1.]], dtype=torch.float64), tensor([[[1.]]], dtype=torch.float64))
+    """
+    mu = _probabilities("mu", mu, min_dim=2)
+    x = as_float64("x", x, min_dim=3)
+    P = as_float64("P", P, min_dim=4, square=True)
+    xc = torch.einsum("...i,...in->...n", mu, x)
+    d = x - xc.unsqueeze(-2)
+    Pc = torch.einsum("...i,...iab->...ab", mu, P + d.unsqueeze(-1) * d.unsqueeze(-2))
+    return xc, 0.5 * (Pc + Pc.transpose(-1, -2))
+
+
+class IMMStep(NamedTuple):
+    """Result of :func:`imm_step` (all float64).
+
+    Attributes:
+        mu: ``(N, r)`` updated mode probabilities (24.36).
+        x: ``(N, r, n)`` mode-matched updated states.
+        P: ``(N, r, n, n)`` mode-matched updated covariances.
+        x_comb: ``(N, n)`` combined state (24.37).
+        P_comb: ``(N, n, n)`` combined covariance.
+        log_likelihood: ``(N,)`` track log-likelihood ``log Lambda`` (24.32).
+        mode_log_likelihood: ``(N, r)`` ``log Lambda_i`` (24.29-24.31).
+        cbar: ``(N, r)`` predicted mode probabilities ``mu_i(k|k-1)``.
+        x_pred: ``(N, r, n)`` mode-matched predicted states.
+        P_pred: ``(N, r, n, n)`` mode-matched predicted covariances.
+    """
+
+    mu: torch.Tensor
+    x: torch.Tensor
+    P: torch.Tensor
+    x_comb: torch.Tensor
+    P_comb: torch.Tensor
+    log_likelihood: torch.Tensor
+    mode_log_likelihood: torch.Tensor
+    cbar: torch.Tensor
+    x_pred: torch.Tensor
+    P_pred: torch.Tensor
+
+
+def imm_step(
+    mu: Any,
+    x: Any,
+    P: Any,
+    trans: Any,
+    F: Any,
+    Q: Any,
+    z: Any,
+    H: Any,
+    R: Any,
+    *,
+    detected: Any | None = None,
+    pd: float | None = None,
+    stop_mode: int | None = None,
+) -> IMMStep:
+    """One IMM cycle for ``N`` tracks at once: mix, predict, update, combine.
+
+    Steps 1-5 of [PD] section 24.4.2 (eq. 24.33-24.37) without road constraints. With
+    ``pd=None`` (default) every track is updated with its measurement and the mode likelihoods
+    are the Gaussian ``p(z | M_i)`` (24.29): the plain IMM, equal to filterpy's
+    ``IMMEstimator.predict(); update(z)``. With ``pd`` given, the likelihoods are those of
+    24.30-24.31 (``stop_mode`` is the index of M0, see :func:`pd_mode_log_likelihoods`), and tracks
+    with ``detected=False`` keep their predictions as mode-matched estimates.
+
+    Args:
+        mu: ``(N, r)`` mode probabilities at ``k-1``.
+        x: ``(N, r, n)`` mode-matched states at ``k-1`` (m, m/s).
+        P: ``(N, r, n, n)`` covariances.
+        trans: ``(r, r)`` or ``(N, r, r)``, ``trans[..., i, j] = P(i -> j)``.
+        F: ``(r, n, n)`` or ``(N, r, n, n)`` transitions (e.g. :func:`constant_velocity`,
+            :func:`stop_model` stacked).
+        Q: ``(r, n, n)`` or ``(N, r, n, n)`` process noises.
+        z: ``(N, m)`` measurements (m); rows of undetected tracks must be finite and are ignored.
+        H: ``(m, n)``, ``(r, m, n)`` or ``(N, r, m, n)``.
+        R: ``(m, m)`` or broadcastable ``(..., m, m)``.
+        detected: ``(N,)`` bool; ``None`` means all detected.
+        pd: detection probability for 24.30, or ``None`` for the plain IMM.
+        stop_mode: index of the stop model M0 (used only with ``pd``).
+
+    Returns:
+        :class:`IMMStep`.
+
+    Raises:
+        TypeError, ValueError: bad shapes or values (argument named in the message).
+
+    Examples:
+        >>> from hocnet.tracking.kalman import constant_velocity, stop_model
+        >>> F1, Q1 = constant_velocity(1.0, 0.5)
+        >>> F0, Q0 = stop_model()
+        >>> F, Q = torch.stack([F0, F1]), torch.stack([Q0, Q1])
+        >>> H = torch.tensor([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+        >>> mu, x = torch.full((3, 2), 0.5), torch.zeros(3, 2, 4)
+        >>> P = torch.eye(4).repeat(3, 2, 1, 1)
+        >>> trans = torch.tensor([[0.9, 0.1], [0.1, 0.9]])
+        >>> out = imm_step(mu, x, P, trans, F, Q, torch.ones(3, 2), H, torch.eye(2))
+        >>> out.x_comb.shape, out.mu.shape
+        (torch.Size([3, 4]), torch.Size([3, 2]))
+    """
+    cbar, omega = imm_mixing_probabilities(mu, trans)
+    x0, P0 = imm_mix(x, P, omega)
+    n_tracks, r, n = x0.shape
+    F = as_float64("F", F, min_dim=3, square=True)
+    Q = as_float64("Q", Q, min_dim=3, square=True)
+    for name, t in (("F", F), ("Q", Q)):
+        if t.shape[-3:] != (r, n, n):
+            raise ValueError(
+                f"`{name}`: expected shape ({r}, {n}, {n}) or (N, {r}, {n}, {n}), "
+                f"got {tuple(t.shape)}"
+            )
+    x_pred, P_pred = kalman_predict(x0, P0, F, Q)
+    z = as_float64("z", z, min_dim=2)
+    if z.shape[0] != n_tracks:
+        raise ValueError(
+            f"`z`: expected {n_tracks} rows (one per track), got shape {tuple(z.shape)}"
+        )
+    if detected is None:
+        det = torch.ones(n_tracks, dtype=torch.bool)
+    else:
+        det = torch.as_tensor(detected)
+        if det.dtype != torch.bool or det.shape != (n_tracks,):
+            raise ValueError(
+                f"`detected`: expected a bool tensor of shape ({n_tracks},), "
+                f"got {_describe_mask(det)}"
+            )
+    x_upd, P_upd, ll = kalman_update(x_pred, P_pred, z.unsqueeze(-2), H, R)
+    if pd is None:
+        if not bool(det.all()):
+            raise ValueError(
+                "`pd`: expected a detection probability when some tracks are not detected, got None"
+            )
+        mode_ll = ll
+    else:
+        mode_ll = pd_mode_log_likelihoods(ll, det, pd, stop_mode=stop_mode)
+        keep = det.view(-1, 1, 1)
+        x_upd = torch.where(keep, x_upd, x_pred)
+        P_upd = torch.where(keep.unsqueeze(-1), P_upd, P_pred)
+    mu_new = imm_mode_probabilities(cbar, mode_ll)
+    x_c, P_c = imm_combine(mu_new, x_upd, P_upd)
+    track_ll = imm_track_log_likelihood(mode_ll, cbar)
+    return IMMStep(mu_new, x_upd, P_upd, x_c, P_c, track_ll, mode_ll, cbar, x_pred, P_pred)
+
+
+def _describe_mask(t: torch.Tensor) -> str:
+    return f"dtype {t.dtype} and shape {tuple(t.shape)}"
