@@ -90,7 +90,8 @@ class DPATuner(L.LightningModule):
     learnable=learnable, smooth=tau_start)``, the paper's parameterisation (one penalty step
     ``x``). Constraints are those of the DPA's parameterisation (``g``, ``p`` in ``[0, 1]``,
     ``x`` in ``[0, 3]``, ``b >= 0``) plus a projection after every optimiser step that keeps
-    ``b <= b_margin * b_limit(weights, g)``, inside the memory range of eq. (12)-(14).
+    ``b <= b_margin * b_limit(weights, g)``, inside the memory range of eq. (12)-(14) (an
+    initial ``b`` above it is moved there too).
 
     Loss (our choice): :func:`dpa_loss` of the last ASF against the true last-frame target
     pixel, plus ``track_weight`` times the mean :func:`dpa_loss` of the earlier frames' ASFs
@@ -178,6 +179,7 @@ class DPATuner(L.LightningModule):
         self.model = _build_dpa(
             {**self.hparams, "g": g, "p": p, "penalty_step": penalty_step}, smooth=tau_start
         )
+        project_b(self.model, b_margin)
         self.metrics = nn.ModuleDict()
         for stage in STAGES:
             self.metrics[f"{stage}_auroc"] = BinaryAUROC()
