@@ -61,7 +61,7 @@ def split_seeds(seed: int, sizes: dict[str, int]) -> dict[str, list[int]]:
 
 
 def _range(name: str, value: Any, low: float, high: float) -> tuple[float, float]:
-    """A ``(lo, hi)`` pair (a number or ``(x,)`` means ``(x, x)``) with ``low <= lo <= hi <= high``."""
+    """A pair ``low <= lo <= hi <= high``; a number or ``(x,)`` means ``(x, x)``."""
     if isinstance(value, (int, float)):
         value = (value, value)
     if isinstance(value, Sequence) and len(value) == 1:

@@ -7,7 +7,7 @@ import torch
 
 pytest.importorskip("lightning")
 
-from hocnet.learn.datamodules import (  # noqa: E402
+from hocnet.learn.datamodules import (
     SPLIT_OFFSET,
     BinarySceneDataModule,
     IRSceneDataModule,

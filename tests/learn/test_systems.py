@@ -1,4 +1,4 @@
-"""Tests of hocnet.learn.systems and hocnet.learn.train: smoke, constraints, checkpoints, learning."""
+"""Tests of hocnet.learn.systems and .train: smoke, constraints, checkpoints, learning."""
 
 from __future__ import annotations
 
