@@ -94,9 +94,10 @@ class DPATuner(L.LightningModule):
     initial ``b`` above it is moved there too).
 
     Loss (our choice): :func:`dpa_loss` of the last ASF against the true last-frame target
-    pixel, plus ``track_weight`` times the mean :func:`dpa_loss` of the earlier frames' ASFs
-    against their true pixels (a differentiable stand-in for the back-tracked trajectory: the
-    back-tracking follows the ASF peaks of eq. (8)). Training uses the smooth max with
+    pixel, plus ``track_weight`` times the mean :func:`dpa_loss` of the ASFs of frames
+    ``1 .. T - 2`` against their true pixels (frame 0's ASF is the frame itself): a
+    differentiable stand-in for the back-tracked trajectory, which follows the ASF peaks of
+    eq. (8). Training uses the smooth max with
     temperature ``tau`` annealed geometrically from ``tau_start`` (epoch 0) to ``tau_end`` (last
     epoch); validation and test use the hard max, and the test also logs the loss with the
     smooth max at ``tau_end`` and the gap ``test/smooth_gap = loss_smooth - loss_hard``.

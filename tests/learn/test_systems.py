@@ -105,6 +105,29 @@ class TestDPATuner:
                 w = m.weights
                 assert bool((w >= 0).all())
 
+    def test_tau_annealing(self):
+        import types
+
+        tuner = DPATuner(window=5, tau_start=1.0, tau_end=0.01)
+        assert tuner.tau() == 1.0  # no trainer yet
+        tuner._trainer = types.SimpleNamespace(max_epochs=3, current_epoch=0)
+        taus = []
+        for epoch in range(3):
+            tuner._trainer.current_epoch = epoch
+            taus.append(tuner.tau())
+        assert taus == pytest.approx([1.0, 0.1, 0.01])
+
+    def test_track_weight(self):
+        dm = IRSceneDataModule(**IR_TINY, snr_db=20.0)
+        dm.setup("fit")
+        batch = next(iter(dm.train_dataloader()))
+        asf = DPATuner(window=5).model(batch["frames"]).asf.detach()
+        last = DPATuner(window=5).loss(asf, batch["pixels"])
+        both = DPATuner(window=5, track_weight=0.5).loss(asf, batch["pixels"])
+        frames = [dpa_loss(asf[:, t], batch["pixels"][:, :, t]) for t in range(1, 4)]
+        expected = last + 0.5 * torch.stack(frames).mean()
+        assert both.item() == pytest.approx(expected.item(), rel=1e-6)
+
     def test_project_b(self):
         dpa = DPA(window=5, b=1.0, learnable="b")
         assert not project_b(dpa)  # inside the range: untouched
