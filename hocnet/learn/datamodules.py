@@ -1,0 +1,341 @@
+"""Seeded simulator data modules for training the DPA and the HOC network (our addition).
+
+Scenes are generated in :meth:`setup` (never in ``__init__``), one seed per scene. The train,
+validation and test seeds are disjoint ranges (``seed + SPLIT_OFFSET[split] + i``), recorded in
+the hyper-parameters as ``split_seeds`` (``{split: [first, last + 1]}``), so the same module with
+the same arguments yields the same scenes bit for bit.
+
+* :class:`IRSceneDataModule`: IR sequences of :func:`hocnet.data.simulate_ir` ([NR08]) with random
+  straight targets (peak SNR, speed 0.1-2 px/frame, heading), whitened by anti-mean or anti-median;
+  each sample also holds the whitened target-free frames (same clouds, jitter and noise) for a
+  per-pixel false-alarm threshold.
+* :class:`BinarySceneDataModule`: binary scans of :func:`hocnet.data.simulate_binary` ([LA98]) with
+  random straight targets and uniform clutter; each sample holds the per-point target labels.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from hocnet._check import check_choice, check_int, check_number
+from hocnet.data.binary import TargetSpec, simulate_binary
+from hocnet.data.infrared import CLOUD_PRESETS, IRTarget, simulate_ir
+from hocnet.data.whitening import anti_mean, anti_median
+
+__all__ = ["SPLIT_OFFSET", "BinarySceneDataModule", "IRSceneDataModule", "split_seeds"]
+
+SPLITS = ("train", "val", "test")
+#: Offset of each split's seed range; a split holds at most ``SPLIT_OFFSET["val"]`` scenes.
+SPLIT_OFFSET = {"train": 0, "val": 1_000_000, "test": 2_000_000}
+_WHITEN = {"anti_mean": anti_mean, "anti_median": anti_median}
+
+
+def split_seeds(seed: int, sizes: dict[str, int]) -> dict[str, list[int]]:
+    """Disjoint seed ranges ``{split: [first, stop)}`` of the train / val / test scenes.
+
+    Args:
+        seed: base seed (``>= 0``).
+        sizes: number of scenes per split, each in ``[0, 1_000_000]``.
+
+    Returns:
+        ``{split: [first, stop]}`` with ``first = seed + SPLIT_OFFSET[split]`` and
+        ``stop = first + sizes[split]``.
+
+    Examples:
+        >>> split_seeds(7, {"train": 2, "val": 1, "test": 1})
+        {'train': [7, 9], 'val': [1000007, 1000008], 'test': [2000007, 2000008]}
+    """
+    seed = check_int("seed", seed, minimum=0)
+    out = {}
+    for split in SPLITS:
+        n = check_int(f"n_{split}", sizes[split], minimum=0, maximum=SPLIT_OFFSET["val"])
+        first = seed + SPLIT_OFFSET[split]
+        out[split] = [first, first + n]
+    return out
+
+
+def _range(name: str, value: Any, low: float, high: float) -> tuple[float, float]:
+    """A pair ``low <= lo <= hi <= high``; a number or ``(x,)`` means ``(x, x)``."""
+    if isinstance(value, (int, float)):
+        value = (value, value)
+    if isinstance(value, Sequence) and len(value) == 1:
+        value = (value[0], value[0])
+    if not isinstance(value, Sequence) or len(value) != 2:
+        raise TypeError(f"`{name}`: expected a number or a pair (lo, hi), got {value!r}")
+    lo = check_number(name, value[0], low=low, high=high)
+    hi = check_number(name, value[1], low=lo, high=high)
+    return (lo, hi)
+
+
+def _shape(value: Any) -> tuple[int, int, int]:
+    if not isinstance(value, Sequence) or len(value) != 3:
+        raise TypeError(f"`shape`: expected (T, H, W), got {value!r}")
+    return tuple(check_int("shape", s, minimum=1) for s in value)  # type: ignore[return-value]
+
+
+def _uniform(gen: torch.Generator, lo: float, hi: float) -> float:
+    return lo + (hi - lo) * float(torch.rand((), generator=gen, dtype=torch.float64))
+
+
+def _straight_track(
+    gen: torch.Generator, shape: tuple[int, int, int], speed: tuple[float, float], margin: float
+) -> tuple[float, float, float, float]:
+    """Start ``(x0, y0)`` and velocity ``(vx, vy)`` of a track inside the frame (``margin`` px)."""
+    t_len, h, w = shape
+    v = _uniform(gen, *speed)
+    heading = _uniform(gen, -math.pi, math.pi)
+    vx, vy = v * math.cos(heading), v * math.sin(heading)
+    span_x, span_y = vx * (t_len - 1), vy * (t_len - 1)
+    x_lo, x_hi = margin - min(0.0, span_x), w - 1 - margin - max(0.0, span_x)
+    y_lo, y_hi = margin - min(0.0, span_y), h - 1 - margin - max(0.0, span_y)
+    if x_lo > x_hi or y_lo > y_hi:
+        raise ValueError(
+            f"`shape`: expected a frame large enough for {t_len} frames at {v:.3g} px/frame "
+            f"with a {margin:g} px margin, got {shape}"
+        )
+    return _uniform(gen, x_lo, x_hi), _uniform(gen, y_lo, y_hi), vx, vy
+
+
+def _check_fits(shape: tuple[int, int, int], speed: tuple[float, float], margin: float) -> None:
+    """Refuse frames too small for the fastest axis-aligned track (``ValueError`` on ``shape``)."""
+    t_len, h, w = shape
+    need = speed[1] * (t_len - 1) + 2 * margin
+    if need > min(h, w) - 1:
+        raise ValueError(
+            f"`shape`: expected H and W above {need + 1:g} px (tracks of {t_len} frames at up to "
+            f"{speed[1]:g} px/frame with a {margin:g} px margin), got {shape}"
+        )
+
+
+class _Scenes(Dataset):
+    """A list of sample dicts (tensors of equal shapes across samples)."""
+
+    def __init__(self, samples: list[dict[str, torch.Tensor]]) -> None:
+        self.samples = samples
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        return self.samples[index]
+
+
+class _SceneDataModule(L.LightningDataModule):
+    """Shared split / seed / loader logic; subclasses implement :meth:`make_scene`."""
+
+    def _init_splits(self, n_train: int, n_val: int, n_test: int, seed: int) -> None:
+        sizes = {"train": n_train, "val": n_val, "test": n_test}
+        self.hparams["split_seeds"] = split_seeds(seed, sizes)
+        self.datasets: dict[str, _Scenes] = {}
+
+    def make_scene(self, seed: int) -> dict[str, torch.Tensor]:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def scenes(self, split: str) -> _Scenes:
+        """Generate (once) and return the scenes of ``split``: train, val or test."""
+        split = check_choice("split", split, SPLITS)
+        if split not in self.datasets:
+            first, stop = self.hparams["split_seeds"][split]
+            self.datasets[split] = _Scenes([self.make_scene(s) for s in range(first, stop)])
+        return self.datasets[split]
+
+    def setup(self, stage: str | None = None) -> None:
+        """Generate the scenes of the splits ``stage`` needs (all of them for ``None``)."""
+        needs = {
+            "fit": ("train", "val"),
+            "validate": ("val",),
+            "test": ("test",),
+            "predict": ("test",),
+        }.get(stage or "", SPLITS)
+        for split in needs:
+            self.scenes(split)
+
+    def _loader(self, split: str, shuffle: bool) -> DataLoader:
+        gen = torch.Generator().manual_seed(self.hparams["split_seeds"][split][0])
+        return DataLoader(
+            self.scenes(split),
+            batch_size=self.hparams["batch_size"],
+            shuffle=shuffle,
+            generator=gen if shuffle else None,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        """Shuffled (seeded) training scenes."""
+        return self._loader("train", True)
+
+    def val_dataloader(self) -> DataLoader:
+        """Validation scenes in seed order."""
+        return self._loader("val", False)
+
+    def test_dataloader(self) -> DataLoader:
+        """Held-out test scenes in seed order."""
+        return self._loader("test", False)
+
+
+class IRSceneDataModule(_SceneDataModule):
+    """IR sequences of :func:`~hocnet.data.simulate_ir` [NR08] with random straight targets.
+
+    Each scene (seed ``s``) draws, from ``torch.Generator().manual_seed(s)``, for each of the
+    ``n_targets`` targets a peak SNR uniform in ``snr_db``, a speed uniform in ``speed`` and a
+    uniform heading, and a start such that the track stays ``margin`` px inside the frame; the
+    same generator then draws the noise, jitter and clouds. The frames and the target-free frames
+    are whitened (``whiten``, 7 x 7 ring with a 3 x 3 guard).
+
+    A sample is a dict of ``frames`` and ``target_free`` float32 ``(T, H, W)`` (whitened),
+    ``positions`` float32 ``(N, T, 2)`` true ``(x, y)`` (jitter included), and ``pixels`` int64
+    ``(N, T)``: the flat index ``y * W + x`` of the pixel nearest to each true position (clamped
+    to the frame). Batches stack them to ``(B, T, H, W)``, ``(B, N, T, 2)``, ``(B, N, T)``.
+
+    Args:
+        n_train: number of training scenes.
+        n_val: number of validation scenes.
+        n_test: number of held-out test scenes.
+        shape: ``(T, H, W)``.
+        snr_db: peak SNR in dB, a number or a range ``(lo, hi)``.
+        speed: target speed in px/frame, a number or a range within ``[0, 2]``.
+        n_targets: targets per scene (``>= 1``).
+        clouds: cloud preset, ``"clear"``, ``"wispy"`` or ``"bright"``.
+        jitter: jitter bound in pixels.
+        whiten: ``"anti_mean"`` or ``"anti_median"``.
+        margin: distance in pixels kept between every track and the frame border.
+        batch_size: scenes per batch.
+        seed: base seed of the split seed ranges.
+
+    Examples:
+        >>> dm = IRSceneDataModule(n_train=2, n_val=1, n_test=1, shape=(4, 16, 16))
+        >>> dm.setup("fit")
+        >>> batch = next(iter(dm.train_dataloader()))
+        >>> batch["frames"].shape, batch["pixels"].shape
+        (torch.Size([2, 4, 16, 16]), torch.Size([2, 1, 4]))
+        >>> dm.hparams.split_seeds["test"]
+        [2000000, 2000001]
+    """
+
+    def __init__(
+        self,
+        n_train: int = 32,
+        n_val: int = 8,
+        n_test: int = 8,
+        shape: tuple[int, int, int] = (8, 32, 32),
+        snr_db: float | tuple[float, float] = (9.0, 15.0),
+        speed: float | tuple[float, float] = (0.1, 2.0),
+        n_targets: int = 1,
+        clouds: str = "clear",
+        jitter: float = 0.5,
+        whiten: str = "anti_mean",
+        margin: float = 3.0,
+        batch_size: int = 8,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.shape = _shape(shape)
+        self.snr_db = _range("snr_db", snr_db, -math.inf, math.inf)
+        self.speed = _range("speed", speed, 0.0, 2.0)
+        check_int("n_targets", n_targets, minimum=1)
+        check_choice("clouds", clouds, tuple(CLOUD_PRESETS))
+        check_number("jitter", jitter, low=0.0)
+        check_choice("whiten", whiten, tuple(_WHITEN))
+        _check_fits(self.shape, self.speed, check_number("margin", margin, low=0.0))
+        check_int("batch_size", batch_size, minimum=1)
+        self._init_splits(n_train, n_val, n_test, seed)
+
+    def make_scene(self, seed: int) -> dict[str, torch.Tensor]:
+        """The sample of scene ``seed`` (see the class docstring)."""
+        hp = self.hparams
+        gen = torch.Generator().manual_seed(seed)
+        targets = []
+        for _ in range(hp["n_targets"]):
+            snr = _uniform(gen, *self.snr_db)
+            x0, y0, vx, vy = _straight_track(gen, self.shape, self.speed, hp["margin"])
+            targets.append(IRTarget(x0, y0, vx, vy, snr_db=snr))
+        seq = simulate_ir(
+            self.shape, targets, clouds=hp["clouds"], jitter=hp["jitter"], generator=gen
+        )
+        whiten = _WHITEN[hp["whiten"]]
+        _, h, w = self.shape
+        xy = seq.positions.round().long()
+        x, y = xy[..., 0].clamp(0, w - 1), xy[..., 1].clamp(0, h - 1)
+        return {
+            "frames": whiten(seq.frames).float(),
+            "target_free": whiten(seq.target_free).float(),
+            "positions": seq.positions.float(),
+            "pixels": y * w + x,
+        }
+
+
+class BinarySceneDataModule(_SceneDataModule):
+    """Binary scans of :func:`~hocnet.data.simulate_binary` [LA98] with per-point labels.
+
+    Each scene (seed ``s``) draws, from ``torch.Generator().manual_seed(s)``, ``n_targets``
+    straight targets (speed uniform in ``speed`` px/scan, uniform heading, start such that the
+    track stays ``margin`` px inside the frame, miss probability ``p_miss``), then the uniform
+    clutter of density ``clutter_density`` (a number or a range drawn per scene).
+
+    A sample is a dict of ``cube`` float32 0/1 ``(T, H, W)`` (target points OR clutter, eq. (1)
+    of [LA98]) and ``target`` bool ``(T, H, W)`` (the on-pixels that are target points; the
+    clutter points are ``cube & ~target``).
+
+    Args:
+        n_train: number of training scenes.
+        n_val: number of validation scenes.
+        n_test: number of held-out test scenes.
+        shape: ``(T, H, W)``.
+        clutter_density: fraction of clutter pixels per scan, a number or a range in ``[0, 1]``.
+        speed: target speed in px/scan, a number or a range within ``[0, 2]``.
+        n_targets: targets per scene (``>= 0``).
+        p_miss: probability that a target point is missing.
+        margin: distance in pixels kept between every track and the frame border.
+        batch_size: scenes per batch.
+        seed: base seed of the split seed ranges.
+
+    Examples:
+        >>> dm = BinarySceneDataModule(n_train=2, n_val=1, n_test=1, shape=(6, 16, 16))
+        >>> dm.setup("test")
+        >>> batch = next(iter(dm.test_dataloader()))
+        >>> batch["cube"].shape, batch["target"].dtype
+        (torch.Size([1, 6, 16, 16]), torch.bool)
+    """
+
+    def __init__(
+        self,
+        n_train: int = 32,
+        n_val: int = 8,
+        n_test: int = 8,
+        shape: tuple[int, int, int] = (8, 32, 32),
+        clutter_density: float | tuple[float, float] = 0.02,
+        speed: float | tuple[float, float] = (0.1, 2.0),
+        n_targets: int = 2,
+        p_miss: float = 0.0,
+        margin: float = 1.0,
+        batch_size: int = 8,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.shape = _shape(shape)
+        self.density = _range("clutter_density", clutter_density, 0.0, 1.0)
+        self.speed = _range("speed", speed, 0.0, 2.0)
+        check_int("n_targets", n_targets, minimum=0)
+        check_number("p_miss", p_miss, low=0.0, high=1.0)
+        _check_fits(self.shape, self.speed, check_number("margin", margin, low=0.0))
+        check_int("batch_size", batch_size, minimum=1)
+        self._init_splits(n_train, n_val, n_test, seed)
+
+    def make_scene(self, seed: int) -> dict[str, torch.Tensor]:
+        """The sample of scene ``seed`` (see the class docstring)."""
+        hp = self.hparams
+        gen = torch.Generator().manual_seed(seed)
+        specs = []
+        for _ in range(hp["n_targets"]):
+            x0, y0, vx, vy = _straight_track(gen, self.shape, self.speed, hp["margin"])
+            specs.append(TargetSpec((x0, y0), (vx, vy), p_miss=hp["p_miss"]))
+        density = _uniform(gen, *self.density)
+        scene = simulate_binary(self.shape, specs, clutter_density=density, generator=gen)
+        return {"cube": scene.cube.float(), "target": scene.target_mask & scene.cube}
