@@ -324,7 +324,18 @@ def run(
     ]
     text = "\n".join(parts)
     md = C.write_text(out / f"{NAME}.md", text)
-    C.write_csv(out / f"{NAME}.csv", rows)
+    C.write_csv(
+        out / f"{NAME}.csv",
+        [  # the paper's printed values (percent) beside ours, on every row of their density
+            {
+                **r,
+                "paper_after_hoc_pct": PAPER_HOC.get(r["density"], ""),
+                "paper_after_id_pct": PAPER_ID.get(r["density"], ""),
+                "paper_target_lost": 0,
+            }
+            for r in rows
+        ],
+    )
     _plot(rows, densities, ORDERS, out / f"{NAME}.png", example)
     print(text)
     return md

@@ -1908,6 +1908,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     detect.set_defaults(func=_cmd_detect)
 
+    train = commands.add_parser(
+        "train",
+        help="train the DPA's parameters or the HOC network's kernels (Lightning; the learn extra)",
+        description="Train `dpa` (b, g, p, penalty of [NR08]'s DPA) or `hoc` (the HOC network's "
+        "kernels) on simulated scenes: `hocnet train dpa --help` lists every option.",
+        add_help=False,
+    )
+    train.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+    train.set_defaults(func=_cmd_train)
+
     reproduce = commands.add_parser(
         "reproduce",
         help="run an experiment script (a table or figure of the papers); --list shows them",
@@ -2022,6 +2032,21 @@ def _fail(message: str, flags: dict[str, str] | None = None) -> int:
     message = _to_flags(_one_line(message), flags or {})
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return 2
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    """``hocnet train SYSTEM ...``: :func:`hocnet.learn.train.train_main` (needs Lightning)."""
+    if importlib.util.find_spec("lightning") is None:
+        raise CLIError(
+            "train: needs the learn extra (Lightning, torchmetrics): "
+            "pip install -e '.[learn]' (make test installs it)"
+        )
+    from hocnet.learn.train import train_main
+
+    try:
+        return train_main(args.rest or ["--help"])
+    except SystemExit as exit_:  # --help, or argparse's own usage error (already printed)
+        return exit_.code if isinstance(exit_.code, int) else 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:

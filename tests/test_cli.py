@@ -1280,3 +1280,19 @@ class TestRealFrames:
             "hocnet.dpa.presets.PAPER",
         ):
             assert word in text, word
+
+
+class TestTrain:
+    def test_help_lists_the_systems(self, capsys):
+        assert main(["train"]) == 0
+        assert "dpa" in capsys.readouterr().out
+
+    def test_tiny_dpa_run_writes_a_checkpoint(self, tmp_path, capsys):
+        pytest.importorskip("lightning")
+        out = tmp_path / "run"
+        argv = ["train", "dpa", "--max-epochs", "1", "--out", str(out), "--no-progress"]
+        argv += ["--data.n_train", "2", "--data.n_val", "2", "--data.n_test", "2"]
+        argv += ["--data.shape", "6", "24", "24", "--model.window", "5", "--model.v_max", "1"]
+        assert main(argv) == 0
+        assert "checkpoint:" in capsys.readouterr().out
+        assert list(out.rglob("*.ckpt"))
