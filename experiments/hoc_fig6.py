@@ -321,6 +321,11 @@ def run(
         "support `chain_support(cube, 2, v=4, delta=None)`.",
         "- Clutter rejection = removed clutter points / input clutter points (all input points "
         "are clutter here).",
+        "- Above the modified HOC's bound (4.94 %, `density_bound`) `detect` flags the scene as "
+        "saturated and skips track identification (no tracks, empty `cleaned`): the *after "
+        "identification* values there (5.37 % and 8 %) are 100 % by construction, not a "
+        "measurement, and the k = 4 breakdown after identification (> 8 %) rests on them "
+        "(measured: above 99 % up to 3.61 %, the last grid point below the bound).",
         f"- **Empirical breakdown density**: the lowest density at which the mean rejection "
         f"drops below {100 * LEVEL:.0f} %, interpolated linearly in log-density between the two "
         "bracketing grid points (`<` / `>` when outside the grid).",

@@ -38,9 +38,13 @@ and no links or triples are kept.
 
 Track identification (section III-B) is one call of the identification of
 :func:`~hocnet.hoc.identify.detect` on the window's candidate points (image plus the points its
-top-layer moves name, ``support="mhoc"``) or its chain support; it is not incremental, but works
-on the window's point lists only. A window denser than the modified HOC's bound
-(:func:`~hocnet.hoc.functional.density_bound`) is flagged and not identified, as in ``detect``.
+top-layer moves name, ``support="mhoc"``) or its chain support; it is not incremental and it
+still fills window-sized arrays (the float64 ``scores`` cube of the result, the padded index
+volume of the triple search), then works on the point lists. Measured on a 640 x 512 sensor
+(``benchmarks/results/hoc_stream.md``) identification is most of a push: at 2 % clutter, order 2,
+thousands of candidate tracks per window go through its per-track Python loops. A window denser
+than the modified HOC's bound (:func:`~hocnet.hoc.functional.density_bound`) is flagged and not
+identified, as in ``detect``.
 """
 
 from __future__ import annotations
