@@ -31,6 +31,7 @@ import warnings
 from collections.abc import Sequence
 from typing import Any
 
+import _expkit as C
 import lightning as L
 import torch
 
@@ -202,8 +203,8 @@ def main(argv: Sequence[str] | None = None) -> str:
         rows = run(quick=args.quick, seed=args.seed)
     text = table(rows)
     print(text)
-    if args.out:
-        out = pathlib.Path(args.out)
+    if args.out:  # written only where asked (never into experiments/results by itself)
+        out = C.out_dir_of(pathlib.Path(args.out), quick=args.quick)
         out.mkdir(parents=True, exist_ok=True)
         keys = list(dict.fromkeys(k for r in rows for k in r))
         with open(out / f"{NAME}.csv", "w", newline="") as fh:

@@ -339,6 +339,14 @@ def _add_hoc_options(group: argparse._ArgumentGroup) -> None:
         help="smallest accepted track length in points, >= 1 (default: 2 * order + 1)",
     )
     group.add_argument(
+        "--min-speed",
+        type=float,
+        default=None,
+        metavar="S",
+        help="drop tracks whose mean speed (first to last point) is below S pixels per scan, "
+        ">= 0; our addition against stationary clutter, not in [LA98] (default: 0, keep all)",
+    )
+    group.add_argument(
         "--threshold-pfa",
         type=float,
         default=None,
@@ -366,12 +374,16 @@ def _prepare_hoc(args: argparse.Namespace) -> dict[str, Any]:
     threshold = _check_number("--threshold", 2.5 if args.threshold is None else args.threshold)
     min_points = 2 * order + 1 if args.min_points is None else args.min_points
     min_points = _check_int("--min-points", min_points, minimum=1)
+    min_speed = _check_number("--min-speed", 0.0 if args.min_speed is None else args.min_speed)
+    if min_speed < 0:
+        raise CLIError(f"--min-speed: expected a speed >= 0 pixels per scan, got {min_speed:g}")
     params: dict[str, Any] = {
         "order": order,
         "v": v,
         "delta": delta,
         "threshold": threshold,
         "min_points": min_points,
+        "min_speed": min_speed,
     }
     if args.threshold_pfa is None:
         for dest in _PRE_DESTS:
@@ -475,6 +487,10 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     detection_params.pop("binary", None)
 
     def finish(result: Any) -> Detection:
+        if params["min_speed"] > 0:
+            from hocnet.hoc import reject_slow_tracks
+
+            result = reject_slow_tracks(result, params["min_speed"])
         scores = getattr(result, "scores", None)
         if scores is None:  # no per-point scores: 1.0 per kept point
             scores = result.cleaned.double()
@@ -482,7 +498,9 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         else:
             detection_params["detection_score"] = "HOC point score of the support points"
         detection_params["detections_nms_radius"] = DETECTION_NMS_RADIUS
-        outputs.update(_detection_writers(scores, params["max_per_frame"], keep=result.support))
+        # with --min-speed only the points of the moving tracks are candidate detections
+        keep = result.cleaned if params["min_speed"] > 0 else result.support
+        outputs.update(_detection_writers(scores, params["max_per_frame"], keep=keep))
         return Detection(
             result=result, params=detection_params, extra_outputs=outputs, cube=cube, notes=notes
         )
@@ -1003,7 +1021,15 @@ _METHODS: dict[str, _Method] = {
         name="hoc",
         help="modified high-order correlation of [LA98] (binary cubes)",
         add_options=_add_hoc_options,
-        option_dests=("order", "v", "delta", "threshold", "min_points", "threshold_pfa"),
+        option_dests=(
+            "order",
+            "v",
+            "delta",
+            "threshold",
+            "min_points",
+            "min_speed",
+            "threshold_pfa",
+        ),
         prepare=_prepare_hoc,
         run=_run_hoc,
         output_names=("tracks.json", "cleaned.npy", "support.npy", "detections.csv"),
@@ -1973,6 +1999,7 @@ _FLAGS: dict[str, dict[str, str]] = {
         "delta": "--delta",
         "threshold": "--threshold",
         "min_points": "--min-points",
+        "min_speed": "--min-speed",
         "pfa": "--threshold-pfa",
         "background_window": "--background-window",
     },

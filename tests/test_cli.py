@@ -1296,3 +1296,31 @@ class TestTrain:
         assert main(argv) == 0
         assert "checkpoint:" in capsys.readouterr().out
         assert list(out.rglob("*.ckpt"))
+
+
+class TestMinSpeed:
+    def _cube(self, tmp_path):
+        f = np.zeros((8, 20, 20), dtype=bool)
+        for t in range(8):
+            f[t, 3, 3] = True  # stationary clutter
+            f[t, 4 + t, 10 + t // 2] = True  # a moving target
+        path = tmp_path / "c.npy"
+        np.save(path, f)
+        return path
+
+    def test_drops_the_stationary_chain(self, tmp_path):
+        path = self._cube(tmp_path)
+        assert main(["detect", str(path), "--out", str(tmp_path / "all"), "-q", "--no-plot"]) == 0
+        argv = ["detect", str(path), "--out", str(tmp_path / "fast"), "-q", "--no-plot"]
+        assert main([*argv, "--min-speed", "0.5"]) == 0
+        assert len(load_tracks_json(tmp_path / "all" / "tracks.json")) == 2
+        moving = load_tracks_json(tmp_path / "fast" / "tracks.json")
+        assert len(moving) == 1 and int(moving[0]["points"][:, 1].min()) == 4
+        rows = (tmp_path / "fast" / "detections.csv").read_text().splitlines()[1:]
+        assert rows and all(row.split(",")[1:3] != ["3", "3"] for row in rows)
+
+    def test_negative_is_an_error(self, tmp_path, capsys):
+        path = self._cube(tmp_path)
+        assert main(["detect", str(path), "--out", str(tmp_path / "o"), "--min-speed", "-1"]) == 2
+        assert "--min-speed" in capsys.readouterr().err
+        assert not (tmp_path / "o").exists()

@@ -21,7 +21,14 @@ from hocnet.hoc.functional import (
     scans_needed,
     support_from_levels,
 )
-from hocnet.hoc.identify import HOCResult, Track, detect, identify_tracks, mhoc_candidates
+from hocnet.hoc.identify import (
+    HOCResult,
+    Track,
+    detect,
+    identify_tracks,
+    mhoc_candidates,
+    reject_slow_tracks,
+)
 from hocnet.hoc.kernels import (
     allowed_moves,
     get_direction_mask_kernels,
@@ -75,6 +82,7 @@ __all__ = [
     "original_hoc_layer",
     "original_hoc_mark",
     "point_score",
+    "reject_slow_tracks",
     "relaxed_limiter",
     "scans_needed",
     "ste_limiter",

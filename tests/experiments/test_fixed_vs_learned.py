@@ -11,6 +11,7 @@ import torch
 pytest.importorskip("lightning")
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "experiments"))  # _expkit
 from _helpers import load_script
 
 

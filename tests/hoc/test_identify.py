@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from hocnet.data.binary import paper_scene
-from hocnet.hoc import chain_support, detect, identify_tracks
+from hocnet.hoc import chain_support, detect, identify_tracks, reject_slow_tracks
 from hocnet.hoc.functional import density_bound
 from hocnet.hoc.identify import mhoc_candidates
 from hocnet.hoc.kernels import allowed_moves, move_offsets
@@ -305,3 +305,42 @@ class TestBatchRecipe:
         assert torch.equal(result.cleaned, cleaned)
         assert torch.equal(result.scores.isnan(), scores.isnan())
         assert [t.points.tolist() for t in result.tracks] == [t.points.tolist() for t in tracks]
+
+
+class TestRejectSlowTracks:
+    def _scene(self):
+        f = torch.zeros(8, 20, 20, dtype=torch.bool)
+        for t in range(8):
+            f[t, 3, 3] = True  # stationary clutter chain
+            f[t, 4 + t, 10 + t // 2] = True  # target moving (0.5, 1) px/scan
+        return f
+
+    def test_drops_only_the_stationary_chain(self):
+        found = detect(self._scene(), order=2)
+        assert len(found.tracks) == 2
+        moving = reject_slow_tracks(found, 0.5)
+        assert len(moving.tracks) == 1
+        assert int(moving.tracks[0].points[:, 1].min()) == 4
+        assert not moving.cleaned[:, 3, 3].any() and int(moving.cleaned.sum()) == 8
+        assert torch.equal(moving.support, found.support)
+        assert len(found.tracks) == 2  # input untouched
+
+    def test_threshold_is_the_mean_speed(self):
+        found = detect(self._scene(), order=2)
+        speed = (1 + 0.25) ** 0.5 * 7 / 7  # (dx, dy) = (3.5, 7) over 7 scans -> 1.118 px/scan
+        assert len(reject_slow_tracks(found, speed - 0.2).tracks) == 1
+        assert len(reject_slow_tracks(found, speed + 0.2).tracks) == 0
+        assert len(reject_slow_tracks(found, 0.0).tracks) == 2
+
+    def test_batched(self):
+        cube = torch.stack([self._scene(), self._scene()])
+        moving = reject_slow_tracks(detect(cube, order=2), 0.5)
+        assert [tr.batch for tr in moving.tracks] == [0, 1]
+        assert moving.cleaned.shape == cube.shape and int(moving.cleaned.sum()) == 16
+
+    def test_bad_input(self):
+        found = detect(self._scene(), order=2)
+        with pytest.raises(ValueError, match="`min_speed`"):
+            reject_slow_tracks(found, -1.0)
+        with pytest.raises(TypeError, match="`result`"):
+            reject_slow_tracks(object(), 1.0)
