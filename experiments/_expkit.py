@@ -614,3 +614,37 @@ def blockwise_score(
         snr = (target - mean_bg) / var.sqrt().clamp_min(1e-12)
         out[m] = snr.view(bsz, n_targets * last).mean(dim=1)
     return out
+
+
+def config_table(
+    configs: Sequence[str],
+    densities: Sequence[float],
+    select: Callable[[float, str], list[dict]],
+    paper_hoc: dict[float, float],
+    paper_id: dict[float, float],
+) -> str:
+    """Side-by-side table of HOC configurations (k = 2) and the paper's printed row.
+
+    ``select(density, config)`` gives the result rows of one cell; each row has
+    ``hoc_rejection``, ``id_rejection`` (fractions) and ``id_target_lost``.
+    """
+    headers = ["configuration (k = 2)"]
+    for d in densities:
+        headers += [f"{pct(d, 1)}: after HOC (%)", f"{pct(d, 1)}: after identification (%)"]
+    headers.append("target points lost (total)")
+    body = [
+        ["[LA98] as printed"]
+        + [x for d in densities for x in (f"{paper_hoc[d]:.2f}", f"{paper_id[d]:.2f}")]
+        + ["0"]
+    ]
+    for config in configs:
+        cells = [config]
+        lost = 0
+        for d in densities:
+            sel = select(d, config)
+            cells.append(mean_std([r["hoc_rejection"] for r in sel], 2, scale=100))
+            cells.append(mean_std([r["id_rejection"] for r in sel], 2, scale=100))
+            lost += sum(r["id_target_lost"] for r in sel)
+        cells.append(str(lost))
+        body.append(cells)
+    return md_table(headers, body)

@@ -66,29 +66,6 @@ PAPER_NOTES = (
 )
 
 
-def _config_table(rows: list[dict], densities: Sequence[float]) -> str:
-    headers = ["configuration (k = 2)"]
-    for d in densities:
-        headers += [f"{C.pct(d, 1)}: after HOC (%)", f"{C.pct(d, 1)}: after identification (%)"]
-    headers.append("target points lost (total)")
-    body = [
-        ["[LA98] as printed"]
-        + [x for d in densities for x in (f"{PAPER_HOC[d]:.2f}", f"{PAPER_ID[d]:.2f}")]
-        + ["0"]
-    ]
-    for config in CONFIGS:
-        cells = [config]
-        lost = 0
-        for d in densities:
-            sel = _select(rows, d, 2, config)
-            cells.append(C.mean_std([r["hoc_rejection"] for r in sel], 2, scale=100))
-            cells.append(C.mean_std([r["id_rejection"] for r in sel], 2, scale=100))
-            lost += sum(r["id_target_lost"] for r in sel)
-        cells.append(str(lost))
-        body.append(cells)
-    return C.md_table(headers, body)
-
-
 def evaluate(
     densities: Sequence[float], orders: Sequence[int], seeds: Sequence[int], progress: bool
 ) -> tuple[list[dict], dict]:
@@ -311,7 +288,9 @@ def run(
         "*After HOC* is the detector's support: the MHOC image (forward OR backward Y^(k), the "
         "paper) or the chain support (our addition).",
         "",
-        _config_table(rows, densities),
+        C.config_table(
+            CONFIGS, densities, lambda d, c: _select(rows, d, 2, c), PAPER_HOC, PAPER_ID
+        ),
         "",
         PAPER_NOTES,
         "",
