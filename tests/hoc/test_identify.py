@@ -234,7 +234,9 @@ class TestDetect:
             0,
             1,
             2,
-            pytest.param(4, marks=pytest.mark.xfail(reason="2 points lost after a crossing")),
+            pytest.param(
+                4, marks=pytest.mark.xfail(strict=True, reason="2 points lost after a crossing")
+            ),
             17,
         ],
     )
