@@ -958,11 +958,14 @@ def detect(
     (section III-B; :func:`identify_tracks`).
 
     Above the paper's density bound (section IV-B,
-    :func:`~hocnet.hoc.functional.density_bound`: 4.92 % for
+    :func:`~hocnet.hoc.functional.density_bound`: 4/81 = 4.94 %, printed 4.92 %, for
     ``v = 4, delta = pi/4``) the detector cannot discriminate: ``detect`` warns
     (:func:`warnings.warn`), sets ``saturated`` and records the reason in ``warnings``, and skips
     track identification of that scene (its ``cleaned`` is empty, no tracks), which keeps the
-    work bounded on dense input.
+    work bounded on dense input. The density compared is the scene's mean over its scans (our
+    reading; [LA98] footnote 1 defines the density per scan, which agrees for uniform clutter;
+    :func:`~hocnet.hoc.functional.density_warning` reports the densest scan). Skipping the
+    identification is our addition: the paper only says such densities "lead to false tracks".
 
     Args:
         frames: ``(B, T, H, W)`` or ``(T, H, W)`` binary cube (bool or 0/1); ``B = 0`` gives an

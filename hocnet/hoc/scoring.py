@@ -146,7 +146,8 @@ def point_score(
 
     - ``"mean"`` (default): ``(S_m + S_c) / 2``;
     - ``"min"``: ``min(S_m, S_c)``: a point fails when either score is low;
-    - ``"sum"``: ``S_m + S_c``;
+    - ``"sum"``: ``S_m + S_c`` (a diagnostic only: its scale, up to 7.24, does not match the
+      paper's threshold 2.5);
     - ``"movement"``: ``S_m`` alone.
 
     With the section IV-C constants and ``delta = pi/4`` the curvature score alone never falls
