@@ -643,7 +643,9 @@ def npa_like(
     blocks when the frame is wide enough (default 120 columns), and also moves bottom to top.
     Both targets have the default peak SNR of Table 2's maximal target peak of NPA, about 30,
     read as a peak-to-noise ratio (:data:`NPA_PEAK`, our reading), and the clouds are
-    :data:`NPA_CLOUDS` (wispy, plateau 0.75 of the target peak).
+    :data:`NPA_CLOUDS` (wispy, plateau 0.75 of the target peak). The paper's sentence can also
+    be read as the *clouds* moving from bottom to top; our clouds drift towards +y (down the
+    rows), a choice, not the paper's.
 
     Args:
         shape: ``(T, H, W)``; in smaller frames than 90 x 120 the targets start at

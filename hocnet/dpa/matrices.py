@@ -535,7 +535,9 @@ def var_table(*, device: torch.device | str | None = None) -> torch.Tensor:
 
     Notes:
         Our reading of [NR08]: direction 9 ("in place") scores 4 against every moving direction,
-        the score of a 90-degree difference, and 6 against itself.
+        the score of a 90-degree difference, and 6 against itself. The paper does not define Var
+        for direction 9; this is an open choice: pass your own table as ``var_table=`` to
+        :func:`~hocnet.dpa.accumulate`.
 
     Args:
         device: device of the result.
