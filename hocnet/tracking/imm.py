@@ -28,7 +28,14 @@ from typing import Any, NamedTuple
 import torch
 
 from hocnet._check import check_int, check_number
-from hocnet.tracking.kalman import DTYPE, as_float64, kalman_predict, kalman_update
+from hocnet.tracking.kalman import (
+    DTYPE,
+    _check_last,
+    _predict,
+    _shared_left,
+    _update,
+    as_float64,
+)
 
 __all__ = [
     "IMMStep",
@@ -89,6 +96,11 @@ def imm_mixing_probabilities(mu: Any, trans: Any) -> tuple[torch.Tensor, torch.T
             "`trans`: expected rows summing to 1 (trans[i, j] = P(i -> j)), got a row sum "
             f"{worst:.9g}"
         )
+    return _mixing(mu, trans)
+
+
+def _mixing(mu: torch.Tensor, trans: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`imm_mixing_probabilities` on validated tensors (no checks)."""
     joint = mu.unsqueeze(-1) * trans  # (N, r, r): p_ij mu_i
     cbar = joint.sum(-2)
     safe = torch.where(cbar > 0, cbar, torch.ones_like(cbar))
@@ -126,6 +138,13 @@ def imm_mix(x: Any, P: Any, omega: Any) -> tuple[torch.Tensor, torch.Tensor]:
         raise ValueError(f"`P`: expected shape (N, {r}, {n}, {n}), got {tuple(P.shape)}")
     if omega.shape[-2:] != (r, r):
         raise ValueError(f"`omega`: expected shape (N, {r}, {r}), got {tuple(omega.shape)}")
+    return _mix(x, P, omega)
+
+
+def _mix(
+    x: torch.Tensor, P: torch.Tensor, omega: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`imm_mix` on validated tensors (no checks)."""
     x0 = torch.einsum("...ij,...in->...jn", omega, x)
     d = x.unsqueeze(-3) - x0.unsqueeze(-2)  # (N, j, i, n): x_i - x0_j
     spread = P.unsqueeze(-4) + d.unsqueeze(-1) * d.unsqueeze(-2)  # (N, j, i, n, n)
@@ -228,6 +247,11 @@ def imm_mode_probabilities(cbar: Any, mode_log_lik: Any) -> torch.Tensor:
     ll = torch.as_tensor(mode_log_lik, dtype=DTYPE)
     if bool(torch.isnan(ll).any()) or bool((ll == torch.inf).any()):
         raise ValueError("`mode_log_lik`: expected finite values or -inf, got NaN/+inf")
+    return _mode_probabilities(cbar, ll)
+
+
+def _mode_probabilities(cbar: torch.Tensor, ll: torch.Tensor) -> torch.Tensor:
+    """:func:`imm_mode_probabilities` after the input checks (still raises when ``c = 0``)."""
     a = ll + torch.log(cbar)
     total = torch.logsumexp(a, dim=-1, keepdim=True)
     if a.numel() and bool(torch.isinf(total).any()):
@@ -261,6 +285,13 @@ def imm_combine(mu: Any, x: Any, P: Any) -> tuple[torch.Tensor, torch.Tensor]:
     mu = _probabilities("mu", mu, min_dim=2)
     x = as_float64("x", x, min_dim=3)
     P = as_float64("P", P, min_dim=4, square=True)
+    return _combine(mu, x, P)
+
+
+def _combine(
+    mu: torch.Tensor, x: torch.Tensor, P: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`imm_combine` on validated tensors (no checks)."""
     xc = torch.einsum("...i,...in->...n", mu, x)
     d = x - xc.unsqueeze(-2)
     Pc = torch.einsum("...i,...iab->...ab", mu, P + d.unsqueeze(-1) * d.unsqueeze(-2))
@@ -353,8 +384,17 @@ def imm_step(
         >>> out.x_comb.shape, out.mu.shape
         (torch.Size([3, 4]), torch.Size([3, 2]))
     """
+    # Inputs are validated once here (same checks and messages as the public building blocks);
+    # the cycle itself runs on the unchecked kernels.
     cbar, omega = imm_mixing_probabilities(mu, trans)
-    x0, P0 = imm_mix(x, P, omega)
+    x = as_float64("x", x, min_dim=3)
+    P = as_float64("P", P, min_dim=4, square=True)
+    r, n = x.shape[-2:]
+    if P.shape[-3:] != (r, n, n):
+        raise ValueError(f"`P`: expected shape (N, {r}, {n}, {n}), got {tuple(P.shape)}")
+    if omega.shape[-2:] != (r, r):
+        raise ValueError(f"`omega`: expected shape (N, {r}, {r}), got {tuple(omega.shape)}")
+    x0, P0 = _mix(x, P, omega)
     n_tracks, r, n = x0.shape
     F = as_float64("F", F, min_dim=3, square=True)
     Q = as_float64("Q", Q, min_dim=3, square=True)
@@ -364,7 +404,7 @@ def imm_step(
                 f"`{name}`: expected shape ({r}, {n}, {n}) or (N, {r}, {n}, {n}), "
                 f"got {tuple(t.shape)}"
             )
-    x_pred, P_pred = kalman_predict(x0, P0, F, Q)
+    x_pred, P_pred = _predict(x0, P0, F, Q)
     z = as_float64("z", z, min_dim=2)
     if z.shape[0] != n_tracks:
         raise ValueError(
@@ -379,7 +419,14 @@ def imm_step(
                 f"`detected`: expected a bool tensor of shape ({n_tracks},), "
                 f"got {_describe_mask(det)}"
             )
-    x_upd, P_upd, ll = kalman_update(x_pred, P_pred, z.unsqueeze(-2), H, R)
+    H = as_float64("H", H, min_dim=2)
+    _check_last("H", H, n, "the state dimension of `x`")
+    m = H.shape[-2]
+    _check_last("z", z, m, "the measurement dimension of `H`")
+    R = as_float64("R", R, min_dim=2, square=True)
+    _check_last("R", R, m, "the measurement dimension of `H`")
+    hx = _shared_left(H, x_pred.unsqueeze(-1)).squeeze(-1)
+    x_upd, P_upd, ll = _update(x_pred, P_pred, z.unsqueeze(-2) - hx, H, R)
     if pd is None:
         if not bool(det.all()):
             raise ValueError(
@@ -391,9 +438,10 @@ def imm_step(
         keep = det.view(-1, 1, 1)
         x_upd = torch.where(keep, x_upd, x_pred)
         P_upd = torch.where(keep.unsqueeze(-1), P_upd, P_pred)
-    mu_new = imm_mode_probabilities(cbar, mode_ll)
-    x_c, P_c = imm_combine(mu_new, x_upd, P_upd)
-    track_ll = imm_track_log_likelihood(mode_ll, cbar)
+    log_cbar = torch.log(cbar)
+    mu_new = _mode_probabilities(cbar, mode_ll)
+    x_c, P_c = _combine(mu_new, x_upd, P_upd)
+    track_ll = torch.logsumexp(mode_ll + log_cbar, dim=-1)
     return IMMStep(mu_new, x_upd, P_upd, x_c, P_c, track_ll, mode_ll, cbar, x_pred, P_pred)
 
 

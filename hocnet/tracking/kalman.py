@@ -219,8 +219,37 @@ def kalman_predict(x: Any, P: Any, F: Any, Q: Any) -> tuple[torch.Tensor, torch.
     for name, t in (("P", P), ("F", F), ("Q", Q)):
         _check_last(name, t, n, "the state dimension of `x`")
     x, P = _broadcast_state(x, P)
-    x_pred = (F @ x.unsqueeze(-1)).squeeze(-1)
-    P_pred = _symmetrize(F @ P @ F.transpose(-1, -2) + Q)
+    return _predict(x, P, F, Q)
+
+
+def _shared_left(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """``A @ B`` where ``A (k, p, q)`` or ``(p, q)`` is shared by the leading batch of ``B``.
+
+    One GEMM per shared matrix instead of a broadcast batched matmul of tiny matrices (much
+    faster on CPU); falls back to ``matmul`` when ``A`` is not such a shared matrix.
+    """
+    if A.dim() == 2 and B.dim() > 2:
+        return torch.einsum("ab,...bc->...ac", A, B)
+    if A.dim() == 3 and B.dim() > 3 and A.shape[0] == B.shape[-3]:
+        return torch.einsum("kab,...kbc->...kac", A, B)
+    return A @ B
+
+
+def _shared_right(B: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """``B @ A`` where ``A`` is shared as in :func:`_shared_left`."""
+    if A.dim() == 2 and B.dim() > 2:
+        return torch.einsum("...ab,bc->...ac", B, A)
+    if A.dim() == 3 and B.dim() > 3 and A.shape[0] == B.shape[-3]:
+        return torch.einsum("...kab,kbc->...kac", B, A)
+    return B @ A
+
+
+def _predict(
+    x: torch.Tensor, P: torch.Tensor, F: torch.Tensor, Q: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Kalman prediction on validated float64 tensors (no checks)."""
+    x_pred = _shared_left(F, x.unsqueeze(-1)).squeeze(-1)
+    P_pred = _symmetrize(_shared_right(_shared_left(F, P), F.transpose(-1, -2)) + Q)
     return x_pred, P_pred
 
 
@@ -371,22 +400,42 @@ def ekf_update(
     R = as_float64("R", R, min_dim=2, square=True)
     _check_last("R", R, m, "the measurement dimension of `H`")
     x, P = _broadcast_state(x, P)
-    nu = z - hx
+    return _update(x, P, z - hx, H, R, joseph=joseph)
+
+
+def _update(
+    x: torch.Tensor,
+    P: torch.Tensor,
+    nu: torch.Tensor,
+    H: torch.Tensor,
+    R: torch.Tensor,
+    *,
+    joseph: bool = True,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Kalman update on validated float64 tensors, innovation ``nu`` given (no input checks).
+
+    ``S^-1`` is formed once (``inv``, as filterpy does) and reused for the gain and the
+    Mahalanobis distance; the Cholesky factor of ``S`` gives the positive-definiteness check and
+    ``log det S``.
+    """
+    n = x.shape[-1]
     Ht = H.transpose(-1, -2)
-    PHt = P @ Ht
-    S = _symmetrize(H @ PHt + R)
+    PHt = _shared_right(P, Ht)
+    S = _symmetrize(_shared_left(H, PHt) + R)
     L = _cholesky_innovation(S)
-    # K = P H' S^-1  <=>  S K' = H P
-    K = torch.cholesky_solve(PHt.transpose(-1, -2), L).transpose(-1, -2)
-    x_upd = x + (K @ nu.unsqueeze(-1)).squeeze(-1)
+    S_inv = torch.linalg.inv_ex(S)[0]
+    K = PHt @ S_inv
+    Knu = (K * nu.unsqueeze(-2)).sum(-1)
+    x_upd = x + Knu
     if joseph:
-        eye = torch.eye(n, dtype=DTYPE)
-        A = eye - K @ H
-        P_upd = A @ P @ A.transpose(-1, -2) + K @ R @ K.transpose(-1, -2)
+        A = torch.eye(n, dtype=DTYPE) - _shared_right(K, H)
+        P_upd = A @ P @ A.transpose(-1, -2) + _shared_right(K, R) @ K.transpose(-1, -2)
     else:
         P_upd = P - K @ S @ K.transpose(-1, -2)
     P_upd = _symmetrize(P_upd)
-    ll = _gaussian_ll_chol(nu, L)
+    d2 = (nu * (S_inv * nu.unsqueeze(-2)).sum(-1)).sum(-1)
+    logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    ll = -0.5 * (d2 + logdet + nu.shape[-1] * math.log(2.0 * math.pi))
     return x_upd, P_upd, ll
 
 
