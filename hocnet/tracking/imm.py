@@ -145,11 +145,15 @@ def _mix(
     x: torch.Tensor, P: torch.Tensor, omega: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`imm_mix` on validated tensors (no checks)."""
-    x0 = torch.einsum("...ij,...in->...jn", omega, x)
-    d = x.unsqueeze(-3) - x0.unsqueeze(-2)  # (N, j, i, n): x_i - x0_j
-    spread = P.unsqueeze(-4) + d.unsqueeze(-1) * d.unsqueeze(-2)  # (N, j, i, n, n)
-    P0 = torch.einsum("...ij,...jiab->...jab", omega, spread)
-    return x0, 0.5 * (P0 + P0.transpose(-1, -2))
+    omega_t = omega.transpose(-1, -2)  # (..., j, i): mu_{i|j}
+    x0 = omega_t @ x
+    d = x.unsqueeze(-3) - x0.unsqueeze(-2)  # (..., j, i, n): x_i - x0_j
+    # sum_i mu_{i|j} P_i (a short loop over the r source modes beats a batched matmul of
+    # tiny matrices), plus the spread sum_i mu_{i|j} d d' as D' diag(mu_{.|j}) D.
+    P0 = sum(omega[..., i, :, None, None] * P[..., i : i + 1, :, :] for i in range(P.shape[-3]))
+    P0 = P0 + (omega_t.unsqueeze(-1) * d).transpose(-1, -2) @ d
+    P0 = P0 + P0.transpose(-1, -2)
+    return x0, P0.mul_(0.5)
 
 
 def pd_mode_log_likelihoods(

@@ -187,7 +187,7 @@ def _broadcast_state(x: torch.Tensor, P: torch.Tensor) -> tuple[torch.Tensor, to
 
 
 def _symmetrize(p: torch.Tensor) -> torch.Tensor:
-    return 0.5 * (p + p.transpose(-1, -2))
+    return (p + p.transpose(-1, -2)).mul_(0.5)
 
 
 def kalman_predict(x: Any, P: Any, F: Any, Q: Any) -> tuple[torch.Tensor, torch.Tensor]:
@@ -242,6 +242,17 @@ def _shared_right(B: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
     if A.dim() == 3 and B.dim() > 3 and A.shape[0] == B.shape[-3]:
         return torch.einsum("...kab,kbc->...kac", B, A)
     return B @ A
+
+
+def _dot_last(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``(a * b).sum(-1)`` as a short loop over the (small) last axis.
+
+    A torch reduction over an axis of 2-4 entries is far slower than a few element-wise products.
+    """
+    out = a[..., 0] * b[..., 0]
+    for k in range(1, a.shape[-1]):
+        out = out + a[..., k] * b[..., k]
+    return out
 
 
 def _predict(
@@ -425,15 +436,15 @@ def _update(
     L = _cholesky_innovation(S)
     S_inv = torch.linalg.inv_ex(S)[0]
     K = PHt @ S_inv
-    Knu = (K * nu.unsqueeze(-2)).sum(-1)
-    x_upd = x + Knu
+    x_upd = x + (K @ nu.unsqueeze(-1)).squeeze(-1)
     if joseph:
         A = torch.eye(n, dtype=DTYPE) - _shared_right(K, H)
         P_upd = A @ P @ A.transpose(-1, -2) + _shared_right(K, R) @ K.transpose(-1, -2)
     else:
         P_upd = P - K @ S @ K.transpose(-1, -2)
     P_upd = _symmetrize(P_upd)
-    d2 = (nu * (S_inv * nu.unsqueeze(-2)).sum(-1)).sum(-1)
+    w = (S_inv @ nu.unsqueeze(-1)).squeeze(-1)
+    d2 = _dot_last(nu, w)
     logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
     ll = -0.5 * (d2 + logdet + nu.shape[-1] * math.log(2.0 * math.pi))
     return x_upd, P_upd, ll
