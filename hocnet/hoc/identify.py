@@ -30,7 +30,7 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    whole sequence at that scan and dropped when the kept track's point is in the modified-HOC
    image and its own is not (Case 1), or, both alike, when the kept point lies nearer the
    position the shared points predict; otherwise both are kept. Measured over 6 seeds each
-   (Table II/III scenes at 0.8-2.0 %, 30 hard-case scenes): 10-20 % fewer tracks, better
+   (Table II/III scenes at 0.8-2.0 %, 30 hard-case scenes): 10-22 % fewer tracks, better
    clutter rejection, no additional target point lost; differing at up to two scans lost one.
 5. **Track ends (our addition).** An image point left out because its only triple lost to a
    clutter point keeps its best whole track (dynamic programming over all chains through it)
