@@ -24,7 +24,14 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    cross (share a point) or split (share a beginning).
 4. **Scoring.** A track's score is the average of its interior point scores; tracks shorter
    than ``min_points`` or scoring below ``threshold`` (2.5, section IV-C) are rejected, and a
-   track whose points are all on better tracks (best first) is dropped.
+   track whose points are all on better tracks (best first) is dropped. Near-duplicates
+   (``dedupe=True``, the default; our addition): a track that differs from a better kept track
+   at one scan only (a clutter detour or an alternative end point) is compared with it as a
+   whole sequence at that scan and dropped when the kept track's point is in the modified-HOC
+   image and its own is not (Case 1), or, both alike, when the kept point lies nearer the
+   position the shared points predict; otherwise both are kept. Measured over 6 seeds each
+   (Table II/III scenes at 0.8-2.0 %, 30 hard-case scenes): 10-22 % fewer tracks, better
+   clutter rejection, no additional target point lost; differing at up to two scans lost one.
 5. **Track ends (our addition).** An image point left out because its only triple lost to a
    clutter point keeps its best whole track (dynamic programming over all chains through it)
    when that track passes the threshold and only extends accepted tracks or replaces one of
@@ -370,6 +377,7 @@ def _select_tracks(
     min_points: int,
     batch: int,
     image: list[bool] | None = None,
+    dedupe: list[bool] | None = None,
 ) -> list[tuple[Track, list[int]]]:
     """Score candidate tracks, reject short and low ones, drop tracks covered by better ones.
 
@@ -379,7 +387,8 @@ def _select_tracks(
     section III-B "for most of the scans": more than half of its points in the image.
 
     A track is kept when one of its points at least is not on the tracks kept before it (best
-    first) nor in ``cleaned`` already.
+    first) nor in ``cleaned`` already. With ``dedupe`` (per candidate point: in the MHOC image),
+    a near-duplicate of a kept track is dropped too (:func:`_is_near_duplicate`).
     """
     a, b, c, sl = p0.tolist(), p1.tolist(), p2.tolist(), s.tolist()
     cands = []
@@ -397,9 +406,16 @@ def _select_tracks(
     cands.sort(key=lambda item: (-item[0], -item[1]))
     covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
     tracks = []
+    scan_of = coords[:, 0].tolist() if dedupe is not None else []
+    xy = coords.tolist() if dedupe is not None else []
+    kept_scans: list[tuple[list[int], dict[int, int]]] = []
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
+        if dedupe is not None:
+            if _is_near_duplicate(pts, kept_scans, scan_of, dedupe, xy):
+                continue
+            kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
         # Track objects only for the kept candidates (the others cost no tensor work)
         track, _ = _make_track(pts, pscores, coords, batch)
@@ -409,6 +425,67 @@ def _select_tracks(
         kept = torch.tensor([q for _, pts in tracks for q in pts])
         cleaned[flat[kept]] = True
     return tracks
+
+
+def _is_near_duplicate(
+    pts: list[int],
+    kept: list[tuple[list[int], dict[int, int]]],
+    scan_of: list[int],
+    image: list[bool],
+    xy: list[list[int]],
+) -> bool:
+    """Whether a candidate track is a worse copy of a kept one (``dedupe``, our addition).
+
+    Our reading of "compared as whole sequences" (section III-B) for two candidate tracks: the
+    candidate ``C`` is a *near-duplicate* of a kept (better scoring) track ``K`` when every scan
+    of ``C`` is a scan of ``K`` and ``C`` differs from ``K`` at exactly one of them (a clutter
+    detour point, or an alternative end point). At that scan the two whole sequences decide
+    which point is the target's: first the point in the modified-HOC image (Case 1), then the
+    point nearer to the position the other, shared points predict (linear interpolation between
+    the nearest shared points before and after it, or extrapolation from the two nearest on one
+    side at a track end). ``C`` is dropped only when ``K``'s point wins; on a tie, or when
+    ``C``'s point wins, both are kept (as without ``dedupe``), so ``K``'s detour point is never
+    dropped on this evidence alone.
+    """
+    for k_pts, k_scan in kept:
+        on_k = set(k_pts)
+        diff = [i for i, q in enumerate(pts) if q not in on_k]
+        if len(diff) != 1 or len(pts) < 3:
+            continue
+        i = diff[0]
+        if scan_of[pts[i]] not in k_scan or any(scan_of[q] not in k_scan for q in pts):
+            continue
+        j = k_scan[scan_of[pts[i]]]
+        c_img, k_img = image[pts[i]], image[k_pts[j]]
+        if k_img != c_img:
+            if k_img:
+                return True
+            continue
+        if _residual(k_pts, j, set(pts), xy) < _residual(pts, i, on_k, xy) - 1e-9:
+            return True
+    return False
+
+
+def _residual(pts: list[int], i: int, shared: set[int], xy: list[list[int]]) -> float:
+    """Distance (pixels) of ``pts[i]`` from the position the ``shared`` points of ``pts`` predict.
+
+    Linear interpolation in time between the nearest shared points before and after it, or
+    linear extrapolation from the two nearest shared points on one side; ``inf`` if neither
+    exists. ``xy`` holds each point's ``(t, y, x)``.
+    """
+    before = [j for j in range(i - 1, -1, -1) if pts[j] in shared]
+    after = [j for j in range(i + 1, len(pts)) if pts[j] in shared]
+    if before and after:
+        a, b = before[0], after[0]
+    elif len(before) >= 2:
+        a, b = before[1], before[0]
+    elif len(after) >= 2:
+        a, b = after[0], after[1]
+    else:
+        return math.inf
+    pa, pb, p = xy[pts[a]], xy[pts[b]], xy[pts[i]]
+    f = (p[0] - pa[0]) / (pb[0] - pa[0])
+    return math.hypot(p[1] - pa[1] - f * (pb[1] - pa[1]), p[2] - pa[2] - f * (pb[2] - pa[2]))
 
 
 def _best_paths(
@@ -569,6 +646,7 @@ def _identify_sequences(
     max_candidates: int,
     rescue: bool = True,
     case1: bool = False,
+    dedupe: bool = False,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
     """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene."""
     n_t, h, w = support.shape
@@ -585,6 +663,7 @@ def _identify_sequences(
     a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
     is_root = torch.ones(n, dtype=torch.bool) if roots is None else roots.reshape(-1)[flat]
     image_list = None if roots is None or not case1 else is_root.tolist()
+    dedupe_list = is_root.tolist() if dedupe else None
     accepted = torch.zeros(p0.numel(), dtype=torch.bool)
     if method == "paper":
         # each image point keeps its best sequence: centred on it if any, else one triple it ends
@@ -606,7 +685,19 @@ def _identify_sequences(
         accepted = _assignment_links(n, p0, p1, p2, key, left, right, coords, is_root, threshold)
     paths, capped = _enumerate_paths(accepted, a_in, a_out, s, max_candidates)
     tracks = _select_tracks(
-        paths, p0, p1, p2, s, coords, flat, cleaned, threshold, min_points, batch, image_list
+        paths,
+        p0,
+        p1,
+        p2,
+        s,
+        coords,
+        flat,
+        cleaned,
+        threshold,
+        min_points,
+        batch,
+        image_list,
+        dedupe_list,
     )
     flat_l = flat.tolist()
     if rescue:
@@ -628,7 +719,19 @@ def _identify_sequences(
             coords,
         )
         tracks += _select_tracks(
-            extra, p0, p1, p2, s, coords, flat, cleaned, threshold, min_points, batch, image_list
+            extra,
+            p0,
+            p1,
+            p2,
+            s,
+            coords,
+            flat,
+            cleaned,
+            threshold,
+            min_points,
+            batch,
+            image_list,
+            dedupe_list,
         )
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
     kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
@@ -723,6 +826,7 @@ def identify_tracks(
     roots: torch.Tensor | None = None,
     combine: str = "mean",
     max_candidates: int = MAX_CANDIDATES,
+    dedupe: bool = True,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor]:
     """Link candidate points into scored tracks (section III-B of [LA98]; see the module notes).
 
@@ -745,6 +849,9 @@ def identify_tracks(
         combine: how a point's movement and curvature scores combine
             (:func:`~hocnet.hoc.scoring.point_score`).
         max_candidates: cap on candidate tracks per scene (bounded work on dense input).
+        dedupe: drop a candidate track that differs from a better kept track at one scan
+            only, when the kept track's point there is better supported (our addition, module
+            notes step 4); ``False``: the plain rule.
 
     Returns:
         ``(tracks, scores, cleaned)``: the accepted tracks (ids 1, 2, ... in order of first
@@ -779,6 +886,7 @@ def identify_tracks(
         roots=roots,
         combine=combine,
         max_candidates=max_candidates,
+        dedupe=dedupe,
     )
     return tracks, scores, cleaned
 
@@ -799,6 +907,7 @@ def _identify(
     roots: torch.Tensor | None,
     combine: str,
     max_candidates: int,
+    dedupe: bool = True,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
     cube, batched = as_cube("support", support, binary=True)
     v = check_int("v", v, minimum=1)
@@ -839,6 +948,7 @@ def _identify(
                 b,
                 method,
                 max_candidates,
+                dedupe=dedupe,
             )
             capped |= cap
         all_tracks.extend(tr)
@@ -951,6 +1061,7 @@ def detect(
     identify: Identify = "paper",
     combine: str = "mean",
     max_candidates: int = MAX_CANDIDATES,
+    dedupe: bool = True,
 ) -> HOCResult:
     """Detect multiple targets in a binary multi-scan cube with the modified HOC of [LA98].
 
@@ -987,6 +1098,7 @@ def detect(
         identify: track identification ``"paper"``, ``"greedy"`` or ``"assignment"``.
         combine: point-score combination (:func:`~hocnet.hoc.scoring.point_score`).
         max_candidates: cap on candidate tracks per scene.
+        dedupe: drop near-duplicate tracks (our addition; :func:`identify_tracks`).
 
     Returns:
         :class:`HOCResult` with ``support``, ``tracks``, ``scores``, ``cleaned``,
@@ -1050,6 +1162,7 @@ def detect(
         method=identify,
         roots=roots,
         max_candidates=max_candidates,
+        dedupe=dedupe,
         **kw,
     )
     if capped:

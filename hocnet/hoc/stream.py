@@ -285,6 +285,8 @@ class StreamingDetector:
             (:func:`~hocnet.hoc.identify.identify_tracks`).
         combine: point-score combination (:func:`~hocnet.hoc.scoring.point_score`).
         max_candidates: cap on candidate tracks per window.
+        dedupe: drop near-duplicate tracks (our addition,
+            :func:`~hocnet.hoc.identify.identify_tracks`).
 
     Raises:
         TypeError: an argument of the wrong type (named in the message).
@@ -322,6 +324,7 @@ class StreamingDetector:
         identify: Identify = "paper",
         combine: str = "mean",
         max_candidates: int = MAX_CANDIDATES,
+        dedupe: bool = True,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
@@ -352,6 +355,7 @@ class StreamingDetector:
             "method": check_choice("identify", identify, ("paper", "greedy", "assignment")),
             "combine": check_choice("combine", combine, COMBINE),
             "max_candidates": check_int("max_candidates", max_candidates, minimum=1),
+            "dedupe": bool(dedupe),
         }
         self._bound = density_bound("modified", self.v, self.delta)
         self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hocnet.data.binary import paper_scene
 from hocnet.hoc import chain_support, detect, identify_tracks, reject_slow_tracks
 from hocnet.hoc.functional import density_bound
-from hocnet.hoc.identify import mhoc_candidates
+from hocnet.hoc.identify import _is_near_duplicate, mhoc_candidates
 from hocnet.hoc.kernels import allowed_moves, move_offsets
 from hocnet.hoc.reference import turn_reference
 
@@ -135,6 +135,65 @@ class TestHardCase:
             truth[p] = True
         assert not (truth & ~result.cleaned).any()
         assert any(len(tr) == 10 for tr in result.tracks)
+
+
+class TestDedupe:
+    """Near-duplicate tracks (``dedupe``, our addition): a clutter detour at one scan."""
+
+    def _detour_scene(self, scan=4):
+        cube = torch.zeros(10, 30, 40, dtype=torch.bool)
+        truth = torch.zeros_like(cube)
+        for t in range(10):
+            truth[t, 10 + t, 4 + 3 * t] = True
+        cube |= truth
+        cube[scan, 11 + scan, 4 + 3 * scan] = True  # clutter beside the true point
+        return cube, truth
+
+    @pytest.mark.parametrize("scan", [4, 5])
+    def test_detour_duplicate_is_dropped(self, scan):
+        cube, truth = self._detour_scene(scan)
+        plain = detect(cube, order=2, dedupe=False)
+        assert len(plain.tracks) == 2  # the true track and its detour copy
+        result = detect(cube, order=2)  # dedupe=True is the default
+        assert len(result.tracks) == 1
+        assert torch.equal(result.cleaned, truth)
+        assert len(result.tracks[0]) == 10
+
+    def test_near_duplicate_rule(self):
+        # points 0-4 on a line (t, y, x) = (t, t, 2t); point 5 is off it at scan 2
+        xy = [[t, t, 2 * t] for t in range(5)] + [[2, 4, 4]]
+        on_line, detour = [0, 1, 2, 3, 4], [0, 1, 5, 3, 4]
+        scan_of = [p[0] for p in xy]
+
+        def kept(pts):
+            return [(pts, {scan_of[q]: i for i, q in enumerate(pts)})]
+
+        image = [True] * 6
+        assert _is_near_duplicate(detour, kept(on_line), scan_of, image, xy)
+        # the kept track's point predicts worse: both are kept (no point dropped)
+        assert not _is_near_duplicate(on_line, kept(detour), scan_of, image, xy)
+        # Case 1 first: the candidate's point is in the MHOC image, the kept one's is not
+        image_c = [True, True, False, True, True, True]
+        assert not _is_near_duplicate(detour, kept(on_line), scan_of, image_c, xy)
+        # ... and Case 1 wins over the prediction: the kept point in the image, the other not
+        assert _is_near_duplicate(on_line, kept(detour), scan_of, image_c, xy)
+        # differing at two scans is not a near-duplicate
+        xy2 = [*xy, [3, 5, 7]]
+        scan_of2 = [p[0] for p in xy2]
+        two = [0, 1, 5, 6, 4]
+        k2 = [(on_line, {scan_of2[q]: i for i, q in enumerate(on_line)})]
+        assert not _is_near_duplicate(two, k2, scan_of2, [True] * 7, xy2)
+
+    @pytest.mark.parametrize("name", ["table3", "table3-paper"])
+    def test_no_target_point_lost_against_plain_rule(self, name):
+        for seed in range(3):
+            scene = paper_scene(name, 0.014, seed=seed)
+            truth = scene.labels > 0
+            plain = detect(scene.cube, order=2, dedupe=False)
+            result = detect(scene.cube, order=2)
+            assert not (truth & plain.cleaned & ~result.cleaned).any()
+            assert not (result.cleaned & ~plain.cleaned).any()
+            assert len(result.tracks) <= len(plain.tracks)
 
 
 class TestDetect:
