@@ -684,21 +684,25 @@ def _identify_sequences(
     else:
         accepted = _assignment_links(n, p0, p1, p2, key, left, right, coords, is_root, threshold)
     paths, capped = _enumerate_paths(accepted, a_in, a_out, s, max_candidates)
-    tracks = _select_tracks(
-        paths,
-        p0,
-        p1,
-        p2,
-        s,
-        coords,
-        flat,
-        cleaned,
-        threshold,
-        min_points,
-        batch,
-        image_list,
-        dedupe_list,
-    )
+
+    def select(candidates: list[list[int]]) -> list[tuple[Track, list[int]]]:
+        return _select_tracks(
+            candidates,
+            p0,
+            p1,
+            p2,
+            s,
+            coords,
+            flat,
+            cleaned,
+            threshold,
+            min_points,
+            batch,
+            image_list,
+            dedupe_list,
+        )
+
+    tracks = select(paths)
     flat_l = flat.tolist()
     if rescue:
         extra = _extensions(
@@ -718,21 +722,7 @@ def _identify_sequences(
             flat,
             coords,
         )
-        tracks += _select_tracks(
-            extra,
-            p0,
-            p1,
-            p2,
-            s,
-            coords,
-            flat,
-            cleaned,
-            threshold,
-            min_points,
-            batch,
-            image_list,
-            dedupe_list,
-        )
+        tracks += select(extra)
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
     kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
     out = [tr for tr, _ in kept]
