@@ -624,7 +624,7 @@ class TestReproduce:
 
     def test_default_folder_is_the_repository(self, monkeypatch):
         monkeypatch.delenv(cli.EXPERIMENTS_ENV, raising=False)
-        repo = Path(cli.__file__).resolve().parents[1]
+        repo = Path(cli.__file__).resolve().parents[2]
         if (repo / "experiments").is_dir():
             assert cli.experiments_dir() == repo / "experiments"
         else:
@@ -932,7 +932,7 @@ class _TTY(io.StringIO):
 
 class TestProgress:
     def test_bar_on_a_terminal(self, tmp_path, cube_file, monkeypatch):
-        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        monkeypatch.setattr("hocnet.cli._common.PROGRESS_DELAY", 0.0)
         fake = _TTY()
         monkeypatch.setattr(sys, "stderr", fake)
         assert main(["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot"]) == 0
@@ -940,7 +940,7 @@ class TestProgress:
         assert "stage" in text and "load" in text and "hoc" in text and "write" in text
 
     def test_quiet(self, tmp_path, cube_file, monkeypatch):
-        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        monkeypatch.setattr("hocnet.cli._common.PROGRESS_DELAY", 0.0)
         fake = _TTY()
         monkeypatch.setattr(sys, "stderr", fake)
         args = ["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot", "--quiet"]
@@ -948,7 +948,7 @@ class TestProgress:
         assert fake.getvalue() == ""
 
     def test_not_a_terminal(self, tmp_path, cube_file, monkeypatch):
-        monkeypatch.setattr(cli, "PROGRESS_DELAY", 0.0)
+        monkeypatch.setattr("hocnet.cli._common.PROGRESS_DELAY", 0.0)
         fake = io.StringIO()
         monkeypatch.setattr(sys, "stderr", fake)
         assert main(["detect", str(cube_file), "--out", str(tmp_path / "o"), "--no-plot"]) == 0

@@ -1,0 +1,400 @@
+"""Shared parts of the ``hocnet`` command line.
+
+Errors, parsers, safe output writing, progress bars and the translation of library argument
+names into the command line's flags.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import os
+import re
+import shutil
+import sys
+import uuid
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NoReturn
+
+if TYPE_CHECKING:
+    pass
+
+PROG = "hocnet"
+EXPERIMENTS_ENV = "HOCNET_EXPERIMENTS_DIR"
+DEBUG_ENV = "HOCNET_DEBUG"
+
+
+def _check_int(name: str, value: Any, **bounds: Any) -> int:
+    """:func:`hocnet._check.check_int`, imported late so that ``--help`` does not load torch."""
+    from hocnet._check import check_int
+
+    return check_int(name, value, **bounds)
+
+
+def _check_number(name: str, value: Any, **bounds: Any) -> float:
+    """:func:`hocnet._check.check_number`, imported late (see :func:`_check_int`)."""
+    from hocnet._check import check_number
+
+    return check_number(name, value, **bounds)
+
+
+class CLIError(Exception):
+    """A user error: printed as ``hocnet: error: <message>``, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Argument parser whose usage errors are one line and go through :class:`CLIError`."""
+
+    def error(self, message: str) -> NoReturn:
+        raise CLIError(f"{message} (see '{self.prog} --help')")
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keep the layout of the (pre-wrapped) descriptions and epilogs."""
+
+
+# --------------------------------------------------------------------------------------------
+# output: compute everything first, then write atomically
+# --------------------------------------------------------------------------------------------
+
+Writer = Callable[[Path], None]
+
+
+def _out_path(value: Any, flag: str = "--out") -> Path:
+    """The ``--out`` folder as a Path; an empty string (which would mean '.') is refused."""
+    if value is None:
+        raise CLIError(f"{flag}: expected a folder name, got none")
+    text = os.fspath(value)
+    if not str(text).strip():
+        raise CLIError(f"{flag}: expected a folder name, got an empty string {text!r}")
+    return Path(text)
+
+
+def _check_out_dir(out: Path | str) -> Path:
+    """Reject an output path that can never become a directory, before any work is done."""
+    out = _out_path(out)
+    if out.exists() and not out.is_dir():
+        raise CLIError(f"--out: expected a directory, got the existing file '{out}'")
+    if out.is_dir() and not os.access(out, os.W_OK | os.X_OK):
+        raise CLIError(f"--out: cannot write into '{out}': it is not writable")
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise CLIError(f"--out: '{parent}' is a file, cannot create '{out}' inside it")
+            if not os.access(parent, os.W_OK) and not out.exists():
+                raise CLIError(f"--out: cannot create '{out}': '{parent}' is not writable")
+            break
+    return out
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name the same file (real paths, symlinks and hard links resolved)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _check_destinations(
+    out: Path, names: Sequence[str], inputs: dict[str, Path] | None = None
+) -> None:
+    """Check every destination ``out/name`` before anything is written.
+
+    Refuses a destination that is an existing directory, or that is (after resolving real paths,
+    symlinks and hard links) one of the ``inputs`` (label -> path, such as ``CUBE`` or
+    ``--target-free``): no output may ever replace an input file, whatever its name.
+    """
+    out = _check_out_dir(out)
+    for name in names:
+        dest = out / name
+        if dest.is_dir():
+            raise CLIError(
+                f"--out: cannot write '{dest}': a directory of that name exists; "
+                "remove it or choose another --out"
+            )
+        for label, source in (inputs or {}).items():
+            if source is not None and _same_file(dest, Path(source)):
+                raise CLIError(
+                    f"--out: writing '{dest}' would replace the input {label} '{source}'; "
+                    "choose another --out"
+                )
+
+
+def _write_error(dest: Path, staged: Path, err: BaseException) -> CLIError:
+    """A one-line error about writing ``dest`` that never names the staging path."""
+    from hocnet.data.io import is_disk_full
+
+    if is_disk_full(err):
+        reason = "no space left on device"
+    elif isinstance(err, OSError) and err.strerror:
+        reason = err.strerror
+    else:
+        reason = _one_line(str(err) or type(err).__name__)
+        reason = reason.replace(str(staged), str(dest)).replace("`path`: ", "")
+        reason = re.sub(r"'[^']*\.tmp-[0-9a-f]+[^']*'", f"'{dest}'", reason)
+    return CLIError(f"--out: could not write '{dest}': {reason}")
+
+
+def _write_outputs(
+    out: Path, writers: dict[str, Writer], inputs: dict[str, Path] | None = None
+) -> list[Path]:
+    """Write files into ``out`` all-or-nothing.
+
+    Every destination is checked first (:func:`_check_destinations`: no directory in the way, no
+    input replaced, the folder writable). Then each writer is called with its path inside a
+    fresh staging directory: next to ``out`` when ``out`` does not exist yet (it is then renamed
+    to ``out``), inside ``out`` otherwise (the same file system, so the renames are atomic). The
+    staged files are moved into ``out`` one by one; files of the same names already there are
+    first moved aside and put back if any step fails. On failure the staging directory and any
+    parent directories created for it are removed, and the error names the user's path.
+
+    Returns:
+        The final paths, in the order of ``writers``.
+    """
+    out = _check_out_dir(out)
+    _check_destinations(out, list(writers), inputs)
+    created: Path | None = None
+    for parent in [out.absolute(), *out.absolute().parents]:
+        if parent.exists():
+            break
+        created = parent
+    existed = out.is_dir()
+    tag = uuid.uuid4().hex[:12]
+    tmp = out / f".hocnet.tmp-{tag}" if existed else out.parent / f".{out.name}.tmp-{tag}"
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.mkdir()
+    except OSError as err:
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+        raise _write_error(out, tmp, err) from None
+    moved: list[str] = []
+    aside: list[str] = []
+    backup = tmp / ".previous"
+    try:
+        for name, write in writers.items():
+            try:
+                write(tmp / name)
+            except (OSError, ValueError, TypeError) as err:
+                raise _write_error(out / name, tmp / name, err) from None
+        if existed:
+            backup.mkdir()
+            for name in writers:
+                dest = out / name
+                try:
+                    if dest.exists() or dest.is_symlink():
+                        os.replace(dest, backup / name)
+                        aside.append(name)
+                    os.replace(tmp / name, dest)
+                    moved.append(name)
+                except OSError as err:
+                    raise _write_error(dest, tmp / name, err) from None
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            try:
+                os.rename(tmp, out)
+            except OSError as err:
+                raise _write_error(out, tmp, err) from None
+    except BaseException:
+        for name in moved:  # roll back: new files out, old files back
+            with contextlib.suppress(OSError):
+                os.unlink(out / name)
+        for name in aside:
+            with contextlib.suppress(OSError):
+                os.replace(backup / name, out / name)
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created is not None:  # the parents made for the staging directory
+            shutil.rmtree(created, ignore_errors=True)
+        raise
+    return [out / name for name in writers]
+
+
+def _png_writer(fig: Any) -> Writer:
+    """Render a figure to PNG bytes now; the returned writer only copies bytes to disk."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=fig.dpi)
+    data = buffer.getvalue()
+    return lambda path: path.write_bytes(data)
+
+
+# --------------------------------------------------------------------------------------------
+# detection methods
+# --------------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int) -> Any:
+    """Run torch with ``n`` intra-op threads inside the block (restored afterwards).
+
+    The pre-processing and the DPA are many small tensor operations per frame; on the shared
+    2-core machine two threads were slower than one (``benchmarks/dpa.py``, row
+    ``pipeline_real_ir``), so the command line computes with one thread.
+    """
+    import torch
+
+    previous = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+#: Torch threads of the ``detect`` pipeline (see :func:`_torch_threads`).
+PIPELINE_THREADS = 1
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """Plain fixed-width table (columns left-aligned, two spaces apart)."""
+    cells = [list(map(str, header)), *([str(c) for c in row] for row in rows)]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in cells]
+    lines.insert(1, "  ".join("-" * w for w in widths))
+    return "\n".join("  " + line for line in lines)
+
+
+#: Seconds a run must last before its progress bar appears ("longer than a few seconds").
+PROGRESS_DELAY = 2.0
+
+
+def _show_progress(args: argparse.Namespace) -> bool:
+    """Progress bars on stderr unless ``--quiet`` or stderr is not a terminal."""
+    if getattr(args, "quiet", False):
+        return False
+    isatty = getattr(sys.stderr, "isatty", None)
+    return bool(isatty and isatty())
+
+
+def _progress(items: Any, *, desc: str, total: int, enabled: bool) -> Any:
+    """A tqdm bar on stderr (shown after :data:`PROGRESS_DELAY` seconds) when ``enabled``."""
+    if not enabled:
+        return items
+    from tqdm import tqdm
+
+    return tqdm(items, desc=desc, total=total, leave=False, file=sys.stderr, delay=PROGRESS_DELAY)
+
+
+class _Stages:
+    """A stage-level progress bar (load, detect, pictures, write) on stderr.
+
+    It appears only when a run lasts longer than :data:`PROGRESS_DELAY` seconds, and never when
+    disabled (``--quiet``, or stderr not a terminal).
+    """
+
+    def __init__(self, names: Sequence[str], *, enabled: bool) -> None:
+        self.enabled = enabled
+        self._total = len(names)
+        self._bar: Any = None
+        self._started = False
+
+    def __enter__(self) -> _Stages:
+        if self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(
+                total=self._total,
+                leave=False,
+                file=sys.stderr,
+                delay=PROGRESS_DELAY,
+                bar_format="{desc}: stage {n_fmt}/{total_fmt} [{elapsed}]",
+            )
+        return self
+
+    def next(self, desc: str) -> None:
+        """Start the next stage."""
+        if self._bar is None:
+            return
+        if self._started:
+            self._bar.update(1)
+        self._started = True
+        self._bar.set_description_str(desc)
+
+    def __exit__(self, *exc: object) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+# --------------------------------------------------------------------------------------------
+# hocnet reproduce
+# --------------------------------------------------------------------------------------------
+
+
+def _one_line(message: str) -> str:
+    return " ".join(str(message).split()) or "unknown error"
+
+
+# API argument names -> what the user typed, per command (and method). The one place where a
+# library message ("`target_free`: expected ...") becomes a command-line one ("--target-free:").
+_FLAGS_COMMON = {"path": "CUBE", "cube": "CUBE", "frames": "CUBE", "x": "CUBE", "key": "--key"}
+_FLAGS: dict[str, dict[str, str]] = {
+    "hoc": {
+        **_FLAGS_COMMON,
+        "order": "--order",
+        "v": "--v",
+        "delta": "--delta",
+        "threshold": "--threshold",
+        "min_points": "--min-points",
+        "min_speed": "--min-speed",
+        "pfa": "--threshold-pfa",
+        "background_window": "--background-window",
+    },
+    "dpa": {
+        **_FLAGS_COMMON,
+        "g": "--g",
+        "b": "--b",
+        "window": "--window",
+        "v_max": "--v-max",
+        "equal_gain": "--equal-gain",
+        "max_targets": "--max-targets",
+        "nms_radius": "--nms-radius",
+        "threshold": "--asf-threshold",
+        "target_free": "--target-free",
+        "pfa": "--pfa",
+        "weights": "the probability matrices of --window / --v-max",
+        "background_window": "--background-window",
+    },
+    "demo": {"seed": "--seed", "density": "--density", "order": "--order"},
+    "reproduce": {"seeds": "--seeds", "quick": "--quick", "out_dir": "--out"},
+}
+
+
+def _to_flags(message: str, flags: dict[str, str]) -> str:
+    """Replace the backquoted API names of a library message by the command line's names.
+
+    Examples:
+        >>> _to_flags("`target_free`: expected (T, H, W), got (2, 3)", _FLAGS["dpa"])
+        '--target-free: expected (T, H, W), got (2, 3)'
+        >>> _to_flags("`--v`: expected an integer >= 1, got 0", {})
+        '--v: expected an integer >= 1, got 0'
+    """
+
+    def swap(match: re.Match[str]) -> str:
+        name = match.group(1)
+        if name.startswith("--"):
+            return name
+        base = re.sub(r"\[.*$", "", name)  # tracks[3].id -> tracks
+        return flags.get(base, match.group(0)) if base == name else match.group(0)
+
+    return re.sub(r"`([^`\s]+)`", swap, message)
+
+
+def _flags_of(args: argparse.Namespace | None) -> dict[str, str]:
+    if args is None:
+        return {}
+    command = getattr(args, "command", None)
+    if command == "detect":
+        flags = dict(_FLAGS.get(getattr(args, "method", "hoc"), {}))
+        for name in ("cube", "frames", "x"):  # the input named with its path
+            flags[name] = f"CUBE '{args.cube}'"
+        return flags
+    return _FLAGS.get(command or "", {})
+
+
+def _fail(message: str, flags: dict[str, str] | None = None) -> int:
+    message = _to_flags(_one_line(message), flags or {})
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return 2
