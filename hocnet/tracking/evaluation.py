@@ -369,8 +369,10 @@ def gospa_numpy(estimates: Any, truths: Any, *, c: float, p: float = 2.0) -> dic
     """
     c = check_number("c", c, low=0.0, low_inclusive=False)
     p = check_number("p", p, low=1.0)
-    x = np.asarray(estimates, dtype=np.float64).reshape(len(estimates), -1)
-    y = np.asarray(truths, dtype=np.float64).reshape(len(truths), -1)
+    x = np.asarray(estimates, dtype=np.float64)
+    y = np.asarray(truths, dtype=np.float64)
+    x = x.reshape(len(x), -1) if x.size else np.zeros((0, 1))
+    y = y.reshape(len(y), -1) if y.size else np.zeros((0, 1))
     dummy = c**p / 2.0
     loc = 0.0
     n_pairs = 0
