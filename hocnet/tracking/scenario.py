@@ -1215,16 +1215,19 @@ def plot_scenario(
             color="tab:purple",
         )
     colours = list(mpl.colormaps["tab10"].colors)
+    labelled: dict[tuple[float, float], int] = {}  # labels stacked at a shared start
     for n, (tid, tr) in enumerate((truth or {}).items()):
         c = colours[n % len(colours)]
         ax.plot(tr.positions[:, 0], tr.positions[:, 1], color=c, lw=1.4, zorder=4)
         if tr.times.size:
             x, y = tr.positions[0]
             ax.plot(x, y, "o", color=c, ms=4, zorder=5)
+            key = (round(float(x)), round(float(y)))
+            labelled[key] = labelled.get(key, -1) + 1
             ax.annotate(
                 f"{tid}: {VIDEO_CLASSES[tr.video_class]}",
                 (x, y),
-                xytext=(4, 4 + 7 * (n % 4)),
+                xytext=(4, 4 + 8 * labelled[key]),
                 textcoords="offset points",
                 fontsize=7,
                 color=c,
