@@ -290,7 +290,7 @@ def monte_carlo_metrics(
                 good += int((ids == tid).sum())
                 measured += int((ids != NO_MEASUREMENT).sum())
                 typed += int((trk.types != NO_TYPE).sum())
-                right_type += int((trk.types == true_type).sum())
+                right_type += int(((trk.types == true_type) & (trk.types != NO_TYPE)).sum())
             if durations and life > 0:
                 agg = {"mean": np.mean, "max": np.max, "sum": np.sum}[length](durations)
                 ratios.append(min(float(agg) / life, 1.0) if length != "sum" else float(agg) / life)

@@ -289,3 +289,16 @@ class TestGospa:
             gospa({}, {}, backend="torch")
         with pytest.raises(ValueError, match="`c`"):
             gospa_numpy([[0.0, 0.0]], [[0.0, 0.0]], c=0.0)
+
+
+def test_truth_without_type_gives_no_type_purity():
+    @dataclass
+    class Bare:
+        times: np.ndarray
+        positions: np.ndarray
+
+    tr = line(0.0)
+    truth = {1: Bare(tr.times, tr.positions)}
+    trk = EstimatedTrack(tr.times, tr.positions, [1] * 11, [NO_TYPE] * 5 + [0] * 6)
+    m = target_metrics(truth, {"a": trk})[1]
+    assert m.type_purity == 0.0 and m.track_purity == 1.0
