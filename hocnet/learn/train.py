@@ -174,7 +174,7 @@ def build_cli(system: str, argv: Sequence[str]) -> HocnetCLI:
 
 
 _USAGE = """\
-usage: hocnet train {dpa,hoc} [--config FILE.yaml] [--print_config] [--model.NAME V] ...
+usage: hocnet train {{dpa,hoc}} [--config FILE.yaml] [--print_config] [--model.NAME V] ...
 
 Train the DPA's parameters (dpa: b, g, p, penalty or the full matrices of [NR08]) or the HOC
 network's kernels (hoc, [LA98]) on simulated scenes with Lightning, then test on held-out
