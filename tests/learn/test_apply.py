@@ -85,7 +85,11 @@ class TestDetectDPA:
         frames = torch.randn(2, 5, 16, 16, generator=torch.Generator().manual_seed(0))
         got = detect_dpa(frames, model, max_targets=2)
         want = dpa_detect(
-            frames, model.weights.detach(), float(model.b.detach()), float(model.g.detach()), max_targets=2
+            frames,
+            model.weights.detach(),
+            float(model.b.detach()),
+            float(model.g.detach()),
+            max_targets=2,
         )
         assert torch.equal(got.state.asf, want.state.asf)
         assert [t.points.tolist() for t in got.tracks] == [t.points.tolist() for t in want.tracks]
