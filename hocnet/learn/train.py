@@ -120,6 +120,10 @@ class HocnetCLI(LightningCLI):
     disables logging; a logger class is used as given.
     """
 
+    def parse_arguments(self, parser: Any, args: Any) -> None:
+        """Parse ``args`` (never ``sys.argv``: ``hocnet train`` passes its own arguments)."""
+        self.config = parser.parse_args(args)
+
     def instantiate_trainer(self, **kwargs: Any) -> L.Trainer:
         """The trainer, with the CSV logger in place of ``logger=True``."""
         config = self._get(self.config_init, "trainer", default={})
