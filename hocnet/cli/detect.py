@@ -1215,7 +1215,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="CKPT",
         help="learned weights: a checkpoint of `hocnet train` (dpa: a DPATuner's b, g and "
         "matrices; hoc: a LearnedHOCSystem's kernels, order, v and delta) used instead of the "
-        "fixed ones; read with torch.load(weights_only=True); needs the learn extra",
+        "fixed ones; read with torch.load(weights_only=True); needs the learn extra. The "
+        "pre-processing still follows --preset: hocnet train dpa trains on anti-mean whitened "
+        "frames, i.e. --preset paper's pre-processing",
     )
     detect.add_argument(
         "--max-per-frame",
