@@ -712,11 +712,6 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         params.pop("v_max", None)
         params.pop("p", None)
         params.pop("penalty_step", None)
-        if weights.shape[-1] > min(height, width):
-            raise CLIError(
-                f"--weights: its {weights.shape[-1]} x {weights.shape[-1]} matrices need frames "
-                f"of at least that size, got {height} x {width}"
-            )
     else:
         weights = probability_matrices(
             window=window,
@@ -867,6 +862,8 @@ def _load_weights(args: argparse.Namespace, method: str, params: dict[str, Any])
         raise CLIError(_one_line(str(err).replace("`ckpt_path`", "--weights"))) from None
     params["model"] = model
     params["weights"] = str(Path(args.weights).resolve())
+    if method == "dpa":
+        params["window"] = int(model.weights.shape[-1])
     if method == "hoc":
         hp = hoc_settings(model)
         delta = 180.0 if hp["delta"] is None else math.degrees(hp["delta"])

@@ -324,3 +324,20 @@ class TestCheckpoint:
         torch.save({"state_dict": {"other.w": torch.zeros(1)}}, path)
         with pytest.raises(ValueError, match="ckpt_path"):
             load_model(path)
+
+
+class TestStageMetrics:
+    @pytest.mark.parametrize("system", ["dpa", "hoc"])
+    def test_val_pd_pfa_auroc(self, system):
+        if system == "dpa":
+            model, dm = DPATuner(window=5), IRSceneDataModule(**IR_TINY, batch_size=2)
+        else:
+            model = LearnedHOCSystem(order=1, v=1)
+            dm = BinarySceneDataModule(**BIN_TINY, batch_size=2, clutter_density=0.05)
+        trainer = _trainer(max_epochs=1, limit_train_batches=1, num_sanity_val_steps=0)
+        trainer.fit(model, dm)
+        logged = trainer.callback_metrics
+        assert math.isfinite(float(logged["val/loss"]))
+        for key in ("val/pd", "val/pfa", "val/auroc"):
+            assert key in logged, key
+            assert 0.0 <= float(logged[key]) <= 1.0, key
