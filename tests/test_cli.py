@@ -1324,3 +1324,121 @@ class TestMinSpeed:
         assert main(["detect", str(path), "--out", str(tmp_path / "o"), "--min-speed", "-1"]) == 2
         assert "--min-speed" in capsys.readouterr().err
         assert not (tmp_path / "o").exists()
+
+
+class TestWeights:
+    """`hocnet detect --weights CKPT`: the learned module of a `hocnet train` checkpoint."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def ckpts(cls, tmp_path_factory):
+        pytest.importorskip("lightning")
+        pytest.importorskip("jsonargparse")
+        root = tmp_path_factory.mktemp("train")
+        tiny = ["--max-epochs", "1", "--no-progress", "--trainer.limit_train_batches", "1",
+                "--trainer.limit_val_batches", "1", "--data.n_train", "2", "--data.n_val", "1",
+                "--data.n_test", "1", "--data.speed", "0.5", "1.0"]  # fmt: skip
+        runs = {
+            "dpa": ["--data.shape", "5", "16", "16", "--model.window", "5", "--model.lr", "0.3",
+                    "--model.matrices", "full"],
+            "hoc": ["--data.shape", "6", "16", "16", "--model.order", "1", "--model.v", "1",
+                    "--model.init", "random"],
+        }  # fmt: skip
+        out = {}
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for name, extra in runs.items():
+                assert main(["train", name, "--out", str(root / name), *tiny, *extra]) == 0
+                (out[name],) = (root / name).rglob("last.ckpt")
+        return out
+
+    def test_dpa_uses_the_learned_parameters(self, ckpts, tmp_path):
+        from hocnet.cli.detect import _preprocess
+        from hocnet.dpa import DPA
+        from hocnet.dpa.presets import PAPER
+        from hocnet.learn import load_model
+        from hocnet.learn.apply import detect_dpa
+
+        model = load_model(ckpts["dpa"])
+        assert isinstance(model, DPA)
+        assert not torch.equal(model.weights, DPA(window=5).weights)  # learned, not eq. (5)
+        frames = torch.randn(5, 16, 16, generator=torch.Generator().manual_seed(1))
+        frames[:, 8, 8] += 6.0
+        path = tmp_path / "f.npy"
+        np.save(path, frames.numpy())
+        out = tmp_path / "o"
+        argv = ["detect", str(path), "--method", "dpa", "--preset", "paper", "--no-plot", "-q"]
+        assert main([*argv, "--weights", str(ckpts["dpa"]), "--out", str(out)]) == 0
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        with torch.no_grad():
+            assert meta["g"] == float(model.g) and meta["b"] == float(model.b)
+        assert meta["window"] == 5 and meta["weights"] == str(ckpts["dpa"].resolve())
+        # the library call with the same weights
+        pre = {"register": PAPER.register, "background": PAPER.background,
+               "background_window": PAPER.background_window, "whiten": PAPER.whitening}  # fmt: skip
+        white, _ = _preprocess(frames, pre)
+        found = detect_dpa(white, model, max_targets=5, nms_radius=3, pfa=1e-3)
+        assert torch.equal(torch.from_numpy(np.load(out / "asf.npy")), found.state.asf)
+        assert [t["points"].tolist() for t in tracks] == [t.points.tolist() for t in found.tracks]
+        # and not the fixed weights
+        assert main([*argv, "--out", str(tmp_path / "fixed")]) == 0
+        fixed = np.load(tmp_path / "fixed" / "asf.npy")
+        assert not np.array_equal(fixed, np.load(out / "asf.npy"))
+
+    def test_hoc_uses_the_learned_kernels(self, ckpts, tmp_path):
+        from hocnet.hoc.layers import MHOCImage
+        from hocnet.learn import load_model
+        from hocnet.learn.apply import detect_hoc
+
+        model = load_model(ckpts["hoc"])
+        assert isinstance(model, MHOCImage)
+        fixed = MHOCImage(order=1, v=1)
+        learned = model.forward_net.layers[0].mask_kernels
+        assert not torch.equal(learned, fixed.forward_net.layers[0].mask_kernels)
+        scene = simulate_binary(
+            (6, 16, 16), [TargetSpec((2, 3), (1, 1))], clutter_density=0.03,
+            generator=torch.Generator().manual_seed(2),
+        )  # fmt: skip
+        path = tmp_path / "c.npy"
+        save_cube(path, scene.cube)
+        out = tmp_path / "o"
+        assert main(["detect", str(path), "--weights", str(ckpts["hoc"]), "--out", str(out),
+                     "--no-plot", "-q"]) == 0  # fmt: skip
+        tracks, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert (meta["order"], meta["v"], meta["delta"]) == (1, 1, 45.0)
+        found = detect_hoc(scene.cube, model)
+        assert np.array_equal(np.load(out / "support.npy"), found.support.numpy())
+        assert np.array_equal(np.load(out / "cleaned.npy"), found.cleaned.numpy())
+        assert [t["points"].tolist() for t in tracks] == [t.points.tolist() for t in found.tracks]
+
+    def test_errors_are_one_line(self, ckpts, tmp_path, capsys):
+        frames = tmp_path / "f.npy"
+        np.save(frames, np.random.default_rng(0).normal(size=(5, 16, 16)))
+        cube = tmp_path / "c.npy"
+        np.save(cube, np.zeros((6, 16, 16), dtype=bool))
+        cut = tmp_path / "cut.ckpt"
+        cut.write_bytes(ckpts["dpa"].read_bytes()[:1000])
+
+        class Evil:
+            def __reduce__(self):
+                return (os.system, ("echo pwned",))
+
+        evil = tmp_path / "evil.ckpt"
+        torch.save({"state_dict": {}, "x": Evil()}, evil)
+        cases = [
+            (frames, "dpa", tmp_path / "missing.ckpt", [], r"--weights: cannot read"),
+            (cube, "hoc", ckpts["dpa"], [], r"--weights: expected a LearnedHOCSystem"),
+            (frames, "dpa", ckpts["hoc"], [], r"--weights: expected a DPATuner"),
+            (frames, "dpa", cut, [], r"--weights: .*corrupted"),
+            (frames, "dpa", evil, [], r"--weights: refused .*untrusted pickle"),
+            (frames, "dpa", ckpts["dpa"], ["--g", "0.5"], r"--g: set by the checkpoint"),
+            (cube, "hoc", ckpts["hoc"], ["--order", "2"], r"--order: set by the checkpoint"),
+        ]
+        for i, (data, method, weights, extra, match) in enumerate(cases):
+            out = tmp_path / f"out{i}"
+            argv = ["detect", str(data), "--method", method, "--weights", str(weights)]
+            code = main([*argv, *extra, "--out", str(out), "-q"])
+            assert_one_line_error(capsys, code, match)
+            assert not out.exists()

@@ -253,6 +253,7 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
             f"binarised: {int(cube.sum())} points (CFAR, pfa {pfa:g} per pixel, at most "
             f"{math.floor(pfa * cube.shape[-1] * cube.shape[-2])} per frame)"
         )
+    model = params.pop("model", None)
     _bound_hoc(cube, params)
     kwargs = {
         "order": params["order"],
@@ -261,6 +262,12 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         "threshold": params["threshold"],
         "min_points": params["min_points"],
     }
+    if model is not None:  # --weights: the support of the learned network
+        from hocnet.learn.apply import detect_hoc
+
+        def detect(frames: Any, **kw: Any) -> Any:
+            return detect_hoc(frames, model, threshold=kw["threshold"], min_points=kw["min_points"])
+
     detection_params = {**params, "delta_unit": "degrees"}
     detection_params.pop("binary", None)
 
@@ -696,13 +703,23 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
             f"got {window}"
         )
     white, shifts = _preprocess(frames, params)
-    weights = probability_matrices(
-        window=window,
-        v_max=params["v_max"],
-        jitter=params["jitter"],
-        p=params["p"],
-        penalty_step=params["penalty_step"],
-    )
+    model = params.pop("model", None)
+    if model is not None:  # --weights: the learned matrices, b and g
+        with torch.no_grad():
+            weights = model.weights.detach().float()
+            params.update(g=float(model.g), b=float(model.b), equal_gain=False)
+        params.update(window=weights.shape[-1], direction_step=model.direction_step)
+        params.pop("v_max", None)
+        params.pop("p", None)
+        params.pop("penalty_step", None)
+    else:
+        weights = probability_matrices(
+            window=window,
+            v_max=params["v_max"],
+            jitter=params["jitter"],
+            p=params["p"],
+            penalty_step=params["penalty_step"],
+        )
     if params["equal_gain"]:
         weights = equalize_gain(weights, params["g"])
     b = params["b"]
@@ -726,6 +743,7 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         target_free=target_free,
         pfa=params["pfa"],
         direction_step=params["direction_step"],
+        var_table=None if model is None else model.var_table,
     )
     asf = found.state.asf
     batched = frames.dim() == 4
@@ -815,6 +833,45 @@ _METHODS: dict[str, _Method] = {
 }
 
 
+#: Options that --weights replaces with the checkpoint's learned values.
+_WEIGHTS_REPLACE = {
+    "dpa": ("g", "b", "window", "v_max", "equal_gain"),
+    "hoc": ("order", "v", "delta"),
+}
+
+
+def _load_weights(args: argparse.Namespace, method: str, params: dict[str, Any]) -> None:
+    """``--weights CKPT``: the learned module in ``params["model"]`` (one-line errors)."""
+    if args.weights is None:
+        return
+    for dest in _WEIGHTS_REPLACE[method]:
+        if getattr(args, dest, None) is not None:
+            flag = "--" + dest.replace("_", "-")
+            raise CLIError(f"{flag}: set by the checkpoint of --weights, drop one of the two")
+    import importlib.util
+
+    if importlib.util.find_spec("lightning") is None:
+        raise CLIError("--weights: needs the learn extra: pip install -e '.[learn]'")
+    from hocnet.learn.apply import hoc_settings, load_detector
+
+    try:
+        model = load_detector(args.weights, method)
+    except OSError as err:
+        raise CLIError(f"--weights: cannot read '{args.weights}': {err.strerror or err}") from None
+    except ValueError as err:
+        raise CLIError(_one_line(str(err).replace("`ckpt_path`", "--weights"))) from None
+    params["model"] = model
+    params["weights"] = str(Path(args.weights).resolve())
+    if method == "dpa":
+        params["window"] = int(model.weights.shape[-1])
+    if method == "hoc":
+        hp = hoc_settings(model)
+        delta = 180.0 if hp["delta"] is None else math.degrees(hp["delta"])
+        params.update(order=hp["order"], v=hp["v"], delta=delta)
+        if args.min_points is None:
+            params["min_points"] = 2 * hp["order"] + 1
+
+
 def _prepare_method(args: argparse.Namespace) -> tuple[_Method, dict[str, Any]]:
     method = _METHODS[args.method]
     for other in _METHODS.values():
@@ -898,12 +955,15 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     from hocnet.plot import plot_before_after
 
     method, params = _prepare_method(args)
+    _load_weights(args, method.name, params)
     params["max_per_frame"] = _check_int("--max-per-frame", args.max_per_frame, minimum=1)
     binary = params.pop("binary", method.binary)
     out = _check_out_dir(args.out)
     inputs = {"CUBE": Path(args.cube)}
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
+    if args.weights is not None:
+        inputs["--weights"] = Path(args.weights)
     if _frames_source(args.cube):
         from hocnet.data.frames import frame_files
 
@@ -1146,6 +1206,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="output folder (default: detect-output)",
     )
     detect.add_argument("--no-plot", action="store_true", help="do not write the PNG picture(s)")
+    detect.add_argument(
+        "--weights",
+        default=None,
+        metavar="CKPT",
+        help="learned weights: a checkpoint of `hocnet train` (dpa: a DPATuner's b, g and "
+        "matrices; hoc: a LearnedHOCSystem's kernels, order, v and delta) used instead of the "
+        "fixed ones; read with torch.load(weights_only=True); needs the learn extra. The "
+        "pre-processing still follows --preset: hocnet train dpa trains on anti-mean whitened "
+        "frames, i.e. --preset paper's pre-processing",
+    )
     detect.add_argument(
         "--max-per-frame",
         type=int,

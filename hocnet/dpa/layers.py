@@ -4,6 +4,8 @@ Parameters are fixed by default (the probability matrices are a buffer). Any of 
 ``p`` and ``penalty`` (the penalty step ``x`` of Figure 2) can be made learnable; they are then
 stored unconstrained and mapped to their valid ranges in the property accessors, and the matrices
 are rebuilt differentiably from ``p`` and ``penalty_step`` (eq. 5) at every forward pass.
+``"matrices"`` instead learns every entry of the ``D`` matrices (the full ``9 x k x k``
+parameterisation, our addition; see :func:`full_matrices`).
 """
 
 from __future__ import annotations
@@ -33,9 +35,9 @@ from hocnet.dpa.matrices import (
     probability_matrices,
 )
 
-__all__ = ["DPA"]
+__all__ = ["DPA", "full_matrices"]
 
-LEARNABLE = ("b", "g", "p", "penalty")
+LEARNABLE = ("b", "g", "p", "penalty", "matrices")
 #: Largest penalty step ``x`` (the paper's 3: the opposite side gets ``12 - 4x = 0``).
 _X_MAX = PENALTY_TOP / 4
 #: Distance kept from the boundary of a constrained parameter when it is initialised on it.
@@ -45,6 +47,36 @@ _MARGIN = 1e-6
 def _inverse_softplus(x: float) -> float:
     """``y`` with ``softplus(y) == x`` for ``x > 0``."""
     return x + math.log(-math.expm1(-x))
+
+
+def full_matrices(init: torch.Tensor, total: torch.Tensor, raw: torch.Tensor) -> torch.Tensor:
+    r"""The full learnable matrices: a softmax over each matrix's window (our addition).
+
+    ``W(d) = S(d) softmax(log W0(d) + raw(d))`` over the ``k x k`` window of each matrix ``d``,
+    computed as ``u = W0 exp(raw)``, ``W = u S / sum(u)`` with ``S = sum(W0)`` (``total``): every
+    matrix stays non-negative with the sum of its initial matrix (1 for the matrices of eq. (5)
+    of [NR08]), and ``raw = 0`` gives ``W0`` bit for bit (``exp(0) = 1`` and ``S / sum(u) = 1``
+    exactly). Entries that are 0 in ``W0`` stay 0 (the matrices of eq. (5) have none: W_basic is
+    a Gaussian over the whole window).
+
+    Args:
+        init: ``(D, k, k)`` initial matrices ``W0 >= 0``, each with a positive sum.
+        total: ``(D, 1, 1)`` their sums ``S`` (``init.sum(dim=(-2, -1), keepdim=True)``).
+        raw: ``(D, k, k)`` unconstrained logits (0 at initialisation).
+
+    Returns:
+        ``(D, k, k)`` matrices, differentiable in ``raw``.
+
+    Examples:
+        >>> w0 = torch.tensor([[[0.25, 0.75]]])
+        >>> s = w0.sum(dim=(-2, -1), keepdim=True)
+        >>> torch.equal(full_matrices(w0, s, torch.zeros(1, 1, 2)), w0)
+        True
+        >>> full_matrices(w0, s, torch.tensor([[[math.log(3.0), 0.0]]])).tolist()
+        [[[0.5, 0.5]]]
+    """
+    u = init * torch.exp(raw)
+    return u * (total / u.sum(dim=(-2, -1), keepdim=True))
 
 
 class DPA(nn.Module):
@@ -65,7 +97,11 @@ class DPA(nn.Module):
         ``p = sigmoid(p_raw)`` in ``[0, 1]``, ``b = softplus(b_raw) >= 0`` and
         ``penalty_step = 3 sigmoid(penalty_raw)`` in ``[0, 3]``; a learnable value initialised on
         its bound (``g`` or ``p`` in {0, 1}, ``b = 0``, ``penalty_step`` in {0, 3}, so the paper's
-        ``x = 3``) starts ``1e-6`` inside it.
+        ``x = 3``) starts ``1e-6`` inside it. ``learnable`` with ``"matrices"`` (our addition)
+        learns every entry of the ``(D, k, k)`` matrices instead of ``p`` and ``x``: they start
+        from ``weights`` (or the matrices of eq. (5) built from the keyword arguments), so the
+        initial module equals the fixed one exactly, and stay non-negative with the initial
+        sums (:func:`full_matrices`: a softmax over each window, logits ``matrices_raw``).
 
     Args:
         weights: ``(D, k, k)`` probability matrices (``D`` in {1, 9}); ``None`` builds them with
@@ -80,8 +116,10 @@ class DPA(nn.Module):
         p: mixing weight of W_basic in eq. (5), in ``[0, 1]``.
         penalty_step: the penalty ``x`` per 45 degrees of turn (Figure 2), in ``[0, 3]``.
         directional: 9 direction-dependent matrices (``True``) or one matrix (``False``).
-        learnable: subset of ``("b", "g", "p", "penalty")`` to make ``nn.Parameter``\ s; ``"p"``
-            and ``"penalty"`` need ``weights=None`` and ``directional=True``.
+        learnable: subset of ``("b", "g", "p", "penalty", "matrices")`` to make
+            ``nn.Parameter``\ s; ``"p"`` and ``"penalty"`` need ``weights=None`` and
+            ``directional=True``; ``"matrices"`` (every matrix entry) excludes ``"p"`` and
+            ``"penalty"``.
         smooth: temperature of the log-sum-exp max, or ``None`` for the hard max.
         var_table: optional ``(9, 9)`` direction-similarity table (directional only).
         memory: effective memory coefficient used when ``b`` is ``None``, ``> 0``.
@@ -152,6 +190,12 @@ class DPA(nn.Module):
             None if smooth is None else check_number("smooth", smooth, low=0.0, low_inclusive=False)
         )
         rebuild = "p" in self.learnable or "penalty" in self.learnable
+        full = "matrices" in self.learnable
+        if full and rebuild:
+            raise ValueError(
+                "`learnable`: expected 'matrices' (every entry) or 'p' / 'penalty' (eq. 5), not "
+                f"both, got {self.learnable}"
+            )
         if weights is not None:
             if rebuild:
                 raise ValueError(
@@ -167,6 +211,10 @@ class DPA(nn.Module):
                     f"shape {tuple(weights.shape)}, got {directional}"
                 )
             self.register_buffer("fixed_weights", weights.detach().clone())
+        elif full:
+            built = probability_matrices(window, v_max, jitter, psf, p, penalty_step)
+            fixed = built if directional else built[IN_PLACE : IN_PLACE + 1]
+            self.register_buffer("fixed_weights", fixed.contiguous())
         elif rebuild:
             if not directional:
                 raise ValueError(
@@ -182,6 +230,15 @@ class DPA(nn.Module):
             built = probability_matrices(window, v_max, jitter, psf, p, penalty_step)
             fixed = built if directional else built[IN_PLACE : IN_PLACE + 1]
             self.register_buffer("fixed_weights", fixed.contiguous())
+        if full:
+            init = self.fixed_weights
+            total = init.sum(dim=(-2, -1), keepdim=True)
+            if not bool((total > 0).all()):
+                raise ValueError("`weights`: expected matrices with positive sums for 'matrices'")
+            self.register_buffer("matrices_init", init)
+            self.register_buffer("matrices_sum", total)
+            self.register_buffer("fixed_weights", None)
+            self.matrices_raw = nn.Parameter(torch.zeros_like(init))
         if var_table is not None:
             if not directional:
                 raise ValueError("`var_table`: expected None with directional=False")
@@ -236,10 +293,13 @@ class DPA(nn.Module):
     def weights(self) -> torch.Tensor:
         """The current ``(D, k, k)`` probability matrices.
 
-        Rebuilt from ``p`` and ``penalty_step`` when those are learnable, and rescaled by
+        Rebuilt from ``p`` and ``penalty_step`` when those are learnable, from the learned
+        logits (:func:`full_matrices`) with ``"matrices"``, and rescaled by
         :func:`~hocnet.dpa.matrices.equalize_gain` at the current ``g`` when ``equal_gain``.
         """
-        if self.fixed_weights is not None:
+        if "matrices" in self.learnable:
+            w = full_matrices(self.matrices_init, self.matrices_sum, self.matrices_raw)
+        elif self.fixed_weights is not None:
             w = self.fixed_weights
         else:
             w = _combine(self.basic, self.frame, self.turns, self.p, self.penalty_step)

@@ -6,11 +6,17 @@ the hyper-parameters as ``split_seeds`` (``{split: [first, last + 1]}``), so the
 the same arguments yields the same scenes bit for bit.
 
 * :class:`IRSceneDataModule`: IR sequences of :func:`hocnet.data.simulate_ir` ([NR08]) with random
-  straight targets (peak SNR, speed 0.1-2 px/frame, heading), whitened by anti-mean or anti-median;
+  targets (peak SNR, speed 0.1-2 px/frame, heading), whitened by anti-mean or anti-median;
   each sample also holds the whitened target-free frames (same clouds, jitter and noise) for a
   per-pixel false-alarm threshold.
 * :class:`BinarySceneDataModule`: binary scans of :func:`hocnet.data.simulate_binary` ([LA98]) with
-  random straight targets and uniform clutter; each sample holds the per-point target labels.
+  random targets and uniform clutter; each sample holds the per-point target labels.
+
+Targets move straight by default; ``turn_rate`` (gentle turns, rad/frame) and ``maneuver_prob``
+(one sharp maneuver: a heading change up to ``maneuver_turn`` and a new speed drawn from
+``speed``, i.e. an acceleration or deceleration) make them maneuver (our addition; the
+simulators' own ``turn_rate`` / ``turn_at`` in the IR case, two consecutive track pieces in the
+binary case). Every random number comes from the scene's seed.
 """
 
 from __future__ import annotations
@@ -83,23 +89,85 @@ def _uniform(gen: torch.Generator, lo: float, hi: float) -> float:
     return lo + (hi - lo) * float(torch.rand((), generator=gen, dtype=torch.float64))
 
 
-def _straight_track(
-    gen: torch.Generator, shape: tuple[int, int, int], speed: tuple[float, float], margin: float
-) -> tuple[float, float, float, float]:
-    """Start ``(x0, y0)`` and velocity ``(vx, vy)`` of a track inside the frame (``margin`` px)."""
+class _Track:
+    """A drawn track: start ``(x0, y0)``, first velocity, turn rate, optional maneuver."""
+
+    def __init__(self, x0, y0, vx, vy, rate, turn_at, new_velocity) -> None:
+        self.x0, self.y0, self.vx, self.vy = x0, y0, vx, vy
+        self.rate, self.turn_at, self.new_velocity = rate, turn_at, new_velocity
+
+
+def _relative_positions(
+    n: int, vx: float, vy: float, rate: float, turn_at: int | None, new_v: Any
+) -> list[tuple[float, float]]:
+    """Positions of frames ``0 .. n - 1`` from ``(0, 0)`` (the stepping of ``IRTarget``).
+
+    Step ``t -> t + 1`` moves by ``v_t``: ``v_0 = (vx, vy)``, ``v_t = R(rate) v_{t-1}``, except
+    ``v_turn_at = new_v`` (then rotated on).
+    """
+    c, s = math.cos(rate), math.sin(rate)
+    x = y = 0.0
+    out = []
+    for t in range(n):
+        out.append((x, y))
+        if t > 0 and rate != 0.0:
+            vx, vy = c * vx - s * vy, s * vx + c * vy
+        if t == turn_at:
+            vx, vy = new_v
+        x, y = x + vx, y + vy
+    return out
+
+
+def _maneuvering_track(
+    gen: torch.Generator,
+    shape: tuple[int, int, int],
+    speed: tuple[float, float],
+    margin: float,
+    turn_rate: tuple[float, float],
+    maneuver_prob: float,
+    maneuver_turn: float,
+) -> _Track:
+    """A seeded track inside the frame (``margin`` px): straight, turning, or maneuvering.
+
+    Draws, in this order: speed, heading; if ``turn_rate != (0, 0)``: the turn rate (magnitude
+    uniform in ``turn_rate``, random sign); if ``maneuver_prob > 0``: whether the target
+    maneuvers, the frame ``turn_at`` (uniform in ``1 .. T - 2``), the heading change (uniform in
+    ``[-maneuver_turn, maneuver_turn]``) and the new speed (uniform in ``speed``: an
+    acceleration or a deceleration); finally the start, uniform where the whole trajectory stays
+    inside. Without turns and maneuvers the draws are those of a straight track.
+    """
     t_len, h, w = shape
     v = _uniform(gen, *speed)
     heading = _uniform(gen, -math.pi, math.pi)
     vx, vy = v * math.cos(heading), v * math.sin(heading)
-    span_x, span_y = vx * (t_len - 1), vy * (t_len - 1)
-    x_lo, x_hi = margin - min(0.0, span_x), w - 1 - margin - max(0.0, span_x)
-    y_lo, y_hi = margin - min(0.0, span_y), h - 1 - margin - max(0.0, span_y)
+    rate = 0.0
+    if turn_rate != (0.0, 0.0):
+        rate = _uniform(gen, *turn_rate)
+        if float(torch.rand((), generator=gen, dtype=torch.float64)) < 0.5:
+            rate = -rate
+    turn_at, new_v = None, None
+    if maneuver_prob > 0:
+        happens = float(torch.rand((), generator=gen, dtype=torch.float64)) < maneuver_prob
+        at = 1 + int(torch.randint(max(1, t_len - 2), (), generator=gen))
+        turn = _uniform(gen, -maneuver_turn, maneuver_turn)
+        v_new = _uniform(gen, *speed)
+        if happens and t_len >= 3:
+            turn_at = at
+            # the heading at frame `at` (before the maneuver): rotated `at - 1` times
+            bearing = heading + rate * (at - 1) + turn
+            new_v = (v_new * math.cos(bearing), v_new * math.sin(bearing))
+    rel = _relative_positions(t_len, vx, vy, rate, turn_at, new_v)
+    xs, ys = [p[0] for p in rel], [p[1] for p in rel]
+    x_lo, x_hi = margin - min(xs), w - 1 - margin - max(xs)
+    y_lo, y_hi = margin - min(ys), h - 1 - margin - max(ys)
     if x_lo > x_hi or y_lo > y_hi:
         raise ValueError(
             f"`shape`: expected a frame large enough for {t_len} frames at {v:.3g} px/frame "
             f"with a {margin:g} px margin, got {shape}"
         )
-    return _uniform(gen, x_lo, x_hi), _uniform(gen, y_lo, y_hi), vx, vy
+    return _Track(
+        _uniform(gen, x_lo, x_hi), _uniform(gen, y_lo, y_hi), vx, vy, rate, turn_at, new_v
+    )
 
 
 def _check_fits(shape: tuple[int, int, int], speed: tuple[float, float], margin: float) -> None:
@@ -133,6 +201,23 @@ class _SceneDataModule(L.LightningDataModule):
         sizes = {"train": n_train, "val": n_val, "test": n_test}
         self.hparams["split_seeds"] = split_seeds(seed, sizes)
         self.datasets: dict[str, _Scenes] = {}
+
+    def _init_maneuvers(self, turn_rate: Any, maneuver_prob: float, maneuver_turn: float) -> None:
+        self.turn_rate = _range("turn_rate", turn_rate, 0.0, math.pi / 4)
+        check_number("maneuver_prob", maneuver_prob, low=0.0, high=1.0)
+        check_number("maneuver_turn", maneuver_turn, low=0.0, high=math.pi)
+
+    def _track(self, gen: torch.Generator, margin: float) -> _Track:
+        hp = self.hparams
+        return _maneuvering_track(
+            gen,
+            self.shape,
+            self.speed,
+            margin,
+            self.turn_rate,
+            hp["maneuver_prob"],
+            hp["maneuver_turn"],
+        )
 
     def make_scene(self, seed: int) -> dict[str, torch.Tensor]:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -183,14 +268,16 @@ class IRSceneDataModule(_SceneDataModule):
 
     Each scene (seed ``s``) draws, from ``torch.Generator().manual_seed(s)``, for each of the
     ``n_targets`` targets a peak SNR uniform in ``snr_db``, a speed uniform in ``speed`` and a
-    uniform heading, and a start such that the track stays ``margin`` px inside the frame; the
-    same generator then draws the noise, jitter and clouds. The frames and the target-free frames
+    uniform heading, the turn and maneuver (module docstring), and a start such that the track
+    stays ``margin`` px inside the frame; the same generator then draws the noise, jitter and
+    clouds. The frames and the target-free frames
     are whitened (``whiten``, 7 x 7 ring with a 3 x 3 guard).
 
     A sample is a dict of ``frames`` and ``target_free`` float32 ``(T, H, W)`` (whitened),
-    ``positions`` float32 ``(N, T, 2)`` true ``(x, y)`` (jitter included), and ``pixels`` int64
+    ``positions`` float32 ``(N, T, 2)`` true ``(x, y)`` (jitter included), ``pixels`` int64
     ``(N, T)``: the flat index ``y * W + x`` of the pixel nearest to each true position (clamped
-    to the frame). Batches stack them to ``(B, T, H, W)``, ``(B, N, T, 2)``, ``(B, N, T)``.
+    to the frame), and ``maneuver_at`` int64 ``(N,)``: each target's maneuver frame (-1: none).
+    Batches stack them to ``(B, T, H, W)``, ``(B, N, T, 2)``, ``(B, N, T)``, ``(B, N)``.
 
     Args:
         n_train: number of training scenes.
@@ -200,6 +287,11 @@ class IRSceneDataModule(_SceneDataModule):
         snr_db: peak SNR in dB, a number or a range ``(lo, hi)``.
         speed: target speed in px/frame, a number or a range within ``[0, 2]``.
         n_targets: targets per scene (``>= 1``).
+        turn_rate: magnitude of the gentle turn in rad/frame (random sign), a number or a range
+            within ``[0, pi / 4]``; 0: straight.
+        maneuver_prob: probability that a target makes one sharp maneuver (at a frame uniform in
+            ``1 .. T - 2``).
+        maneuver_turn: largest heading change of a maneuver in radians, in ``[0, pi]``.
         clouds: cloud preset, ``"clear"``, ``"wispy"`` or ``"bright"``.
         jitter: jitter bound in pixels.
         whiten: ``"anti_mean"`` or ``"anti_median"``.
@@ -226,6 +318,9 @@ class IRSceneDataModule(_SceneDataModule):
         snr_db: float | tuple[float, float] = (9.0, 15.0),
         speed: float | tuple[float, float] = (0.1, 2.0),
         n_targets: int = 1,
+        turn_rate: float | tuple[float, float] = 0.0,
+        maneuver_prob: float = 0.0,
+        maneuver_turn: float = math.pi / 2,
         clouds: str = "clear",
         jitter: float = 0.5,
         whiten: str = "anti_mean",
@@ -239,6 +334,7 @@ class IRSceneDataModule(_SceneDataModule):
         self.snr_db = _range("snr_db", snr_db, -math.inf, math.inf)
         self.speed = _range("speed", speed, 0.0, 2.0)
         check_int("n_targets", n_targets, minimum=1)
+        self._init_maneuvers(turn_rate, maneuver_prob, maneuver_turn)
         check_choice("clouds", clouds, tuple(CLOUD_PRESETS))
         check_number("jitter", jitter, low=0.0)
         check_choice("whiten", whiten, tuple(_WHITEN))
@@ -250,11 +346,17 @@ class IRSceneDataModule(_SceneDataModule):
         """The sample of scene ``seed`` (see the class docstring)."""
         hp = self.hparams
         gen = torch.Generator().manual_seed(seed)
-        targets = []
+        targets, turns = [], []
         for _ in range(hp["n_targets"]):
             snr = _uniform(gen, *self.snr_db)
-            x0, y0, vx, vy = _straight_track(gen, self.shape, self.speed, hp["margin"])
-            targets.append(IRTarget(x0, y0, vx, vy, snr_db=snr))
+            tr = self._track(gen, hp["margin"])
+            targets.append(
+                IRTarget(
+                    tr.x0, tr.y0, tr.vx, tr.vy, snr_db=snr, turn_rate=tr.rate,
+                    turn_at=tr.turn_at, new_velocity=tr.new_velocity,
+                )
+            )  # fmt: skip
+            turns.append(-1 if tr.turn_at is None else tr.turn_at)
         seq = simulate_ir(
             self.shape, targets, clouds=hp["clouds"], jitter=hp["jitter"], generator=gen
         )
@@ -267,6 +369,7 @@ class IRSceneDataModule(_SceneDataModule):
             "target_free": whiten(seq.target_free).float(),
             "positions": seq.positions.float(),
             "pixels": y * w + x,
+            "maneuver_at": torch.tensor(turns, dtype=torch.int64),
         }
 
 
@@ -274,13 +377,17 @@ class BinarySceneDataModule(_SceneDataModule):
     """Binary scans of :func:`~hocnet.data.simulate_binary` [LA98] with per-point labels.
 
     Each scene (seed ``s``) draws, from ``torch.Generator().manual_seed(s)``, ``n_targets``
-    straight targets (speed uniform in ``speed`` px/scan, uniform heading, start such that the
-    track stays ``margin`` px inside the frame, miss probability ``p_miss``), then the uniform
-    clutter of density ``clutter_density`` (a number or a range drawn per scene).
+    targets (speed uniform in ``speed`` px/scan, uniform heading, the turn and maneuver of the
+    module docstring, start such that the track stays ``margin`` px inside the frame, miss
+    probability ``p_miss``), then the uniform clutter of density ``clutter_density`` (a number
+    or a range drawn per scene). A maneuvering target is drawn as two consecutive pieces (scans
+    ``0 .. turn_at - 1`` and ``turn_at ..``, the second starting where the first course puts
+    the target at ``turn_at``).
 
     A sample is a dict of ``cube`` float32 0/1 ``(T, H, W)`` (target points OR clutter, eq. (1)
-    of [LA98]) and ``target`` bool ``(T, H, W)`` (the on-pixels that are target points; the
-    clutter points are ``cube & ~target``).
+    of [LA98]), ``target`` bool ``(T, H, W)`` (the on-pixels that are target points; the
+    clutter points are ``cube & ~target``) and ``maneuver_at`` int64 ``(N,)`` (each target's
+    maneuver scan, -1: none).
 
     Args:
         n_train: number of training scenes.
@@ -290,6 +397,11 @@ class BinarySceneDataModule(_SceneDataModule):
         clutter_density: fraction of clutter pixels per scan, a number or a range in ``[0, 1]``.
         speed: target speed in px/scan, a number or a range within ``[0, 2]``.
         n_targets: targets per scene (``>= 0``).
+        turn_rate: magnitude of the gentle turn in rad/scan (random sign), a number or a range
+            within ``[0, pi / 4]``; 0: straight.
+        maneuver_prob: probability that a target makes one sharp maneuver (at a scan uniform in
+            ``1 .. T - 2``).
+        maneuver_turn: largest heading change of a maneuver in radians, in ``[0, pi]``.
         p_miss: probability that a target point is missing.
         margin: distance in pixels kept between every track and the frame border.
         batch_size: scenes per batch.
@@ -312,6 +424,9 @@ class BinarySceneDataModule(_SceneDataModule):
         clutter_density: float | tuple[float, float] = 0.02,
         speed: float | tuple[float, float] = (0.1, 2.0),
         n_targets: int = 2,
+        turn_rate: float | tuple[float, float] = 0.0,
+        maneuver_prob: float = 0.0,
+        maneuver_turn: float = math.pi / 2,
         p_miss: float = 0.0,
         margin: float = 1.0,
         batch_size: int = 8,
@@ -323,6 +438,7 @@ class BinarySceneDataModule(_SceneDataModule):
         self.density = _range("clutter_density", clutter_density, 0.0, 1.0)
         self.speed = _range("speed", speed, 0.0, 2.0)
         check_int("n_targets", n_targets, minimum=0)
+        self._init_maneuvers(turn_rate, maneuver_prob, maneuver_turn)
         check_number("p_miss", p_miss, low=0.0, high=1.0)
         _check_fits(self.shape, self.speed, check_number("margin", margin, low=0.0))
         check_int("batch_size", batch_size, minimum=1)
@@ -332,10 +448,25 @@ class BinarySceneDataModule(_SceneDataModule):
         """The sample of scene ``seed`` (see the class docstring)."""
         hp = self.hparams
         gen = torch.Generator().manual_seed(seed)
-        specs = []
+        specs, turns = [], []
         for _ in range(hp["n_targets"]):
-            x0, y0, vx, vy = _straight_track(gen, self.shape, self.speed, hp["margin"])
-            specs.append(TargetSpec((x0, y0), (vx, vy), p_miss=hp["p_miss"]))
+            tr = self._track(gen, hp["margin"])
+            kw = {"turn_rate": tr.rate, "p_miss": hp["p_miss"]}
+            if tr.turn_at is None:
+                specs.append(TargetSpec((tr.x0, tr.y0), (tr.vx, tr.vy), **kw))
+                turns.append(-1)
+                continue
+            rel = _relative_positions(
+                tr.turn_at + 1, tr.vx, tr.vy, tr.rate, tr.turn_at, tr.new_velocity
+            )
+            start = (tr.x0 + rel[-1][0], tr.y0 + rel[-1][1])
+            specs.append(TargetSpec((tr.x0, tr.y0), (tr.vx, tr.vy), last_scan=tr.turn_at - 1, **kw))
+            specs.append(TargetSpec(start, tr.new_velocity, first_scan=tr.turn_at, **kw))
+            turns.append(tr.turn_at)
         density = _uniform(gen, *self.density)
         scene = simulate_binary(self.shape, specs, clutter_density=density, generator=gen)
-        return {"cube": scene.cube.float(), "target": scene.target_mask & scene.cube}
+        return {
+            "cube": scene.cube.float(),
+            "target": scene.target_mask & scene.cube,
+            "maneuver_at": torch.tensor(turns, dtype=torch.int64),
+        }

@@ -4,8 +4,9 @@ The models stay plain ``nn.Module``\\ s (:class:`hocnet.dpa.DPA`, :class:`hocnet
 the systems hold the training logic only, and :func:`load_model` turns a checkpoint back into the
 plain module (``torch.load(..., weights_only=True)``).
 
-* :class:`DPATuner` tunes ``b``, ``g``, ``p`` and the penalty step ``x`` of [NR08] through the
-  smooth (log-sum-exp) max, its temperature annealed geometrically towards the hard max.
+* :class:`DPATuner` tunes ``b``, ``g``, ``p`` and the penalty step ``x`` of [NR08] (or ``b``,
+  ``g`` and every entry of the 9 matrices, ``matrices="full"``) through the smooth
+  (log-sum-exp) max, its temperature annealed geometrically towards the hard max.
 * :class:`LearnedHOCSystem` learns the direction-masked and shift kernels of the MHOC network of
   [LA98] (forward OR backward stacks) with a relaxed hard limiter, scored per input point.
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 from collections.abc import Sequence
 from typing import Any
 
@@ -87,11 +89,15 @@ class DPATuner(L.LightningModule):
     r"""Tune the DPA's ``b``, ``g``, ``p`` and penalty step by gradient [NR08] (our addition).
 
     The model is ``DPA(window=window, v_max=v_max, b=b, g=g, p=p, penalty_step=penalty_step,
-    learnable=learnable, smooth=tau_start)``, the paper's parameterisation (one penalty step
-    ``x``). Constraints are those of the DPA's parameterisation (``g``, ``p`` in ``[0, 1]``,
-    ``x`` in ``[0, 3]``, ``b >= 0``) plus a projection after every optimiser step that keeps
-    ``b <= b_margin * b_limit(weights, g)``, inside the memory range of eq. (12)-(14) (an
-    initial ``b`` above it is moved there too).
+    learnable=learnable, smooth=tau_start)``: with ``matrices="paper"`` the paper's
+    parameterisation (eq. (5): ``p`` and one penalty step ``x``), with ``matrices="full"`` (our
+    addition) every entry of the ``9 x k x k`` matrices is learned instead of ``p`` and ``x``
+    (``"p"`` and ``"penalty"`` in ``learnable`` are replaced by ``"matrices"``; the matrices
+    start from eq. (5) at ``p`` and ``penalty_step`` and stay non-negative with sum 1, a softmax
+    over each window: :func:`hocnet.dpa.layers.full_matrices`). Constraints are those of the
+    DPA's parameterisation (``g``, ``p`` in ``[0, 1]``, ``x`` in ``[0, 3]``, ``b >= 0``) plus a
+    projection after every optimiser step that keeps ``b <= b_margin * b_limit(weights, g)``,
+    inside the memory range of eq. (12)-(14) (an initial ``b`` above it is moved there too).
 
     Loss (our choice): :func:`dpa_loss` of the last ASF against the true last-frame target
     pixel, plus ``track_weight`` times the mean :func:`dpa_loss` of the ASFs of frames
@@ -100,7 +106,9 @@ class DPATuner(L.LightningModule):
     eq. (8). Training uses the smooth max with
     temperature ``tau`` annealed geometrically from ``tau_start`` (epoch 0) to ``tau_end`` (last
     epoch); validation and test use the hard max, and the test also logs the loss with the
-    smooth max at ``tau_end`` and the gap ``test/smooth_gap = loss_smooth - loss_hard``.
+    smooth max at ``tau_end`` and the gap ``test/smooth_gap = loss_smooth - loss_hard``, and
+    ``test/asf_gap``, the mean ``|ASF_smooth - ASF_hard|`` of the last frame in units of each
+    scene's hard-ASF standard deviation (what training optimised versus what is deployed).
 
     Metrics per stage (hard max in val / test): ``{stage}/loss``; ``{stage}/hit1``, the fraction
     of scenes whose last-ASF argmax is within ``radius`` px (Chebyshev) of a target;
@@ -108,7 +116,8 @@ class DPATuner(L.LightningModule):
     every pixel of the target-free frames' last ASF; ``{stage}/pd``, the fraction of targets
     above the per-pixel threshold for false-alarm probability ``pfa`` estimated over the stage's
     target-free last ASFs (an epoch-level quantile: with ``n`` target-free pixels it is
-    meaningful for ``pfa >> 1 / n``).
+    meaningful for ``pfa >> 1 / n``), and ``{stage}/pfa``, the fraction of target-free pixels
+    above that threshold (the realised false-alarm rate, at most ``pfa``).
 
     Args:
         window: odd window size of the probability matrices.
@@ -117,7 +126,8 @@ class DPATuner(L.LightningModule):
         g: initial sum/max mixing (paper: 0).
         p: initial W_basic mixing weight of eq. (5) (paper: 0.5).
         penalty_step: initial penalty step ``x`` (paper: 3).
-        learnable: names among ``("b", "g", "p", "penalty")``.
+        learnable: names among ``("b", "g", "p", "penalty", "matrices")``.
+        matrices: ``"paper"`` (eq. (5): ``p`` and ``x``) or ``"full"`` (every matrix entry).
         init_margin: learnable ``g`` / ``p`` start at least this far inside ``[0, 1]`` and ``x``
             ``3 * init_margin`` inside ``[0, 3]`` (our choice: on the bound, the sigmoid's
             gradient is about ``1e-6`` and the parameter could not move).
@@ -146,6 +156,7 @@ class DPATuner(L.LightningModule):
         p: float = 0.5,
         penalty_step: float = 3.0,
         learnable: Sequence[str] = ("b", "g", "p", "penalty"),
+        matrices: str = "paper",
         init_margin: float = 0.02,
         lr: float = 0.05,
         temperature: float = 1.0,
@@ -160,6 +171,9 @@ class DPATuner(L.LightningModule):
         super().__init__()
         learnable = (learnable,) if isinstance(learnable, str) else tuple(learnable)
         self.save_hyperparameters()
+        if check_choice("matrices", matrices, ("paper", "full")) == "full":
+            kept = (n for n in learnable if n not in ("p", "penalty", "matrices"))
+            learnable = (*kept, "matrices")
         self.hparams["learnable"] = list(learnable)
         L.seed_everything(check_int("seed", seed, minimum=0), verbose=False)
         margin = check_number("init_margin", init_margin, low=0.0, high=0.5)
@@ -247,10 +261,15 @@ class DPATuner(L.LightningModule):
                 self.log(f"{stage}/auroc", self.metrics[f"{stage}_auroc"], batch_size=bsz)
         if stage == "test":
             self.model.smooth = self.tau_end
-            smooth = self.loss(self.model(frames).asf, pixels)
+            soft = self.model(frames).asf
+            smooth = self.loss(soft, pixels)
             self.model.smooth = None
             self.log("test/loss_smooth", smooth, batch_size=bsz)
             self.log("test/smooth_gap", smooth - loss, batch_size=bsz)
+            hard_last = asf[:, -1].detach().flatten(1)
+            scale = hard_last.std(1).clamp_min(1e-12) if hard_last.shape[1] > 1 else 1.0
+            diff = (soft[:, -1].detach().flatten(1) - hard_last).abs().mean(1) / scale
+            self.log("test/asf_gap", diff.mean(), batch_size=bsz)
         return loss
 
     def _epoch_pd(self, stage: str) -> None:
@@ -261,6 +280,7 @@ class DPATuner(L.LightningModule):
         k = max(1, math.floor(self.hparams["pfa"] * neg.numel()))
         threshold = neg.topk(k).values[-1]
         self.log(f"{stage}/pd", (pos > threshold).double().mean().float(), prog_bar=True)
+        self.log(f"{stage}/pfa", (neg > threshold).double().mean().float())
         self.log(f"{stage}/threshold", threshold.float())
         pos_m.reset()
         neg_m.reset()
@@ -349,8 +369,10 @@ class LearnedHOCSystem(L.LightningModule):
     (losing a target point is what [LA98] never allows). Metrics per stage:
     ``{stage}/clutter_rejection`` (mean over scenes, :func:`hocnet.metrics.clutter_rejection`),
     ``{stage}/target_points_lost`` (sum, :func:`hocnet.metrics.target_points_lost`), ``{stage}/pd``
-    (kept target points / target points) and ``{stage}/pfa`` (kept clutter points / clutter
-    points) -- in training on the output thresholded at 0.5.
+    (kept target points / target points), ``{stage}/pfa`` (kept clutter points / clutter
+    points) -- in training on the output thresholded at 0.5 -- and ``{stage}/auroc`` (the
+    output as the score of each on-pixel, target versus clutter; with the hard limiter a
+    two-level score).
 
     Args:
         order: HOC order ``k``.
@@ -391,6 +413,7 @@ class LearnedHOCSystem(L.LightningModule):
         self.metrics = nn.ModuleDict()
         for stage in STAGES:
             self.metrics[f"{stage}_rejection"] = MeanMetric()
+            self.metrics[f"{stage}_auroc"] = BinaryAUROC()
             self.metrics[f"{stage}_lost"] = SumMetric()
             for name in ("tp", "t", "fp", "c"):
                 self.metrics[f"{stage}_{name}"] = SumMetric()
@@ -413,6 +436,8 @@ class LearnedHOCSystem(L.LightningModule):
         self.log(f"{stage}/loss", loss, prog_bar=stage != "train", batch_size=bsz)
         with torch.no_grad():
             kept = out.detach() > 0.5
+            if prob.numel():
+                self.metrics[f"{stage}_auroc"].update(out.detach()[points], target[points].long())
             self.metrics[f"{stage}_rejection"].update(clutter_rejection(points, kept, target))
             self.metrics[f"{stage}_lost"].update(target_points_lost(points, kept, target))
             clutter = points & ~target
@@ -423,6 +448,8 @@ class LearnedHOCSystem(L.LightningModule):
             kw = {"batch_size": bsz, "on_step": False, "on_epoch": True}
             self.log(f"{stage}/clutter_rejection", self.metrics[f"{stage}_rejection"], **kw)
             self.log(f"{stage}/target_points_lost", self.metrics[f"{stage}_lost"], **kw)
+            if prob.numel():
+                self.log(f"{stage}/auroc", self.metrics[f"{stage}_auroc"], **kw)
         return loss
 
     def _epoch_rates(self, stage: str) -> None:
@@ -494,9 +521,27 @@ def load_model(ckpt_path: str | os.PathLike) -> nn.Module:
         The ``nn.Module``.
 
     Raises:
-        ValueError: the checkpoint holds neither system.
+        ValueError: the checkpoint holds neither system, is corrupted, or holds pickled
+            objects that ``weights_only`` loading refuses (an untrusted pickle: nothing of it is
+            run).
+        OSError: the file cannot be read (e.g. ``FileNotFoundError``).
     """
-    ckpt = torch.load(os.fspath(ckpt_path), map_location="cpu", weights_only=True)
+    path = os.fspath(ckpt_path)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as err:
+        if "weights only" in str(err).lower():
+            raise ValueError(
+                f"`ckpt_path`: refused {path!r}: it holds pickled objects other than tensors and "
+                "plain containers (an untrusted pickle; only weights_only=True loading is done)"
+            ) from None
+        message = f"`ckpt_path`: {path!r} is not a readable checkpoint (corrupted?)"
+        raise ValueError(message) from None
+    except (RuntimeError, EOFError, KeyError, IndexError, ValueError, TypeError) as err:
+        detail = str(err).splitlines()[0][:80] if str(err) else type(err).__name__
+        raise ValueError(
+            f"`ckpt_path`: {path!r} is not a readable checkpoint (corrupted?): {detail}"
+        ) from None
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise ValueError(f"`ckpt_path`: expected a Lightning checkpoint, got {ckpt_path!r}")
     hp = dict(ckpt.get("hyper_parameters", {}))

@@ -1,3 +1,5 @@
+import math
+
 import pytest
 import torch
 from torch.func import functional_call
@@ -228,3 +230,80 @@ class TestPaperDefaults:
             return functional_call(dpa, dict(zip(names, values, strict=True)), (frames,)).asf
 
         assert torch.autograd.gradcheck(fn, (frames, *params))
+
+
+class TestFullMatrices:
+    """learnable="matrices": every entry of the D matrices (softmax over each window)."""
+
+    def test_initial_module_equals_fixed_exactly(self):
+        frames = torch.randn(2, 4, 9, 9, generator=torch.Generator().manual_seed(0))
+        for directional in (True, False):
+            kw = {"window": 5, "v_max": 1.0, "g": 0.3, "directional": directional}
+            fixed = DPA(**kw)
+            full = DPA(**kw, learnable=("b", "matrices"))
+            assert torch.equal(full.weights, fixed.weights)
+            assert float(full.b.detach()) == pytest.approx(float(fixed.b), rel=1e-6)
+            same_b = DPA(**kw, b=float(fixed.b), learnable="matrices")
+            assert torch.equal(same_b(frames).asf, fixed(frames).asf)
+        names = sorted(n for n, _ in DPA(window=5, learnable="matrices").named_parameters())
+        assert names == ["matrices_raw"]
+
+    def test_from_explicit_weights(self):
+        w = probability_matrices(5, 1.0, p=0.3, penalty_step=1.5).double()
+        dpa = DPA(w, b=1.0, learnable="matrices")
+        assert torch.equal(dpa.weights, w)
+
+    def test_against_loop(self):
+        # W(d)[i, j] = S(d) * W0(d)[i, j] exp(r[i, j]) / sum_ij W0(d)[i, j] exp(r[i, j])
+        w = probability_matrices(3, 1.0, p=0.4, penalty_step=2.0).double()
+        dpa = DPA(w, b=1.0, learnable="matrices").double()
+        gen = torch.Generator().manual_seed(2)
+        with torch.no_grad():
+            dpa.matrices_raw.copy_(torch.randn(9, 3, 3, generator=gen, dtype=F64))
+        w0, raw = dpa.matrices_init, dpa.matrices_raw.detach()
+        got = dpa.weights.detach()
+        for d in range(9):
+            s0 = sum(float(w0[d, i, j]) for i in range(3) for j in range(3))
+            num = [[float(w0[d, i, j]) * math.exp(float(raw[d, i, j])) for j in range(3)]
+                   for i in range(3)]  # fmt: skip
+            z = sum(map(sum, num))
+            for i in range(3):
+                for j in range(3):
+                    assert float(got[d, i, j]) == pytest.approx(s0 * num[i][j] / z, rel=1e-12)
+        assert bool((got >= 0).all())
+        assert torch.allclose(got.sum(dim=(-2, -1)), torch.ones(9, dtype=F64), atol=1e-12)
+
+    @pytest.mark.parametrize("smooth", [None, 0.3])
+    def test_gradcheck(self, smooth):
+        dpa = DPA(
+            window=3, b=0.7, g=0.4, learnable=("b", "g", "matrices"), smooth=smooth
+        ).double()
+        gen = torch.Generator().manual_seed(4)
+        with torch.no_grad():
+            dpa.matrices_raw.copy_(0.3 * torch.randn(9, 3, 3, generator=gen, dtype=F64))
+        frames = torch.randn(1, 3, 5, 6, generator=gen, dtype=F64, requires_grad=True)
+        names = [name for name, _ in dpa.named_parameters()]
+        params = tuple(p.detach().clone().requires_grad_() for p in dpa.parameters())
+
+        def fn(frames, *values):
+            return functional_call(dpa, dict(zip(names, values, strict=True)), (frames,)).asf
+
+        assert torch.autograd.gradcheck(fn, (frames, *params), fast_mode=True)
+
+    def test_training_moves_matrices_and_state_dict(self):
+        dpa = DPA(window=3, learnable=("g", "matrices"), smooth=0.5)
+        frames = torch.randn(2, 3, 6, 6, generator=torch.Generator().manual_seed(5))
+        dpa(frames).asf[:, -1, 2, 3].sum().backward()
+        assert float(dpa.matrices_raw.grad.abs().sum()) > 0
+        with torch.no_grad():
+            dpa.matrices_raw.add_(0.1 * dpa.matrices_raw.grad)
+        other = DPA(window=3, learnable=("g", "matrices"))
+        other.load_state_dict(dpa.state_dict())
+        assert torch.equal(other.weights, dpa.weights)
+        assert not torch.equal(dpa.weights, DPA(window=3).weights)
+
+    def test_exclusive_with_p_and_penalty(self):
+        with pytest.raises(ValueError, match="`learnable`"):
+            DPA(window=3, learnable=("p", "matrices"))
+        with pytest.raises(ValueError, match="`weights`"):
+            DPA(torch.zeros(9, 3, 3), b=1.0, learnable="matrices")

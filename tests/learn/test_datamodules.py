@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -125,3 +127,83 @@ class TestBinarySceneDataModule:
         dm.setup("fit")
         densities = [float(s["cube"].mean()) for s in dm.scenes("train")]
         assert 0.0 <= min(densities) < max(densities) <= 0.15
+
+
+def _angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Signed angle from vector ``a`` to ``b`` (``(..., 2)``), in ``(-pi, pi]``."""
+    cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    dot = (a * b).sum(-1)
+    return torch.atan2(cross, dot)
+
+
+class TestManeuvers:
+    def test_ir_sharp_maneuver(self):
+        dm = IRSceneDataModule(
+            n_train=12, n_val=1, n_test=1, shape=(8, 28, 28), speed=(0.5, 1.5), jitter=0.0,
+            n_targets=2, maneuver_prob=1.0, maneuver_turn=math.pi / 3, margin=2.0,
+        )  # fmt: skip
+        dm.setup("fit")
+        seen = set()
+        for sample in dm.scenes("train"):
+            pos = sample["positions"].double()  # (N, T, 2)
+            assert pos.min() >= 2.0 - 1e-4 and pos.max() <= 27 - 2.0 + 1e-4
+            steps = pos[:, 1:] - pos[:, :-1]  # (N, T - 1, 2): step t moves frame t -> t + 1
+            for n, at in enumerate(sample["maneuver_at"].tolist()):
+                assert 1 <= at <= 6
+                seen.add(at)
+                before, after = steps[n, :at], steps[n, at:]
+                speeds = [before.norm(dim=-1), after.norm(dim=-1)]
+                for s in speeds:  # constant speed on each piece, within the range
+                    assert float(s.max() - s.min()) < 1e-4
+                    assert 0.5 - 1e-4 <= float(s[0]) <= 1.5 + 1e-4
+                assert float(_angle(before[0], before[-1]).abs()) < 1e-4  # straight before
+                assert float(_angle(before[-1], after[0]).abs()) <= math.pi / 3 + 1e-4
+        assert len(seen) > 2  # the maneuver frame varies
+
+    def test_ir_gentle_turns(self):
+        dm = IRSceneDataModule(
+            n_train=6, n_val=1, n_test=1, shape=(8, 28, 28), speed=(0.5, 1.0), jitter=0.0,
+            turn_rate=(0.1, 0.2),
+        )  # fmt: skip
+        dm.setup("fit")
+        signs = set()
+        for sample in dm.scenes("train"):
+            steps = sample["positions"][0, 1:].double() - sample["positions"][0, :-1].double()
+            turn = _angle(steps[:-1], steps[1:])  # per-frame heading change
+            assert float(turn.abs().min()) >= 0.1 - 1e-4 and float(turn.abs().max()) <= 0.2 + 1e-4
+            assert float(turn.max() - turn.min()) < 1e-4  # one rate per target
+            signs.add(bool(turn[0] > 0))
+            assert sample["maneuver_at"].tolist() == [-1]
+        assert signs == {True, False}
+
+    def test_binary_pieces_make_one_track(self):
+        dm = BinarySceneDataModule(
+            n_train=10, n_val=1, n_test=1, shape=(8, 24, 24), speed=(0.5, 2.0), n_targets=1,
+            clutter_density=0.0, maneuver_prob=1.0, turn_rate=(0.0, 0.1),
+        )  # fmt: skip
+        dm.setup("fit")
+        for sample in dm.scenes("train"):
+            target = sample["target"]
+            assert bool(torch.equal(target, sample["cube"].bool()))
+            assert target.sum(dim=(1, 2)).tolist() == [1] * 8  # one point per scan, no gap
+            pts = target.nonzero()[:, 1:].double()  # (T, 2) y, x in scan order
+            assert float((pts[1:] - pts[:-1]).norm(dim=-1).max()) <= 2.0 + math.sqrt(2)
+            assert 1 <= int(sample["maneuver_at"][0]) <= 6
+
+    @pytest.mark.parametrize("cls", [IRSceneDataModule, BinarySceneDataModule])
+    def test_deterministic_and_validated(self, cls):
+        kw = {"n_train": 3, "n_val": 1, "n_test": 1, "shape": (6, 20, 20), "speed": (0.1, 1.0),
+              "turn_rate": 0.1, "maneuver_prob": 0.5}  # fmt: skip
+        a, b = cls(**kw), cls(**kw)
+        a.setup("fit")
+        b.setup("fit")
+        for sa, sb in zip(a.scenes("train"), b.scenes("train")):
+            assert all(torch.equal(sa[k], sb[k]) for k in sa)
+        assert a.hparams["maneuver_prob"] == 0.5 and a.hparams["turn_rate"] == 0.1
+        assert a.hparams["split_seeds"]["train"] == [0, 3]
+        with pytest.raises(ValueError, match="turn_rate"):
+            cls(**{**kw, "turn_rate": 1.0})
+        with pytest.raises(ValueError, match="maneuver_prob"):
+            cls(**{**kw, "maneuver_prob": 1.5})
+        with pytest.raises(ValueError, match="maneuver_turn"):
+            cls(**{**kw, "maneuver_turn": -0.1})

@@ -21,7 +21,6 @@ from hocnet.learn import (  # noqa: E402
     load_model,
     project_b,
 )
-from hocnet.learn.train import build_parser, train_main  # noqa: E402
 
 IR_TINY = {"n_train": 4, "n_val": 2, "n_test": 2, "shape": (5, 16, 16), "speed": (0.1, 1.0)}
 BIN_TINY = {"n_train": 4, "n_val": 2, "n_test": 2, "shape": (6, 16, 16), "speed": (0.1, 1.0)}
@@ -81,7 +80,47 @@ class TestDPATuner:
         for key in ("test/loss", "test/hit1", "test/auroc", "test/pd", "test/smooth_gap"):
             assert math.isfinite(results[key]), key
         assert 0.0 <= results["test/pd"] <= 1.0 and 0.0 <= results["test/auroc"] <= 1.0
+        assert 0.0 <= results["test/pfa"] <= tuner.hparams["pfa"]
+        assert results["test/asf_gap"] >= 0.0
         assert tuner.model.smooth is None  # test ran with the hard max
+
+    def test_smooth_gap_against_direct_computation(self):
+        dm = IRSceneDataModule(**IR_TINY, batch_size=2)
+        tuner = DPATuner(window=5, tau_end=0.2)
+        (results,) = _trainer().test(tuner, dm, verbose=False)
+        losses, gaps = [], []
+        for batch in dm.test_dataloader():
+            with torch.no_grad():
+                tuner.model.smooth = None
+                hard = tuner.model(batch["frames"]).asf
+                tuner.model.smooth = 0.2
+                soft = tuner.model(batch["frames"]).asf
+                tuner.model.smooth = None
+            loss_h, loss_s = tuner.loss(hard, batch["pixels"]), tuner.loss(soft, batch["pixels"])
+            losses.append(float(loss_s - loss_h))
+            for b in range(hard.shape[0]):
+                h, s = hard[b, -1].flatten(), soft[b, -1].flatten()
+                gaps.append(float((s - h).abs().mean() / h.std()))
+        assert results["test/smooth_gap"] == pytest.approx(sum(losses) / len(losses), rel=1e-4)
+        assert results["test/asf_gap"] == pytest.approx(sum(gaps) / len(gaps), rel=1e-4)
+        assert results["test/asf_gap"] > 0  # the smooth max is not the hard max
+
+    def test_full_matrices(self):
+        tuner = DPATuner(window=5, matrices="full")
+        names = sorted(name for name, _ in tuner.model.named_parameters())
+        assert names == ["b_raw", "g_raw", "matrices_raw"]
+        assert tuner.hparams["learnable"] == ["b", "g", "matrices"]
+        paper = DPATuner(window=5, learnable=("b", "g"))
+        assert torch.equal(tuner.model.weights, paper.model.weights)  # starts at eq. (5)
+        dm = IRSceneDataModule(**IR_TINY, batch_size=2)
+        trainer = _trainer(max_epochs=1, limit_val_batches=0, num_sanity_val_steps=0)
+        trainer.fit(tuner, dm)
+        w = tuner.model.weights.detach()
+        assert not torch.equal(w, paper.model.weights)
+        assert bool((w >= 0).all())
+        assert torch.allclose(w.sum(dim=(-2, -1)), torch.ones(9), atol=1e-5)
+        with pytest.raises(ValueError, match="matrices"):
+            DPATuner(matrices="diagonal")
 
     def test_constraints_after_steps(self):
         dm = IRSceneDataModule(**IR_TINY, batch_size=2)
@@ -178,6 +217,7 @@ class TestLearnedHOCSystem:
         for key in ("test/loss", "test/clutter_rejection", "test/target_points_lost"):
             assert math.isfinite(results[key]), key
         assert 0.0 <= results["test/pd"] <= 1.0 and 0.0 <= results["test/pfa"] <= 1.0
+        assert 0.0 <= results["test/auroc"] <= 1.0
 
     def test_relaxed_in_training_hard_in_eval(self):
         dm = BinarySceneDataModule(**BIN_TINY, clutter_density=0.05)
@@ -200,6 +240,13 @@ class TestLearnedHOCSystem:
         assert not torch.equal(
             a.model.forward_net.layers[0].mask_kernels, b.model.forward_net.layers[0].mask_kernels
         )
+
+
+class _Evil:
+    ran = False
+
+    def __reduce__(self):
+        return (setattr, (_Evil, "ran", True))
 
 
 class TestCheckpoint:
@@ -236,6 +283,39 @@ class TestCheckpoint:
         with torch.no_grad():
             assert torch.equal(model(cube), system.model(cube))
 
+    def test_full_matrices_round_trip(self, tmp_path):
+        dm = IRSceneDataModule(**IR_TINY, batch_size=2)
+        tuner = DPATuner(window=5, matrices="full", lr=0.2)
+        trainer = _trainer(
+            max_epochs=1, enable_checkpointing=True, default_root_dir=tmp_path, limit_val_batches=1
+        )
+        trainer.fit(tuner, dm)
+        (ckpt,) = tmp_path.rglob("*.ckpt")
+        model = load_model(ckpt)
+        assert "matrices" in model.learnable
+        assert torch.equal(model.weights, tuner.model.weights)
+        assert not torch.equal(model.weights, DPA(window=5).weights)
+
+    def test_refuses_corrupted_and_untrusted(self, tmp_path):
+        good = tmp_path / "good.pt"
+        torch.save({"state_dict": {}}, good)
+        data = good.read_bytes()
+        cut = tmp_path / "cut.pt"
+        cut.write_bytes(data[: len(data) // 2])
+        with pytest.raises(ValueError, match="corrupted"):
+            load_model(cut)
+        empty = tmp_path / "empty.pt"
+        empty.write_bytes(b"")
+        with pytest.raises(ValueError, match="corrupted"):
+            load_model(empty)
+        evil = tmp_path / "evil.pt"
+        torch.save({"state_dict": {}, "x": _Evil()}, evil)
+        with pytest.raises(ValueError, match="untrusted pickle"):
+            load_model(evil)
+        assert not _Evil.ran
+        with pytest.raises(FileNotFoundError):
+            load_model(tmp_path / "missing.ckpt")
+
     def test_refuses_other_files(self, tmp_path):
         path = tmp_path / "x.pt"
         torch.save({"a": torch.zeros(1)}, path)
@@ -246,24 +326,18 @@ class TestCheckpoint:
             load_model(path)
 
 
-class TestTrainMain:
-    def test_parser_lists_every_option(self):
-        parser = build_parser()
-        args = parser.parse_args(["dpa", "--model.learnable", "b", "g", "--data.snr_db", "12"])
-        assert getattr(args, "model.learnable") == ["b", "g"]
-        assert getattr(args, "data.snr_db") == [12.0]
-        assert getattr(args, "model.b") is None
-        with pytest.raises(SystemExit):
-            parser.parse_args(["svm"])
-
-    def test_hoc_end_to_end(self, tmp_path, capsys):
-        argv = ["hoc", "--max-epochs", "1", "--out", str(tmp_path), "--no-progress",
-                "--model.order", "1", "--model.v", "1", "--data.shape", "6", "16", "16",
-                "--data.n_train", "2", "--data.n_val", "1", "--data.n_test", "1",
-                "--data.speed", "0.1", "1.0"]  # fmt: skip
-        assert train_main(argv) == 0
-        out = capsys.readouterr().out
-        assert "test/clutter_rejection" in out
-        ckpt = out.split("checkpoint: ")[-1].strip()
-        assert isinstance(load_model(ckpt), MHOCImage)
-        assert list(tmp_path.rglob("metrics.csv"))
+class TestStageMetrics:
+    @pytest.mark.parametrize("system", ["dpa", "hoc"])
+    def test_val_pd_pfa_auroc(self, system):
+        if system == "dpa":
+            model, dm = DPATuner(window=5), IRSceneDataModule(**IR_TINY, batch_size=2)
+        else:
+            model = LearnedHOCSystem(order=1, v=1)
+            dm = BinarySceneDataModule(**BIN_TINY, batch_size=2, clutter_density=0.05)
+        trainer = _trainer(max_epochs=1, limit_train_batches=1, num_sanity_val_steps=0)
+        trainer.fit(model, dm)
+        logged = trainer.callback_metrics
+        assert math.isfinite(float(logged["val/loss"]))
+        for key in ("val/pd", "val/pfa", "val/auroc"):
+            assert key in logged, key
+            assert 0.0 <= float(logged[key]) <= 1.0, key
