@@ -56,7 +56,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from hocnet._check import check_number
+from hocnet._check import check_choice, check_number
 from hocnet.tracking.imm import _combine, _mix, _mixing, imm_mixing_probabilities
 from hocnet.tracking.kalman import DTYPE, _update, as_float64
 from hocnet.tracking.oosm import (
@@ -112,6 +112,11 @@ class VSIMMConfig:
             chapter takes its matrix from its reference [14]).
         relax: relax the across-road noise near segment ends (24.9-24.12).
         use_mdv: mode-dependent ``PD`` from the sensor's MDV notch (GMTI).
+        noise: ``"discrete"`` (default): piecewise-constant white acceleration,
+            ``Q = Gamma(dt) Sigma Gamma(dt)'`` as in 24.5 with ``Gamma`` of [1]; ``"continuous"``
+            (our addition): continuous white acceleration of power spectral density ``Sigma``
+            (per axis ``[[dt^3/3, dt^2/2], [dt^2/2, dt]]``), whose ``Q`` splits exactly over
+            sub-intervals, so that the OOSM retrodiction is exact for a linear model.
 
     Examples:
         >>> VSIMMConfig().kinds
@@ -124,9 +129,11 @@ class VSIMMConfig:
     trans: Any = None
     relax: bool = True
     use_mdv: bool = True
+    noise: str = "discrete"
     kinds: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
+        check_choice("noise", self.noise, ("discrete", "continuous"))
         for i, pair in enumerate(self.road_sigmas):
             if len(pair) != 2:
                 raise ValueError(
@@ -268,6 +275,22 @@ def _mode_F(kinds: tuple[str, ...], dt: torch.Tensor) -> tuple[torch.Tensor, tor
             F[:, i] = torch.diag(torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=DTYPE))
             Gm[:, i] = 0.0
     return F, Gm
+
+
+def _process_noise(
+    kinds: tuple[str, ...], noise: str, dt: torch.Tensor, Gm: torch.Tensor, cov: torch.Tensor
+) -> torch.Tensor:
+    """``Q (B, r, 4, 4)`` from acceleration covariances ``cov (B, r, 2, 2)`` over ``dt (B,)``."""
+    if noise == "discrete":
+        return Gm @ cov @ Gm.transpose(-1, -2)
+    d = dt.abs().view(-1, 1, 1, 1)
+    blk = torch.cat(
+        [torch.cat([d**3 / 3.0, d**2 / 2.0], -1), torch.cat([d**2 / 2.0, d], -1)], -2
+    )  # (B, 1, 2, 2)
+    T = cov[..., :, None, :, None] * blk[..., None, :, None, :]
+    Q = T.reshape(*cov.shape[:-2], 4, 4)
+    stop = torch.tensor([k == "stop" for k in kinds]).view(1, -1, 1, 1)
+    return torch.where(stop, torch.zeros_like(Q), Q)
 
 
 def _phi(t: torch.Tensor) -> torch.Tensor:
@@ -449,7 +472,7 @@ def vsimm_predict(
     seg = torch.where(road.view(1, -1), loc.segment, torch.full_like(loc.segment, -1))
 
     def p_tmp(cov: torch.Tensor) -> torch.Tensor:
-        return FPF + Gm @ cov @ Gm.transpose(-1, -2)
+        return FPF + _process_noise(config.kinds, config.noise, dt, Gm, cov)
 
     cov, p_on = _accel_cov(net, seg, x_pred, p_tmp, sa, sc, road, config.relax)
     P_pred = p_tmp(cov)
@@ -831,7 +854,8 @@ def vsimm_expand_sections(
 
     For each row with a section hypothesis: its combined estimate is located on the row's
     section, the travel ``|v| dt + n_sigma sqrt(trace P_pos)`` (m) gives the reachable segments
-    (:meth:`~hocnet.tracking.road.RoadNetwork.reachable`, both ways), and every section among
+    (:meth:`~hocnet.tracking.road.RoadNetwork.reachable`; only ahead when the along-road speed
+    exceeds ``n_sigma`` of its standard deviation, both ways otherwise), and every section among
     them that the track does not have yet becomes a new row (a copy of the row, with
     ``mu_section = 0``: 24.38 gives it probability through ``Omega`` at the next update).
 
@@ -848,7 +872,13 @@ def vsimm_expand_sections(
     speed = torch.linalg.vector_norm(xc[:, [1, 3]], dim=-1)
     spread = torch.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]).clamp(min=0.0)
     travel = speed * dt + n_sigma * spread
-    reach = net.reachable(loc.segment, loc.abscissa, travel)
+    # travel direction along the segment when the along-road speed is significant
+    u = net.direction[loc.segment]
+    v_along = (u * xc[:, [1, 3]]).sum(-1)
+    Pv = Pc[:, [1, 3]][:, :, [1, 3]]
+    sd_v = (u.unsqueeze(-2) @ Pv @ u.unsqueeze(-1)).flatten().clamp(min=0.0).sqrt()
+    direction = torch.where(v_along.abs() > n_sigma * sd_v, torch.sign(v_along), 0.0)
+    reach = net.reachable(loc.segment, loc.abscissa, travel, direction=direction)
     new_rows, new_secs = [], []
     have: dict[int, set[int]] = {}
     for b in range(B):
@@ -887,7 +917,7 @@ def vsimm_oosm(
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
     For every mode: ``F(tau, k)`` (CV with ``-(t_k - tau)``; the stop mode keeps its position),
-    ``Q(k, tau) = Gamma(t_k - tau) Q~ Gamma(t_k - tau)'`` with the mode's last acceleration
+    ``Q(k, tau)`` over ``t_k - tau`` (``config.noise``) with the mode's last acceleration
     covariance, the A1 retrodiction (:mod:`hocnet.tracking.oosm`), the retrodiction projected on
     the segment of the section nearest to the retrodicted position (24.14-24.16, "retrodiction
     done on the road"), the A1 update of ``x(k|k)``, the projection of the result on the mode's
@@ -932,7 +962,7 @@ def vsimm_oosm(
     lag = state.t - tau
     Fb, _ = _mode_F(config.kinds, -lag)
     _, Gm = _mode_F(config.kinds, lag)
-    Q = Gm @ state.accel_cov @ Gm.transpose(-1, -2)
+    Q = _process_noise(config.kinds, config.noise, lag, Gm, state.accel_cov)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q)
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
