@@ -687,7 +687,8 @@ def section_probabilities(
         if valid is None
         else torch.as_tensor(valid, dtype=torch.bool)
     )
-    prior = (mu.unsqueeze(-1) * om).sum(-2)  # sum_hbar mu_hbar Omega[hbar, h]
+    mu = torch.where(val, mu, torch.zeros_like(mu))
+    prior = (mu.unsqueeze(-1) * om).sum(-2)  # sum over valid hbar of mu_hbar Omega[hbar, h]
     a = torch.where(
         val & (prior > 0), ll + torch.log(prior.clamp(min=1e-300)), torch.full_like(ll, -torch.inf)
     )

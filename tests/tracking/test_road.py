@@ -1,3 +1,5 @@
+import heapq
+import itertools
 import math
 
 import numpy as np
@@ -7,6 +9,7 @@ from scipy.stats import norm
 
 from hocnet.tracking.kalman import constant_velocity, cv_gamma
 from hocnet.tracking.road import (
+    RoadNetwork,
     on_segment_probability,
     project_estimate,
     relaxed_road_noise_cov,
@@ -146,11 +149,6 @@ def test_errors():
 # ------------------------------------------------------------------------------------------
 # RoadNetwork
 # ------------------------------------------------------------------------------------------
-
-import heapq  # noqa: E402
-import itertools  # noqa: E402
-
-from hocnet.tracking.road import RoadNetwork  # noqa: E402
 
 
 def feature(coords, **props):
