@@ -11,6 +11,13 @@ frame of [PD] section 24.2.2). Everything is batched over segments and tracks; s
   eq. 24.5-24.6 and the model's ``(F, Q)``.
 - :func:`on_segment_probability` and :func:`relaxed_road_noise_cov`: eq. 24.9-24.12.
 - :func:`project_estimate`: the constrained estimate of eq. 24.14-24.16.
+- :class:`RoadNetwork`: the GIS road network of 24.2.2 (nodes, segments, sections, junctions)
+  from GeoJSON-like polylines in metres, validated (empty, NaN, zero-length segments,
+  disconnected -> ``ValueError`` naming the feature / vertex / part), with
+  :meth:`~RoadNetwork.locate` (nearest segment, along-road abscissa on the segment and on its
+  section), :meth:`~RoadNetwork.reachable` (segments within a travel distance, for the
+  variable-structure model set of 24.4.3) and the neighbours at junctions. The WGS84 to TCF
+  conversion of 24.2.2 is left to the caller (coordinates are already local East-North metres).
 
 Our readings of the printed equations (the OCR and the chapter disagree with the standard
 results in places):
@@ -729,11 +736,13 @@ class RoadNetwork:
                 f"`positions`: expected (..., 2) positions or (..., 4) states, got "
                 f"{tuple(pos.shape)}"
             )
-        rel = pos.unsqueeze(-2) - self.p0  # (..., S, 2)
-        t = (rel * self.direction).sum(-1).clamp(min=0.0)
-        t = torch.minimum(t, self.length)
-        foot = self.p0 + t.unsqueeze(-1) * self.direction
-        dist = torch.linalg.vector_norm(pos.unsqueeze(-2) - foot, dim=-1)
+        # component-wise (..., S) arithmetic: much faster than (..., S, 2) reductions
+        ux, uy = self.direction[:, 0], self.direction[:, 1]
+        rx = pos[..., 0:1] - self.p0[:, 0]
+        ry = pos[..., 1:2] - self.p0[:, 1]
+        t = torch.minimum((rx * ux + ry * uy).clamp_(min=0.0), self.length)
+        ex, ey = rx - t * ux, ry - t * uy
+        dist = ex * ex + ey * ey  # squared distance, for the argmin
         if allowed is not None:
             mask = torch.as_tensor(allowed)
             if mask.dtype != torch.bool:
@@ -747,11 +756,11 @@ class RoadNetwork:
             if dist.numel() and bool((~mask.any(-1)).any()):
                 raise ValueError("`allowed`: expected at least one allowed segment per position")
             dist = torch.where(mask, dist, torch.full_like(dist, torch.inf))
-        seg = dist.argmin(-1) if dist.shape[-1] else torch.zeros(dist.shape[:-1], dtype=torch.int64)
+        seg = dist.argmin(-1)
         idx = seg.unsqueeze(-1)
         a = t.gather(-1, idx).squeeze(-1)
-        d = dist.gather(-1, idx).squeeze(-1)
-        point = foot.gather(-2, idx.unsqueeze(-1).expand(*idx.shape, 2)).squeeze(-2)
+        d = dist.gather(-1, idx).squeeze(-1).sqrt()
+        point = self.p0[seg] + a.unsqueeze(-1) * self.direction[seg]
         fwd = self.section_forward[seg]
         sec_a = self.section_offset[seg] + torch.where(fwd, a, self.length[seg] - a)
         return RoadLocation(seg, a, d, point, self.segment_section[seg], sec_a)

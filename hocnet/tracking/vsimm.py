@@ -880,23 +880,25 @@ def vsimm_expand_sections(
     sd_v = (u.unsqueeze(-2) @ Pv @ u.unsqueeze(-1)).flatten().clamp(min=0.0).sqrt()
     direction = torch.where(v_along.abs() > n_sigma * sd_v, torch.sign(v_along), 0.0)
     reach = net.reachable(loc.segment, loc.abscissa, travel, direction=direction)
-    new_rows, new_secs = [], []
-    have: dict[int, set[int]] = {}
-    for b in range(B):
-        have.setdefault(int(state.track[b]), set()).add(int(state.section[b]))
-    for b in torch.nonzero(sec_rows).flatten().tolist():
-        trk = int(state.track[b])
-        for p in torch.unique(net.segment_section[reach[b]]).tolist():
-            if p not in have[trk]:
-                have[trk].add(p)
-                new_rows.append(b)
-                new_secs.append(p)
-    if not new_rows:
+    # sections reached by each row, (B, n_sections), restricted to rows with a hypothesis
+    onehot = torch.nn.functional.one_hot(net.segment_section, net.num_sections).to(DTYPE)
+    reached = ((reach.to(DTYPE) @ onehot) > 0) & sec_rows.unsqueeze(-1)
+    ids, inv = torch.unique(state.track, return_inverse=True)
+    have = torch.zeros(ids.numel(), net.num_sections, dtype=torch.bool)
+    have[inv[sec_rows], state.section[sec_rows]] = True
+    cand = reached & ~have[inv]
+    # one new row per (track, section): a copy of the first row of the track that reaches it
+    T, n_sec = ids.numel(), net.num_sections
+    rows_of = torch.arange(B).unsqueeze(-1).expand(B, n_sec)
+    flat = (inv.unsqueeze(-1) * n_sec + torch.arange(n_sec))[cand]
+    first = torch.full((T * n_sec,), B, dtype=torch.int64)
+    first = first.scatter_reduce(0, flat, rows_of[cand], "amin").view(T, n_sec)
+    new_tr, sec = torch.nonzero(first < B, as_tuple=True)
+    if not sec.numel():
         return state
-    idx = torch.tensor(new_rows, dtype=torch.int64)
+    idx = first[new_tr, sec]
     add = state.select(idx)
-    sec = torch.tensor(new_secs, dtype=torch.int64)
-    add = add._replace(section=sec, mu_section=torch.zeros(len(new_rows), dtype=DTYPE))
+    add = add._replace(section=sec, mu_section=torch.zeros(sec.numel(), dtype=DTYPE))
     return VSIMMState(*(torch.cat([a, b_]) for a, b_ in zip(state, add, strict=True)))
 
 

@@ -468,3 +468,30 @@ def test_vsimm_errors_and_empty_batch():
     e3, rows = vsimm_section_sprt(e2, out.log_likelihood, net)
     assert e3.mu.shape == (0, 3) and rows.numel() == 0
     assert vsimm_expand_sections(e2, net, 10.0).mu.shape == (0, 3)
+
+
+def test_expand_sections_adds_each_reachable_section_once():
+    net = y_junction()
+    cfg = VSIMMConfig()
+    P0 = torch.diag(torch.tensor([100.0, 4, 100, 4]))
+    x0 = torch.tensor([[900.0, 15.0, 0.0, 0.0], [100.0, 15.0, 0.0, 0.0], [950.0, -15.0, 0.0, 0.0]])
+    mu0 = torch.tensor([0.0, 0.5, 0.5])  # moving: the direction of travel is certain
+    st = vsimm_init(net, x0, P0, cfg, track=torch.tensor([0, 1, 2]), mu0=mu0)
+    out = vsimm_expand_sections(st, net, 10.0)
+    # track 0 (100 m before the junction, heading to it) gets the two branches; track 1 (far)
+    # and track 2 (heading away from the junction) get nothing
+    assert out.track.tolist() == [0, 1, 2, 0, 0]
+    assert sorted(out.section[3:].tolist()) == [1, 2]
+    assert out.mu_section.tolist() == [1.0, 1.0, 1.0, 0.0, 0.0]
+    torch.testing.assert_close(out.x[3], st.x[0])
+    again = vsimm_expand_sections(out, net, 10.0)
+    assert again.track.tolist() == out.track.tolist()
+    # with the stop model likely, the direction is uncertain: track 2 looks both ways
+    both = vsimm_expand_sections(
+        st._replace(mu=torch.full((3, 3), 1 / 3, dtype=torch.float64)), net, 10.0
+    )
+    assert both.track.tolist() == [0, 1, 2, 0, 0, 2, 2]
+    # the reachable rule itself: one scan at 15 m/s from 900 m reaches the junction node
+    loc = net.locate(x0[0])
+    reach = net.reachable(loc.segment, loc.abscissa, 150.0 + 3 * math.sqrt(200.0), direction=1)
+    assert set(net.segment_section[reach].tolist()) == {0, 1, 2}
