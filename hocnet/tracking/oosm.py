@@ -243,12 +243,29 @@ def project_retrodiction(r: Retrodiction, D: Any, L: Any) -> Retrodiction:
 
     Returns:
         The projected :class:`Retrodiction`.
+
+    Examples:
+        >>> r = Retrodiction(torch.tensor([5.0, 1.0, 3.0, 1.0]), torch.eye(4), torch.eye(4))
+        >>> D = torch.tensor([[0.0, 0, 1, 0], [0, 0, 0, 1]])  # the road y = 0
+        >>> project_retrodiction(r, D, torch.zeros(2)).x.tolist()
+        [5.0, 1.0, 0.0, 0.0]
     """
+    r = _as_retrodiction(r)
     D = as_float64("D", D, min_dim=2)
     L = as_float64("L", L, min_dim=1)
     xs, A = _projection(r.x, r.P, D, L)
     Ps = A @ r.P @ A.transpose(-1, -2)
     return Retrodiction(xs, 0.5 * (Ps + Ps.transpose(-1, -2)), r.C @ A.transpose(-1, -2))
+
+
+def _as_retrodiction(r: Any) -> Retrodiction:
+    if not isinstance(r, tuple) or len(r) != 3:
+        raise TypeError(f"`r`: expected a Retrodiction (x, P, C), got {type(r).__name__}")
+    return Retrodiction(
+        as_float64("r.x", r[0], min_dim=1),
+        as_float64("r.P", r[1], min_dim=2, square=True),
+        as_float64("r.C", r[2], min_dim=2, square=True),
+    )
 
 
 def _projection(
@@ -284,6 +301,13 @@ def oosm_apply(
     Returns:
         ``(x(k|tau), P(k|tau), log N(z - hx; 0, S(tau)))`` of shapes ``(..., n)``,
         ``(..., n, n)`` and ``(...)``.
+
+    Examples:
+        >>> r = Retrodiction(torch.zeros(1), torch.eye(1), torch.eye(1))  # x(tau) = x(k)
+        >>> x, P, ll = oosm_apply(torch.zeros(1), torch.eye(1), r, torch.ones(1), torch.zeros(1),
+        ...                       torch.eye(1), torch.eye(1))
+        >>> round(float(x), 12), round(float(P), 12)
+        (0.5, 0.5)
     """
     x = as_float64("x", x, min_dim=1)
     P = as_float64("P", P, min_dim=2, square=True)
@@ -291,7 +315,7 @@ def oosm_apply(
     hx = as_float64("hx", hx, min_dim=1)
     H = as_float64("H", H, min_dim=2)
     R = as_float64("R", R, min_dim=2, square=True)
-    return _apply(x, P, r, z - hx, H, R)
+    return _apply(x, P, _as_retrodiction(r), z - hx, H, R)
 
 
 def _apply(

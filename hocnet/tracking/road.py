@@ -317,6 +317,21 @@ def project_estimate(x: Any, P: Any, D: Any, L: Any) -> tuple[torch.Tensor, torc
 # --------------------------------------------------------------------------------------------
 
 
+def _graph(seg_nodes: np.ndarray, length: np.ndarray, V: int) -> Any:
+    """Symmetric CSR adjacency of segment lengths (parallel edges: the shorter one)."""
+    from scipy.sparse import coo_matrix
+
+    rows = np.concatenate([seg_nodes[:, 0], seg_nodes[:, 1]])
+    cols = np.concatenate([seg_nodes[:, 1], seg_nodes[:, 0]])
+    data = np.concatenate([length, length])
+    # coo -> csr sums duplicates; keep the minimum instead
+    order = np.lexsort((data, cols, rows))
+    rows, cols, data = rows[order], cols[order], data[order]
+    first = np.ones(len(rows), dtype=bool)
+    first[1:] = (rows[1:] != rows[:-1]) | (cols[1:] != cols[:-1])
+    return coo_matrix((data[first], (rows[first], cols[first])), shape=(V, V)).tocsr()
+
+
 class RoadLocation(NamedTuple):
     """Result of :meth:`RoadNetwork.locate` (all shapes ``(...)`` = the batch of positions).
 
@@ -583,7 +598,6 @@ class RoadNetwork:
         properties: list[dict],
         require_connected: bool,
     ) -> None:
-        from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components, dijkstra
 
         V, S = len(nodes), len(seg_nodes)
@@ -594,23 +608,7 @@ class RoadNetwork:
         for s, (a, b) in enumerate(seg_nodes):
             incident[a].append(s)
             incident[b].append(s)
-        # graph distances (parallel edges: the shorter one)
-        graph = coo_matrix(
-            (
-                np.concatenate([length, length]),
-                (
-                    np.concatenate([seg_nodes[:, 0], seg_nodes[:, 1]]),
-                    np.concatenate([seg_nodes[:, 1], seg_nodes[:, 0]]),
-                ),
-            ),
-            shape=(V, V),
-        )
-        # coo -> csr sums duplicates; keep the minimum instead
-        order = np.lexsort((graph.data, graph.col, graph.row))
-        rows, cols, data = graph.row[order], graph.col[order], graph.data[order]
-        first = np.ones(len(rows), dtype=bool)
-        first[1:] = (rows[1:] != rows[:-1]) | (cols[1:] != cols[:-1])
-        graph = coo_matrix((data[first], (rows[first], cols[first])), shape=(V, V)).tocsr()
+        graph = _graph(seg_nodes, length, V)
         n_comp, labels = connected_components(graph, directed=False)
         if require_connected and n_comp > 1:
             sizes = np.bincount(labels)
@@ -674,6 +672,26 @@ class RoadNetwork:
             properties[int(seg_feature[chain[0]])] for chain in sections
         )
         self._incident = tuple(tuple(i) for i in incident)
+        self._seg_np = (seg_nodes, length, V)
+        self._without_cache: dict[int, torch.Tensor] = {}
+
+    def _distances_without(self, segment: int) -> torch.Tensor:
+        """``(2, V)`` distances from the ends of ``segment`` in the network without it (cached).
+
+        Routes that do not turn back over the segment, for the directed travel distance.
+        """
+        out = self._without_cache.get(segment)
+        if out is None:
+            from scipy.sparse.csgraph import dijkstra
+
+            seg_nodes, length, V = self._seg_np
+            keep = np.arange(len(seg_nodes)) != segment
+            g = _graph(seg_nodes[keep], length[keep], V)
+            out = torch.as_tensor(
+                dijkstra(g, directed=False, indices=seg_nodes[segment].tolist()), dtype=DTYPE
+            )
+            self._without_cache[segment] = out
+        return out
 
     @property
     def num_segments(self) -> int:
@@ -771,7 +789,9 @@ class RoadNetwork:
         From the point at ``abscissa`` on ``segment`` the distance to segment ``t`` is 0 for
         ``t = segment`` and otherwise ``min over v in ends(segment), e in ends(t)`` of
         ``d(point, v) + node_distance[v, e]`` with ``d(point, start) = abscissa`` and
-        ``d(point, end) = length - abscissa``.
+        ``d(point, end) = length - abscissa``. With a direction only the end ahead is used and
+        the road distances from it are taken in the network without ``segment`` (no U-turn back
+        over the own segment; our choice).
 
         Args:
             segment: ``(...)`` int segment indices.
@@ -781,6 +801,13 @@ class RoadNetwork:
 
         Returns:
             ``(..., S)`` float64 m (``inf`` for unreachable segments).
+
+        Examples:
+            >>> net = RoadNetwork([[[0, 0], [100, 0], [100, 100]], [[100, 0], [300, 0]]])
+            >>> net.travel_distance(0, 30.0).tolist()
+            [0.0, 70.0, 70.0]
+            >>> net.travel_distance(0, 30.0, direction=-1).tolist()  # towards the road end
+            [0.0, inf, inf]
         """
         s = self._segment_index("segment", segment)
         a = as_float64("abscissa", abscissa)
@@ -791,8 +818,18 @@ class RoadNetwork:
         d_start = torch.where(direc > 0, inf, a)
         d_end = torch.where(direc < 0, inf, self.length[s] - a)
         ends = self.segment_nodes  # (S, 2)
-        nd_s = self.node_distance[start][..., ends]  # (..., S, 2)
-        nd_e = self.node_distance[end][..., ends]
+        nd_s = self.node_distance[start]  # (..., V)
+        nd_e = self.node_distance[end]
+        directed = direc != 0
+        if bool(directed.any()):
+            uniq, inv = torch.unique(s[directed], return_inverse=True)
+            table = torch.stack([self._distances_without(int(u)) for u in uniq.tolist()])
+            nd_s = nd_s.clone()
+            nd_e = nd_e.clone()
+            nd_s[directed] = table[inv, 0]
+            nd_e[directed] = table[inv, 1]
+        nd_s = nd_s[..., ends]  # (..., S, 2)
+        nd_e = nd_e[..., ends]
         via_s = d_start.unsqueeze(-1) + nd_s.min(-1).values
         via_e = d_end.unsqueeze(-1) + nd_e.min(-1).values
         out = torch.minimum(via_s, via_e)
@@ -815,6 +852,11 @@ class RoadNetwork:
 
         Returns:
             ``(..., S)`` bool (the own segment always included).
+
+        Examples:
+            >>> net = RoadNetwork([[[0, 0], [100, 0], [100, 100]], [[100, 0], [300, 0]]])
+            >>> net.reachable(torch.tensor([0, 0]), torch.tensor([30.0, 90.0]), 50.0).tolist()
+            [[True, False, False], [True, True, True]]
         """
         d = self.travel_distance(segment, abscissa, direction=direction)
         trav = as_float64("travel", travel)
@@ -834,7 +876,13 @@ class RoadNetwork:
         return self._incident[v]
 
     def junction_sections(self, node: int) -> tuple[int, ...]:
-        """Road sections meeting at ``node`` (sorted): the hypotheses of [PD] 24.4.3 there."""
+        """Road sections meeting at ``node`` (sorted): the hypotheses of [PD] 24.4.3 there.
+
+        Examples:
+            >>> net = RoadNetwork([[[0, 0], [100, 0], [100, 100]], [[100, 0], [300, 0]]])
+            >>> net.junction_sections(int(net.junctions[0]))
+            (0, 1, 2)
+        """
         return tuple(sorted({int(self.segment_section[s]) for s in self.node_segments(node)}))
 
     def section_mask(self, section: Any) -> torch.Tensor:

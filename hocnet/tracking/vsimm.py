@@ -373,6 +373,13 @@ def vsimm_init(
 
     Returns:
         :class:`VSIMMState` with ``N`` rows.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> s = vsimm_init(net, torch.tensor([[10.0, 5.0, 3.0, 1.0]]), 100 * torch.eye(4),
+        ...                VSIMMConfig())
+        >>> s.x[0].tolist()  # stop, M1, M2 on the road y = 0 (the stop mode has no velocity)
+        [[10.0, 0.0, 0.0, 0.0], [10.0, 5.0, 0.0, 0.0], [10.0, 5.0, 0.0, 0.0]]
     """
     x0 = as_float64("x0", x0, min_dim=2)
     N = x0.shape[0]
@@ -450,6 +457,14 @@ def vsimm_predict(
 
     Raises:
         ValueError: ``t`` before the track time (use :func:`vsimm_oosm`), bad shapes.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        >>> cfg = VSIMMConfig(stop=False)
+        >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> pred = vsimm_predict(s, net, cfg, 5.0)
+        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # still on the first segment
+        ([[0, 0]], [140.0, 10.0, 0.0, 0.0])
     """
     B, r = state.mu.shape
     if r != config.num_modes:
@@ -526,6 +541,17 @@ def vsimm_update(
 
     Raises:
         ValueError: non-finite measurement in a detected row, bad shapes.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> pred = vsimm_predict(s, net, cfg, 10.0)
+        >>> new, out = vsimm_update(s, pred, torch.tensor([[float("nan"), 0.0]]), VideoSensor(),
+        ...                         net, cfg, detected=torch.tensor([False]))
+        >>> new.mu[0, 0] > s.mu[0, 0]  # a missed detection favours the stop model
+        tensor(True)
     """
     B, r = pred.cbar.shape
     if detected is None:
@@ -813,6 +839,15 @@ def vsimm_section_sprt(
 
     Returns:
         ``(kept_state, kept_rows)`` with ``kept_rows`` the ``(B',)`` indices into ``state``.
+
+    Examples:
+        >>> net = RoadNetwork([[[0, 0], [1, 0]], [[1, 0], [2, 0]], [[1, 0], [1, 1]]])
+        >>> s = vsimm_init(net, torch.zeros(2, 4), torch.eye(4), VSIMMConfig(),
+        ...                section=torch.tensor([1, 2]), track=torch.tensor([0, 0]))
+        >>> s = s._replace(mu_section=torch.tensor([0.5, 0.5], dtype=torch.float64))
+        >>> kept, rows = vsimm_section_sprt(s, torch.tensor([0.0, -8.0]), net)
+        >>> rows.tolist(), kept.mu_section.tolist()
+        ([0], [1.0])
     """
     B = state.mu.shape[0]
     ll = torch.as_tensor(log_lambda, dtype=DTYPE)
@@ -862,6 +897,13 @@ def vsimm_expand_sections(
 
     Returns:
         The rows of ``state`` followed by the new rows (``state`` itself when nothing is added).
+
+    Examples:
+        >>> net = RoadNetwork([[[0, 0], [100, 0]], [[100, 0], [200, 0]], [[100, 0], [100, 90]]])
+        >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), torch.eye(4),
+        ...                VSIMMConfig(), mu0=torch.tensor([0.0, 0.5, 0.5]))
+        >>> vsimm_expand_sections(s, net, 10.0).section.tolist()
+        [0, 1, 2]
     """
     dt = check_number("dt", dt, low=0.0)
     B = state.mu.shape[0]
@@ -944,6 +986,19 @@ def vsimm_oosm(
     Raises:
         ValueError: a measurement older than the one-step lag (message names the lag; ``state``
             is not modified), non-finite measurements, bad shapes.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg, video = VSIMMConfig(), VideoSensor(10.0)
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> s, _ = vsimm_step(s, net, cfg, 10.0, torch.tensor([[100.0, 0.0]]), video)
+        >>> s, _ = vsimm_step(s, net, cfg, 20.0, torch.tensor([[200.0, 0.0]]), video)
+        >>> s2, out = vsimm_oosm(s, torch.tensor([[150.0, 0.0]]), 15.0, video, net, cfg)
+        >>> vsimm_oosm(s, torch.tensor([[50.0, 0.0]]), 5.0, video, net, cfg)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: `t`: expected an out-of-sequence measurement within the one-step lag ... 15 s
     """
     B, r = state.mu.shape
     tau = _times("t", t, B)

@@ -265,10 +265,15 @@ def test_locate_matches_loop():
 
 
 def loop_travel(net, seg, a, direction):
-    """Dijkstra from the point (plain heap over nodes), then the distance to each segment."""
+    """Dijkstra from the point (plain heap over nodes), then the distance to each segment.
+
+    With a direction the own segment is removed from the graph (no U-turn back over it).
+    """
     V = net.nodes.shape[0]
     adj = [[] for _ in range(V)]
     for s in range(net.num_segments):
+        if direction != 0 and s == seg:
+            continue
         u, v = net.segment_nodes[s].tolist()
         w = float(net.length[s])
         adj[u].append((v, w))
