@@ -77,6 +77,7 @@ from hocnet.tracking.sensors import (
     make_sensor,
 )
 from hocnet.tracking.vsimm import (
+    VSIMMAssociation,
     VSIMMConfig,
     VSIMMPrediction,
     VSIMMState,
@@ -85,6 +86,7 @@ from hocnet.tracking.vsimm import (
     section_transition,
     sprt_decide,
     sprt_thresholds,
+    vsimm_association_log_likelihood,
     vsimm_expand_sections,
     vsimm_init,
     vsimm_oosm,
@@ -101,6 +103,7 @@ __all__ = [
     "Retrodiction",
     "RoadLocation",
     "RoadNetwork",
+    "VSIMMAssociation",
     "VSIMMConfig",
     "VSIMMPrediction",
     "VSIMMState",
@@ -156,6 +159,7 @@ __all__ = [
     "stop_model",
     "to_dict",
     "vacuous",
+    "vsimm_association_log_likelihood",
     "vsimm_expand_sections",
     "vsimm_init",
     "vsimm_oosm",

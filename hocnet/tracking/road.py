@@ -425,6 +425,8 @@ class RoadNetwork:
         require_connected: bool = True,
     ) -> None:
         tolerance = check_number("tolerance", tolerance, low=0.0)
+        if isinstance(polylines, np.ndarray | torch.Tensor):
+            polylines = list(polylines)
         if not isinstance(polylines, Sequence) or isinstance(polylines, str | bytes):
             raise TypeError(
                 f"`polylines`: expected a sequence of (K, 2) coordinate lists in m, got "

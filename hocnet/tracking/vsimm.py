@@ -71,13 +71,16 @@ from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.sensors import check_measurements
 
 __all__ = [
+    "VSIMMAssociation",
     "VSIMMConfig",
     "VSIMMPrediction",
     "VSIMMState",
+    "VSIMMUpdate",
     "section_probabilities",
     "section_transition",
     "sprt_decide",
     "sprt_thresholds",
+    "vsimm_association_log_likelihood",
     "vsimm_expand_sections",
     "vsimm_init",
     "vsimm_oosm",
@@ -622,6 +625,94 @@ def vsimm_update(
         pred.accel_cov,
     )
     return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
+
+
+class VSIMMAssociation(NamedTuple):
+    """Result of :func:`vsimm_association_log_likelihood`.
+
+    Attributes:
+        log_likelihood: ``(B, M)`` ``log Lambda`` (24.32) of row ``b`` updated with measurement
+            ``j`` (PD-aware, 24.30-24.31 with ``m_j != 0``).
+        missed_log_likelihood: ``(B,)`` ``log Lambda`` of a missed detection (``m_j = 0``).
+        d2: ``(B, M, r)`` squared Mahalanobis distances of every mode's innovation (for gating).
+    """
+
+    log_likelihood: torch.Tensor
+    missed_log_likelihood: torch.Tensor
+    d2: torch.Tensor
+
+
+def vsimm_association_log_likelihood(
+    pred: VSIMMPrediction, z: Any, sensor: Any, config: VSIMMConfig
+) -> VSIMMAssociation:
+    """Likelihoods of every (row, measurement) pair of a scan, for gating and track scores.
+
+    The same mode likelihoods as :func:`vsimm_update` (24.29-24.32), for all ``B x M`` pairs at
+    once, without updating: the ``Lambda`` of the LLR increment 24.42 of each association
+    hypothesis, and the missed-detection ``Lambda`` (``sum_i (1 - PD_i) mu_i(k|k-1)`` over the
+    moving modes plus the stop mode's ``mu_0(k|k-1)``).
+
+    Args:
+        pred: :func:`vsimm_predict` output (``B`` rows, ``r`` modes).
+        z: ``(M, m)`` measurements of the scan (finite).
+        sensor: the sensor of the scan.
+        config: :class:`VSIMMConfig`.
+
+    Returns:
+        :class:`VSIMMAssociation`.
+
+    Raises:
+        ValueError: non-finite measurements, wrong measurement size.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> a = vsimm_association_log_likelihood(vsimm_predict(s, net, cfg, 10.0),
+        ...     torch.tensor([[100.0, 0.0], [400.0, 0.0]]), VideoSensor(), cfg)
+        >>> bool(a.log_likelihood[0, 0] > a.log_likelihood[0, 1]), a.d2.shape
+        (True, torch.Size([1, 2, 3]))
+    """
+    B, r = pred.cbar.shape
+    m = sensor.dim
+    zz = check_measurements("z", z, m)
+    if zz.dim() != 2:
+        raise ValueError(f"`z`: expected shape (M, {m}), got {tuple(zz.shape)}")
+    M = zz.shape[0]
+    xb = pred.x.unsqueeze(1)  # (B, 1, r, 4)
+    Pb = pred.P.unsqueeze(1)
+    zb = zz.view(1, M, 1, m)
+    hx, H, R = sensor.linearize(xb, zb)
+    shape = (B, M, r)
+    H = H.expand(*shape, m, 4)
+    R = R.expand(*shape, m, m)
+    nu = zb - hx
+    S = H @ Pb @ H.transpose(-1, -2) + R
+    S = 0.5 * (S + S.transpose(-1, -2))
+    L, info = torch.linalg.cholesky_ex(S)
+    if bool((info != 0).any()):
+        raise ValueError(
+            "`z`: expected positive definite innovation covariances, got some that are not"
+        )
+    w = torch.linalg.solve_triangular(L, nu.unsqueeze(-1), upper=False).squeeze(-1)
+    d2 = (w * w).sum(-1)
+    logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    ll = -0.5 * (d2 + logdet + m * math.log(2.0 * math.pi))
+    if config.use_mdv and hasattr(sensor, "mdv"):
+        pd = sensor.expected_detection_probability(pred.x, pred.P)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    pd = pd.clamp(_PD_FLOOR, 1.0)
+    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    log_cbar = torch.log(pred.cbar)
+    det = torch.where(is_stop.unsqueeze(1), -torch.inf, torch.log(pd).unsqueeze(1) + ll)
+    miss = torch.where(is_stop, 0.0, torch.log1p(-pd))
+    return VSIMMAssociation(
+        torch.logsumexp(det + log_cbar.unsqueeze(1), -1),
+        torch.logsumexp(miss + log_cbar, -1),
+        d2,
+    )
 
 
 def vsimm_step(

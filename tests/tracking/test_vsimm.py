@@ -14,6 +14,7 @@ from hocnet.tracking.vsimm import (
     section_transition,
     sprt_decide,
     sprt_thresholds,
+    vsimm_association_log_likelihood,
     vsimm_expand_sections,
     vsimm_init,
     vsimm_predict,
@@ -495,3 +496,45 @@ def test_expand_sections_adds_each_reachable_section_once():
     loc = net.locate(x0[0])
     reach = net.reachable(loc.segment, loc.abscissa, 150.0 + 3 * math.sqrt(200.0), direction=1)
     assert set(net.segment_section[reach].tolist()) == {0, 1, 2}
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "gmti"])
+def test_association_likelihoods_equal_the_update(sensor_name):
+    net = small_network()
+    rng = np.random.default_rng(10)
+    cfg = VSIMMConfig(off_road_sigma=1.0)
+    s = random_rows(net, cfg, rng, 5)
+    pred = vsimm_predict(s, net, cfg, 10.0)
+    xc = s.combined()[0]
+    if sensor_name == "video":
+        sensor = VideoSensor(10.0, pd=0.9)
+        Z = xc[:4, [0, 2]] + torch.tensor(rng.normal(size=(4, 2)) * 30)
+    else:
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        Z = sensor.measure(xc[:4]) + torch.tensor(rng.normal(size=(4, 3)) * [30, 30, 1])
+    a = vsimm_association_log_likelihood(pred, Z, sensor, cfg)
+    assert a.log_likelihood.shape == (5, 4) and a.d2.shape == (5, 4, 4)
+    for j in range(4):
+        _, out = vsimm_update(s, pred, Z[j].expand(5, -1), sensor, net, cfg)
+        torch.testing.assert_close(
+            a.log_likelihood[:, j], out.log_likelihood, rtol=1e-10, atol=1e-10
+        )
+    nan = torch.full((5, sensor.dim), float("nan"), dtype=torch.float64)
+    _, out = vsimm_update(s, pred, nan, sensor, net, cfg, detected=torch.zeros(5, dtype=torch.bool))
+    torch.testing.assert_close(a.missed_log_likelihood, out.log_likelihood, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="`z`: expected finite"):
+        vsimm_association_log_likelihood(pred, nan[:1], sensor, cfg)
+
+
+def test_bad_measurement_leaves_state_untouched():
+    net = small_network()
+    cfg = VSIMMConfig()
+    s = random_rows(net, cfg, np.random.default_rng(11), 3)
+    before = [f.clone() for f in s]
+    z = torch.tensor([[1.0, 2.0], [float("inf"), 0.0], [3.0, 4.0]], dtype=torch.float64)
+    with pytest.raises(
+        ValueError, match=r"`z`: expected finite measurements, got NaN/inf at index \[1\]"
+    ):
+        vsimm_step(s, net, cfg, 10.0, z, VideoSensor())
+    for f, g in zip(s, before, strict=True):
+        assert torch.equal(f, g)
