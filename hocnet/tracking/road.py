@@ -36,7 +36,8 @@ results in places):
   unit direction ``u`` (Ulmke and Koch 2006, the chapter's [19]; our reading). We implement 24.11
   for every position (it is already small outside ``[0, l]``); the printed 24.10 would set it to
   0 outside.
-- 24.14 lacks a transpose: ``x_s = x - P D' (D P D')^-1 (D x - L)``.
+- 24.14 lacks a transpose: ``x_s = x - P D' (D P D')^-1 (D x - L)``. (The text before it says
+  the estimate maximises "pdf (24.3)": the density is 24.13, 24.3 is the constraint.)
 - 24.16 lacks an inverse: ``W = P D' (D P D')^-1 D``; then 24.15 ``P_s = (I - W) P (I - W)'``
   equals ``P - W P`` and ``D P_s = 0``.
 - ``F_{s,i}`` of 24.5 is "described in [12]" and not printed: we use the plain constant-velocity
