@@ -275,8 +275,9 @@ def _projection(
     PDt = P @ D.transpose(-1, -2)
     M = D @ PDt
     M = 0.5 * (M + M.transpose(-1, -2))
-    scale = M.diagonal(dim1=-2, dim2=-1).abs().amax(-1)
-    Minv = torch.linalg.pinv(M, hermitian=True, atol=1e-12 * scale.clamp(min=1e-300))
+    # eigenvalues below 1e-9 of the largest are zero: D P D' is singular for a stopped mode and
+    # for a retrodiction whose across-road position and velocity are driven by one noise
+    Minv = torch.linalg.pinv(M, hermitian=True, rtol=1e-9)
     K = PDt @ Minv
     resid = (D @ x.unsqueeze(-1)).squeeze(-1) - L
     xs = x - (K @ resid.unsqueeze(-1)).squeeze(-1)

@@ -65,7 +65,6 @@ from hocnet.tracking.oosm import (
     _projection,
     _retrodict,
     check_oosm_time,
-    innovation_memory,
 )
 from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.sensors import check_measurements
@@ -206,8 +205,9 @@ class VSIMMState(NamedTuple):
         t: ``(B,)`` time of the estimate, s.
         t_prev: ``(B,)`` time of the previous scan, s (the OOSM lag limit).
         P_pred: ``(B, r, 4, 4)`` ``P(k|k-1)`` of the last step (OOSM memory).
-        g: ``(B, r, 4)`` ``H' S^-1 nu`` of the last update (0 if not detected).
-        G: ``(B, r, 4, 4)`` ``H' S^-1 H`` of the last update.
+        g: ``(B, r, 4)`` ``H' S^-1 nu`` of the last update, the road projection included as a
+            perfect pseudo-measurement (see ``_oosm_memory``).
+        G: ``(B, r, 4, 4)`` ``H' S^-1 H`` of the last update, likewise.
         accel_cov: ``(B, r, 2, 2)`` acceleration covariance (m/s^2)^2 used in the last step.
     """
 
@@ -511,6 +511,47 @@ class VSIMMUpdate(NamedTuple):
     mode_log_likelihood: torch.Tensor
 
 
+def _oosm_memory(
+    pred: VSIMMPrediction,
+    H: torch.Tensor,
+    nu: torch.Tensor,
+    R: torch.Tensor,
+    det: torch.Tensor,
+    D: torch.Tensor,
+    L: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A1 memory ``g = Ht' St^+ nut``, ``G = Ht' St^+ Ht`` of the whole update at ``t_k``.
+
+    The update of a road mode is the measurement followed by the projection on ``D x = L``, i.e.
+    the conditioning on a perfect pseudo-measurement; both are stacked (``Ht = [H; D]``,
+    ``nut = [nu; L - D x_pred]``, ``Rt = blockdiag(R, 0)``, zero rows where a part is absent:
+    undetected rows, off-road modes) so that ``P(k|k) = P(k|k-1) - P(k|k-1) G P(k|k-1)`` holds as
+    A1 assumes (our addition; with the measurement alone the retrodicted covariance can become
+    indefinite). ``St^+`` is the pseudo-inverse (a stopped mode has no velocity variance).
+    """
+    B, r, m, _ = H.shape
+    d = det.view(B, 1, 1)
+    on = (pred.segment >= 0).unsqueeze(-1)
+    Hz = torch.where(d.unsqueeze(-1), H, torch.zeros_like(H))
+    Dz = torch.where(on.unsqueeze(-1), D, torch.zeros_like(D))
+    Ht = torch.cat([Hz, Dz], -2)
+    resid = L - (D @ pred.x.unsqueeze(-1)).squeeze(-1)
+    nut = torch.cat(
+        [torch.where(d, nu, torch.zeros_like(nu)), torch.where(on, resid, torch.zeros_like(resid))],
+        -1,
+    )
+    c = D.shape[-2]
+    Rt = torch.zeros(B, r, m + c, m + c, dtype=DTYPE)
+    Rt[..., :m, :m] = torch.where(d.unsqueeze(-1), R, torch.zeros_like(R))
+    St = Ht @ pred.P @ Ht.transpose(-1, -2) + Rt
+    St = 0.5 * (St + St.transpose(-1, -2))
+    Sp = torch.linalg.pinv(St, hermitian=True, rtol=1e-9)
+    HtS = Ht.transpose(-1, -2) @ Sp
+    G = HtS @ Ht
+    g = (HtS @ nut.unsqueeze(-1)).squeeze(-1)
+    return g, 0.5 * (G + G.transpose(-1, -2))
+
+
 def vsimm_update(
     state: VSIMMState,
     pred: VSIMMPrediction,
@@ -607,8 +648,7 @@ def vsimm_update(
             f"{int(torch.isinf(total).sum())} rows with none"
         )
     mu = torch.exp(a - total)
-    S = H @ pred.P @ H.transpose(-1, -2) + R
-    g, G = innovation_memory(nu, H, S, det.unsqueeze(-1).expand(B, r))
+    g, G = _oosm_memory(pred, H, nu, R, det, D, L)
     new = VSIMMState(
         mu,
         x_new,
