@@ -215,6 +215,9 @@ def test_network_node_merging_and_roundtrip():
     # MultiLineString and a bare geometry
     multi = {"type": "MultiLineString", "coordinates": [[[0, 0], [1, 0]], [[1, 0], [1, 1]]]}
     assert RoadNetwork.from_geojson(multi).num_segments == 2
+    # polylines as one array (F, K, 2)
+    arr = np.array([[[0.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [1.0, 1.0]]])
+    assert RoadNetwork(arr).num_segments == 2
 
 
 def loop_locate(net, pos, allowed=None):
