@@ -1,0 +1,513 @@
+"""Measurement models of [PD] section 24.3: GMTI reports with range-rate, video / IMINT positions.
+
+State convention ``x = [x, vx, y, vy]`` (m, m/s) in the local East-North frame (TCF, 24.2.2);
+everything is batched over a leading shape ``(...)`` and float64.
+
+**GMTI** (24.17-24.20). A report is the TCF position and the range-rate,
+``z_mti = [x, y, rho_dot]'`` (24.17), with (24.18)
+
+    rho_dot = ((x - xc) vx + (y - yc) vy) / rho,
+
+``rho`` the distance from the sensor at ``(xc, yc, zc)`` to the target. The chapter prints
+``rho = sqrt((x - xc)^2 + (y - yc)^2)`` (a sensor in the ground plane); with the sensor's altitude
+``zc`` (the chapter's GMTI flies at 4000 m) we use the slant range
+``rho = sqrt((x - xc)^2 + (y - yc)^2 + zc^2)`` for a target on the ground (our addition; it equals
+24.18 for ``zc = 0``). The sensor is taken as stationary or its own motion as compensated (the
+usual MTI report convention; the chapter does not discuss it).
+
+The range-rate is correlated with the position, so the chapter uses Bizup and Brown's
+*alternative* EKF linearisation (AEKF, the chapter's [4]) and writes the measurement as linear,
+``z = H_mti x + nu`` (24.19) with (24.20)
+
+    H_mti = [[1, 0, 0, 0], [0, 0, 1, 0], [0, d rho_dot / d vx, 0, d rho_dot / d vy]]
+          = [[1, 0, 0, 0], [0, 0, 1, 0], [0, ux, 0, uy]],   u = (x - xc, y - yc) / rho,
+
+i.e. the range-rate row keeps only its velocity partials (the line of sight ``u``), so that
+``H_mti(x) x = h(x)`` exactly; the full EKF Jacobian (:func:`gmti_jacobian`) has in addition the
+position partials ``d rho_dot / dx = (vx - rho_dot ux) / rho`` (and likewise for ``y``). Our
+reading of "the explicit expression of 24.20 is given in [4]": ``u`` is evaluated at the *reported*
+position (the measurement, which makes the filter invariant to translations of the frame, as the
+chapter says), :meth:`GMTISensor.linearize` ``reference="measurement"``; ``"prediction"`` uses the
+predicted position instead.
+
+Noise: the chapter gives the standard deviations in range (20 m), cross-range (0.0008 rad, i.e.
+an azimuth angle) and range-rate (1 m/s). :func:`gmti_report_to_tcf` converts a polar report
+``(rho, azimuth, rho_dot)`` into ``z`` and its covariance ``R`` by the Jacobian of the
+polar-to-Cartesian map (azimuth measured from the East axis counter-clockwise, rad; ground range
+``g = sqrt(rho^2 - zc^2)``): ``R_xy = J diag(s_rho^2, s_az^2) J'`` with
+``J = [[rho/g cos az, -g sin az], [rho/g sin az, g cos az]]``, and ``R = blockdiag(R_xy,
+s_rr^2)``.
+
+**Minimum detectable velocity** (MDV, 1 m/s in the chapter). The equations around 24.21-24.22 are
+lost in the OCR (24.21 is the MTI class set); the chapter only states the MDV. Our reading, the
+usual clutter notch (Koch and Klemm): a target whose radial speed is below the MDV is in the
+clutter notch and is not detected, ``PD(x) = PD`` if ``|rho_dot(x)| >= MDV`` else 0
+(:meth:`GMTISensor.detection_probability`); for a Gaussian predicted state the expected value
+``PD (1 - P{|rho_dot| < MDV})`` (:meth:`GMTISensor.expected_detection_probability`, our addition).
+
+**Video / IMINT** (24.23-24.24): ``z_video = H_video x + w``, ``H_video = [[1, 0, 0, 0],
+[0, 0, 1, 0]]``, ``R_video`` given by the ground station (10 m standard deviation in x and y in
+the chapter's scenario). The UGS reports use the same model (24.3.2: "video information given
+by both sensor types").
+
+Sensors are created by name with :func:`make_sensor` (``"gmti"``, ``"video"``, ``"ugs"``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from hocnet._check import _describe, check_choice, check_number
+from hocnet.tracking.kalman import DTYPE, as_float64
+
+__all__ = [
+    "SENSOR_NAMES",
+    "GMTISensor",
+    "VideoSensor",
+    "check_measurements",
+    "gmti_aekf_matrix",
+    "gmti_jacobian",
+    "gmti_measure",
+    "gmti_report_to_tcf",
+    "gmti_tcf_to_report",
+    "make_sensor",
+]
+
+H_POSITION = ((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
+
+
+def check_measurements(name: str, z: Any, dim: int) -> torch.Tensor:
+    """Validate measurements ``(..., dim)``: real, finite, float64.
+
+    Raises:
+        TypeError: not real numeric.
+        ValueError: wrong last axis, or NaN / inf (the message gives the first bad row).
+
+    Examples:
+        >>> check_measurements("z", [[1.0, 2.0]], 2).dtype
+        torch.float64
+    """
+    if not isinstance(z, torch.Tensor):
+        try:
+            z = torch.as_tensor(z, dtype=DTYPE)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"`{name}`: expected real measurements, got {_describe(z)}") from None
+    if z.is_complex() or z.dtype == torch.bool:
+        raise TypeError(f"`{name}`: expected real measurements, got dtype {z.dtype}")
+    z = z.to(DTYPE)
+    if z.dim() < 1 or z.shape[-1] != dim:
+        raise ValueError(
+            f"`{name}`: expected measurements of shape (..., {dim}), got {tuple(z.shape)}"
+        )
+    bad = ~torch.isfinite(z).all(-1)
+    if bool(bad.any()):
+        first = torch.nonzero(bad)[0].tolist()
+        raise ValueError(
+            f"`{name}`: expected finite measurements, got NaN/inf at index {first} "
+            f"({int(bad.sum())} bad rows)"
+        )
+    return z
+
+
+def _sensor_position(position: Any) -> torch.Tensor:
+    pos = as_float64("position", position, min_dim=1)
+    if pos.shape[-1] == 2:
+        pos = torch.cat([pos, torch.zeros_like(pos[..., :1])], -1)
+    if pos.shape[-1] != 3:
+        raise ValueError(
+            f"`position`: expected the sensor position (xc, yc) or (xc, yc, zc) in m, got shape "
+            f"{tuple(pos.shape)}"
+        )
+    return pos
+
+
+def _state(x: Any) -> torch.Tensor:
+    x = as_float64("x", x, min_dim=1)
+    if x.shape[-1] != 4:
+        raise ValueError(f"`x`: expected states (..., 4) [x, vx, y, vy], got {tuple(x.shape)}")
+    return x
+
+
+def _los(x: torch.Tensor, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Horizontal offsets ``dx, dy`` and slant range ``rho`` of states ``x`` from the sensor."""
+    dx = x[..., 0] - pos[..., 0]
+    dy = x[..., 2] - pos[..., 1]
+    rho = torch.sqrt(dx * dx + dy * dy + pos[..., 2] * pos[..., 2])
+    if rho.numel() and bool((rho <= 0).any()):
+        raise ValueError("`x`: expected targets away from the sensor position, got range 0")
+    return dx, dy, rho
+
+
+def gmti_measure(x: Any, position: Any) -> torch.Tensor:
+    """Noise-free GMTI measurement ``h(x) = [x, y, rho_dot]`` (eq. 24.17-24.18).
+
+    Args:
+        x: states ``(..., 4)`` (m, m/s).
+        position: sensor position ``(3,)`` ``(xc, yc, zc)`` or ``(2,)`` (m), broadcast.
+
+    Returns:
+        ``(..., 3)`` float64: m, m, m/s.
+
+    Examples:
+        >>> gmti_measure(torch.tensor([3.0, 1.0, 4.0, 0.0]), torch.zeros(2)).tolist()
+        [3.0, 4.0, 0.6]
+    """
+    x = _state(x)
+    pos = _sensor_position(position)
+    dx, dy, rho = _los(x, pos)
+    rr = (dx * x[..., 1] + dy * x[..., 3]) / rho
+    return torch.stack([x[..., 0], x[..., 2], rr], -1)
+
+
+def gmti_jacobian(x: Any, position: Any) -> torch.Tensor:
+    """Full EKF Jacobian ``d h / d x`` of :func:`gmti_measure`, ``(..., 3, 4)``.
+
+    ``d rho_dot / dx = (vx - rho_dot dx / rho) / rho``, ``d rho_dot / dvx = dx / rho`` (and
+    likewise in ``y``): the standard EKF linearisation, which the chapter replaces by 24.20.
+
+    Examples:
+        >>> gmti_jacobian(torch.tensor([3.0, 0.0, 4.0, 0.0]), torch.zeros(2))[2].tolist()
+        [0.0, 0.6, 0.0, 0.8]
+    """
+    x = _state(x)
+    pos = _sensor_position(position)
+    dx, dy, rho = _los(x, pos)
+    rr = (dx * x[..., 1] + dy * x[..., 3]) / rho
+    zero, one = torch.zeros_like(rho), torch.ones_like(rho)
+    row3 = [
+        (x[..., 1] - rr * dx / rho) / rho,
+        dx / rho,
+        (x[..., 3] - rr * dy / rho) / rho,
+        dy / rho,
+    ]
+    return torch.stack(
+        [
+            torch.stack([one, zero, zero, zero], -1),
+            torch.stack([zero, zero, one, zero], -1),
+            torch.stack(row3, -1),
+        ],
+        -2,
+    )
+
+
+def gmti_aekf_matrix(reference: Any, position: Any) -> torch.Tensor:
+    """AEKF measurement matrix ``H_mti`` of eq. 24.20 (Bizup and Brown), ``(..., 3, 4)``.
+
+    ``[[1, 0, 0, 0], [0, 0, 1, 0], [0, ux, 0, uy]]`` with the line of sight
+    ``u = (x - xc, y - yc) / rho`` evaluated at ``reference``: the velocity partials of the
+    range-rate (the position partials are dropped). For any state ``x`` with the same position
+    as ``reference``, ``H_mti x = h(x)`` exactly (24.19 without noise).
+
+    Args:
+        reference: ``(..., 2)`` positions or ``(..., 4)`` states (m) where ``u`` is evaluated
+            (the reported position in the AEKF).
+        position: sensor position ``(3,)`` or ``(2,)`` (m).
+
+    Examples:
+        >>> gmti_aekf_matrix(torch.tensor([3.0, 4.0]), torch.zeros(2))[2].tolist()
+        [0.0, 0.6, 0.0, 0.8]
+    """
+    ref = as_float64("reference", reference, min_dim=1)
+    if ref.shape[-1] == 2:
+        ref = torch.stack(
+            [
+                ref[..., 0],
+                torch.zeros_like(ref[..., 0]),
+                ref[..., 1],
+                torch.zeros_like(ref[..., 0]),
+            ],
+            -1,
+        )
+    ref = _state(ref)
+    pos = _sensor_position(position)
+    dx, dy, rho = _los(ref, pos)
+    zero, one = torch.zeros_like(rho), torch.ones_like(rho)
+    return torch.stack(
+        [
+            torch.stack([one, zero, zero, zero], -1),
+            torch.stack([zero, zero, one, zero], -1),
+            torch.stack([zero, dx / rho, zero, dy / rho], -1),
+        ],
+        -2,
+    )
+
+
+def gmti_report_to_tcf(
+    report: Any,
+    position: Any,
+    sigma_range: float,
+    sigma_azimuth: float,
+    sigma_range_rate: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Polar GMTI report ``(rho, azimuth, rho_dot)`` to the TCF measurement ``z`` and its ``R``.
+
+    ``g = sqrt(rho^2 - zc^2)``, ``x = xc + g cos az``, ``y = yc + g sin az`` (target on the
+    ground), ``z = [x, y, rho_dot]`` (24.17) and ``R`` as in the module docstring (first-order
+    propagation of ``diag(s_rho^2, s_az^2)``; the range-rate noise independent).
+
+    Args:
+        report: ``(..., 3)`` slant range (m), azimuth (rad, from East counter-clockwise),
+            range-rate (m/s).
+        position: sensor position ``(3,)`` or ``(2,)`` (m).
+        sigma_range: m (the chapter: 20).
+        sigma_azimuth: rad (the chapter's "cross-range" 0.0008).
+        sigma_range_rate: m/s (the chapter: 1).
+
+    Returns:
+        ``(z, R)``: ``(..., 3)`` and ``(..., 3, 3)`` float64.
+
+    Raises:
+        ValueError: non-finite report, slant range below the sensor altitude, bad sigmas.
+
+    Examples:
+        >>> z, R = gmti_report_to_tcf(torch.tensor([5.0, 0.0, 1.0]), torch.zeros(2), 1.0, 0.1, 1.0)
+        >>> z.tolist(), [round(v, 12) for v in R.diagonal().tolist()]
+        ([5.0, 0.0, 1.0], [1.0, 0.25, 1.0])
+    """
+    rep = check_measurements("report", report, 3)
+    pos = _sensor_position(position)
+    sr = check_number("sigma_range", sigma_range, low=0.0)
+    sa = check_number("sigma_azimuth", sigma_azimuth, low=0.0)
+    srr = check_number("sigma_range_rate", sigma_range_rate, low=0.0)
+    rho, az, rr = rep[..., 0], rep[..., 1], rep[..., 2]
+    g2 = rho * rho - pos[..., 2] * pos[..., 2]
+    if g2.numel() and bool((g2 <= 0).any()):
+        raise ValueError(
+            "`report`: expected slant ranges larger than the sensor altitude, got one that is not"
+        )
+    g = torch.sqrt(g2)
+    c, s = torch.cos(az), torch.sin(az)
+    z = torch.stack([pos[..., 0] + g * c, pos[..., 1] + g * s, rr], -1)
+    J = torch.stack(
+        [torch.stack([rho / g * c, -g * s], -1), torch.stack([rho / g * s, g * c], -1)], -2
+    )
+    Rxy = J @ torch.diag(torch.tensor([sr * sr, sa * sa], dtype=DTYPE)) @ J.transpose(-1, -2)
+    R = torch.zeros(*z.shape[:-1], 3, 3, dtype=DTYPE)
+    R[..., :2, :2] = Rxy
+    R[..., 2, 2] = srr * srr
+    return z, R
+
+
+def gmti_tcf_to_report(x: Any, position: Any) -> torch.Tensor:
+    """Polar report ``(rho, azimuth, rho_dot)`` of states (the inverse of the conversion above).
+
+    Args:
+        x: states ``(..., 4)`` (m, m/s), targets on the ground.
+        position: sensor position ``(3,)`` or ``(2,)`` (m).
+
+    Returns:
+        ``(..., 3)``: m, rad, m/s (for simulating noisy reports in the sensor frame).
+
+    Examples:
+        >>> [round(v, 6) for v in gmti_tcf_to_report(torch.tensor([0.0, 0, 4.0, 1]),
+        ...                                           torch.tensor([0.0, 0, 3])).tolist()]
+        [5.0, 1.570796, 0.8]
+    """
+    x = _state(x)
+    pos = _sensor_position(position)
+    dx, dy, rho = _los(x, pos)
+    rr = (dx * x[..., 1] + dy * x[..., 3]) / rho
+    return torch.stack([rho, torch.atan2(dy, dx), rr], -1)
+
+
+def _phi(t: torch.Tensor) -> torch.Tensor:
+    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class GMTISensor:
+    """A GMTI radar: TCF position + range-rate reports, AEKF linearisation, MDV notch.
+
+    Args:
+        position: ``(xc, yc, zc)`` in m (the chapter: ``(-50000, -60000, 4000)``).
+        sigma_range: m (20).
+        sigma_azimuth: rad (0.0008, the chapter's "cross-range").
+        sigma_range_rate: m/s (1).
+        pd: detection probability outside the clutter notch (0.9).
+        mdv: minimum detectable velocity, m/s (1); 0 disables the notch.
+        name: ``"gmti"``.
+
+    Examples:
+        >>> s = GMTISensor((0.0, 0.0, 0.0), 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        >>> s.detection_probability(torch.tensor([[100.0, 0.5, 0, 0], [100.0, 5.0, 0, 0]])).tolist()
+        [0.0, 0.9]
+    """
+
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sigma_range: float = 20.0
+    sigma_azimuth: float = 0.0008
+    sigma_range_rate: float = 1.0
+    pd: float = 0.9
+    mdv: float = 1.0
+    name: str = "gmti"
+
+    dim = 3
+
+    def __post_init__(self) -> None:
+        pos = _sensor_position(self.position)
+        if pos.shape != (3,):
+            raise ValueError(f"`position`: expected one sensor position, got {tuple(pos.shape)}")
+        object.__setattr__(self, "position", tuple(pos.tolist()))
+        for n in ("sigma_range", "sigma_azimuth", "sigma_range_rate", "mdv"):
+            check_number(n, getattr(self, n), low=0.0)
+        check_number("pd", self.pd, low=0.0, high=1.0)
+
+    @property
+    def _pos(self) -> torch.Tensor:
+        return torch.tensor(self.position, dtype=DTYPE)
+
+    def measure(self, x: Any) -> torch.Tensor:
+        """Noise-free ``h(x)`` ``(..., 3)`` (24.17-24.18)."""
+        return gmti_measure(x, self._pos)
+
+    def jacobian(self, x: Any) -> torch.Tensor:
+        """Full EKF Jacobian ``(..., 3, 4)``."""
+        return gmti_jacobian(x, self._pos)
+
+    def covariance(self, z: Any) -> torch.Tensor:
+        """``R`` ``(..., 3, 3)`` of TCF measurements ``z`` ``(..., 3)`` (at their positions)."""
+        z = check_measurements("z", z, 3)
+        x = torch.stack([z[..., 0], torch.zeros_like(z[..., 0]), z[..., 1], z[..., 2]], -1)
+        report = gmti_tcf_to_report(x, self._pos)
+        report = torch.stack([report[..., 0], report[..., 1], z[..., 2]], -1)
+        return gmti_report_to_tcf(
+            report, self._pos, self.sigma_range, self.sigma_azimuth, self.sigma_range_rate
+        )[1]
+
+    def from_report(self, report: Any) -> tuple[torch.Tensor, torch.Tensor]:
+        """Polar report ``(..., 3)`` -> ``(z, R)`` (:func:`gmti_report_to_tcf`)."""
+        return gmti_report_to_tcf(
+            report, self._pos, self.sigma_range, self.sigma_azimuth, self.sigma_range_rate
+        )
+
+    def linearize(
+        self, x_pred: Any, z: Any, *, reference: str = "measurement"
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """AEKF linearisation (24.19-24.20) for an update of ``x_pred`` with ``z``.
+
+        Args:
+            x_pred: predicted states ``(..., 4)``.
+            z: measurements ``(..., 3)`` (broadcast against ``x_pred``'s batch).
+            reference: where the line of sight is evaluated, ``"measurement"`` (AEKF, our
+                reading of [4]) or ``"prediction"``.
+
+        Returns:
+            ``(hx, H, R)``: ``H x_pred`` ``(..., 3)``, ``H`` ``(..., 3, 4)``, ``R`` ``(..., 3, 3)``.
+        """
+        check_choice("reference", reference, ("measurement", "prediction"))
+        x = _state(x_pred)
+        z = check_measurements("z", z, 3)
+        ref = z[..., :2] if reference == "measurement" else x
+        H = gmti_aekf_matrix(ref, self._pos)
+        if reference == "measurement":
+            H = H.expand(*torch.broadcast_shapes(H.shape[:-2], x.shape[:-1]), 3, 4)
+        hx = (H @ x.unsqueeze(-1)).squeeze(-1)
+        return hx, H, self.covariance(z)
+
+    def detection_probability(self, x: Any) -> torch.Tensor:
+        """``PD`` outside the MDV clutter notch, 0 inside (our reading), ``(...)``."""
+        rr = self.measure(x)[..., 2]
+        return torch.where(rr.abs() >= self.mdv, torch.full_like(rr, self.pd), torch.zeros_like(rr))
+
+    def expected_detection_probability(self, x: Any, P: Any) -> torch.Tensor:
+        """``PD (1 - P{|rho_dot| < MDV})`` ``(...)`` for Gaussian states ``N(x, P)`` (our addition).
+
+        ``rho_dot ~ N(h3(x), H3 P H3')`` with the AEKF row ``H3`` at the state's position.
+        """
+        x = _state(x)
+        P = as_float64("P", P, min_dim=2, square=True)
+        H3 = gmti_aekf_matrix(x, self._pos)[..., 2, :]
+        m = (H3 * x).sum(-1)
+        var = (H3.unsqueeze(-2) @ P @ H3.unsqueeze(-1)).squeeze(-1).squeeze(-1)
+        sd = var.clamp(min=0.0).sqrt()
+        safe = torch.where(sd > 0, sd, torch.ones_like(sd))
+        inside = _phi((self.mdv - m) / safe) - _phi((-self.mdv - m) / safe)
+        hard = (m.abs() < self.mdv).to(DTYPE)
+        inside = torch.where(sd > 0, inside, hard)
+        return self.pd * (1.0 - inside)
+
+
+@dataclass(frozen=True)
+class VideoSensor:
+    """Video EO/IR (UAV) or UGS position reports, eq. 24.23-24.24.
+
+    Args:
+        sigma: position standard deviation in x and y, m (the chapter: 10 for the UAV).
+        pd: detection probability (0.9).
+        name: ``"video"`` or ``"ugs"``.
+
+    Examples:
+        >>> hx, H, R = VideoSensor(10.0).linearize(torch.zeros(4), torch.ones(2))
+        >>> H.tolist(), R.diagonal().tolist()
+        ([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]], [100.0, 100.0])
+    """
+
+    sigma: float = 10.0
+    pd: float = 0.9
+    name: str = "video"
+
+    dim = 2
+
+    def __post_init__(self) -> None:
+        check_number("sigma", self.sigma, low=0.0, low_inclusive=False)
+        check_number("pd", self.pd, low=0.0, high=1.0)
+
+    def measure(self, x: Any) -> torch.Tensor:
+        """``H_video x`` ``(..., 2)`` (24.23 without noise)."""
+        x = _state(x)
+        return x[..., [0, 2]]
+
+    def jacobian(self, x: Any) -> torch.Tensor:
+        """``H_video`` (24.24) broadcast to ``(..., 2, 4)``."""
+        x = _state(x)
+        return torch.tensor(H_POSITION, dtype=DTYPE).expand(*x.shape[:-1], 2, 4)
+
+    def covariance(self, z: Any) -> torch.Tensor:
+        """``R_video = sigma^2 I`` ``(..., 2, 2)``."""
+        z = check_measurements("z", z, 2)
+        return (self.sigma**2 * torch.eye(2, dtype=DTYPE)).expand(*z.shape[:-1], 2, 2)
+
+    def linearize(
+        self, x_pred: Any, z: Any, **_: Any
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(H x_pred, H, R)`` for a linear update (the model is linear)."""
+        x = _state(x_pred)
+        z = check_measurements("z", z, 2)
+        H = torch.tensor(H_POSITION, dtype=DTYPE)
+        return x[..., [0, 2]], H, self.covariance(z)
+
+    def detection_probability(self, x: Any) -> torch.Tensor:
+        """Constant ``PD`` ``(...)`` (no clutter notch for imagery)."""
+        x = _state(x)
+        return torch.full(x.shape[:-1], self.pd, dtype=DTYPE)
+
+    def expected_detection_probability(self, x: Any, P: Any) -> torch.Tensor:
+        """Constant ``PD`` ``(...)``."""
+        return self.detection_probability(x)
+
+
+_SENSORS = {"gmti": GMTISensor, "video": VideoSensor, "ugs": VideoSensor}
+#: Names accepted by :func:`make_sensor`.
+SENSOR_NAMES = tuple(_SENSORS)
+
+
+def make_sensor(name: str, **params: Any) -> GMTISensor | VideoSensor:
+    """Create a sensor model by name: ``"gmti"``, ``"video"`` or ``"ugs"``.
+
+    Args:
+        name: sensor name.
+        **params: the dataclass fields of :class:`GMTISensor` / :class:`VideoSensor`.
+
+    Raises:
+        ValueError: unknown name (the message lists the known ones) or bad parameters.
+
+    Examples:
+        >>> make_sensor("ugs", sigma=5.0).name
+        'ugs'
+    """
+    check_choice("sensor", name, SENSOR_NAMES)
+    return _SENSORS[name](name=name, **params)

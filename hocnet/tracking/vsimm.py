@@ -1,0 +1,1200 @@
+"""Variable-structure IMM on a road network (VS-IMMC, [PD] section 24.4), batched over rows.
+
+A *row* is one (track, road-section hypothesis) pair; every function works on all rows of a scan
+at once (``B`` rows, ``r`` modes, state ``[x, vx, y, vy]`` in m and m/s, float64):
+
+- mode probabilities ``mu`` ``(B, r)``, mode-matched states ``x`` ``(B, r, 4)``, covariances
+  ``P`` ``(B, r, 4, 4)``, the active segment of each mode ``segment`` ``(B, r)`` (``-1`` for an
+  off-road mode), the section hypothesis ``section`` ``(B,)`` (``-1``: the whole network), the
+  track id ``track`` ``(B,)`` and the section probability ``mu_section`` ``(B,)`` (24.38).
+
+**Mode set** (:class:`VSIMMConfig`): the stop model M0 (24.31; ``F0 = diag(1, 0, 1, 0)``,
+``Q0 = 0``), ``r'`` road-constrained constant-velocity models ``M_i^s`` with along / across
+acceleration deviations (24.5-24.8; the chapter's M1 0.05 / 0.05 and M2 0.8 / 0.4 m/s^2) and,
+optionally, an unconstrained off-road constant-velocity model (our addition, "on-off road model"
+of the abstract).
+
+**Variable structure** (24.4.3, our reading): the chapter builds ``r + 1`` graphs whose nodes are
+the constrained models ``M_s^i`` of the segments and activates, for each model, the node of the
+segment where its *predicted* state lies. So in :func:`vsimm_predict` the mixed estimate of mode
+``i`` is predicted with the constant-velocity ``F``, located on the segments of the row's section
+(:meth:`~hocnet.tracking.road.RoadNetwork.locate`), and that segment ``s`` gives the directional
+noise (24.6) relaxed near its ends (24.9-24.12 with the predicted ``P{e_s}``), the constraint of
+the update, and the projection (24.14-24.16) of the updated mode estimate. Near a junction the
+segments reachable within the predicted travel (:meth:`~hocnet.tracking.road.RoadNetwork.reachable`)
+belong to several sections: :func:`vsimm_expand_sections` adds one row per new section (one IMM
+per hypothesis ``h``), and :func:`vsimm_section_sprt` updates the section probabilities (24.38)
+and runs Wald's SPRT (24.39-24.40) to keep one.
+
+**Likelihoods** (24.29-24.32): mode ``i`` moving: ``PD_i p(z | M_i)`` if detected, ``1 - PD_i``
+if not; stop: ``delta_{m_j, 0}``. ``PD_i`` is the sensor's ``PD`` or, with the GMTI minimum
+detectable velocity (``use_mdv``), the expected ``PD`` of the mode's predicted state
+(:meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability`; our reading of the
+MDV, floored at 1e-12). The IMM equations are those of :mod:`hocnet.tracking.imm` (mixing
+24.33-24.35 with the standard indices, 24.36, 24.37).
+
+**24.38** prints the sum over ``h_bar in {1, ..., N_k - 1}``; we read the subscript ``k - 1``
+flattened by the OCR: the sum runs over the ``N_{k-1}`` hypotheses alive at ``k - 1`` (a newly
+spawned hypothesis has ``mu = 0`` at ``k - 1``, so summing over the ``N_k`` current ones is the
+same). ``Omega[h_bar, h]`` is the probability of moving from the road of ``h_bar`` to that of
+``h`` (:func:`section_transition`, our choice of values).
+
+**SPRT thresholds** (24.39-24.40; "given in [5, 20]"): Wald's ``A = (1 - beta) / alpha`` and
+``B = beta / (1 - alpha)`` for the error probabilities ``alpha`` (accepting a wrong section) and
+``beta`` (rejecting the true one). The chapter's letters are swapped with respect to Wald's: its
+24.39 accepts ``h`` when ``mu_h / mu_h' >= B`` for all ``h'`` and 24.40 rejects when
+``<= A``; the acceptance bound must be the large one, so we accept above Wald's
+``A = (1 - beta) / alpha`` and reject below Wald's ``B = beta / (1 - alpha)``
+(:func:`sprt_thresholds` returns ``(upper, lower)`` = ``(A, B)`` of Wald).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import torch
+
+from hocnet._check import check_choice, check_number
+from hocnet.tracking.imm import _combine, _mix, _mixing, imm_mixing_probabilities
+from hocnet.tracking.kalman import DTYPE, _update, as_float64
+from hocnet.tracking.oosm import (
+    Retrodiction,
+    _apply,
+    _projection,
+    _retrodict,
+    check_oosm_time,
+)
+from hocnet.tracking.road import RoadNetwork
+from hocnet.tracking.sensors import check_measurements
+
+__all__ = [
+    "VSIMMAssociation",
+    "VSIMMConfig",
+    "VSIMMPrediction",
+    "VSIMMState",
+    "VSIMMUpdate",
+    "section_probabilities",
+    "section_transition",
+    "sprt_decide",
+    "sprt_thresholds",
+    "vsimm_association_log_likelihood",
+    "vsimm_expand_sections",
+    "vsimm_init",
+    "vsimm_oosm",
+    "vsimm_predict",
+    "vsimm_section_sprt",
+    "vsimm_step",
+    "vsimm_update",
+]
+
+_PD_FLOOR = 1e-12
+
+
+def _default_trans(r: int, stay: float = 0.9) -> tuple[tuple[float, ...], ...]:
+    if r == 1:
+        return ((1.0,),)
+    off = (1.0 - stay) / (r - 1)
+    return tuple(tuple(stay if i == j else off for j in range(r)) for i in range(r))
+
+
+@dataclass(frozen=True)
+class VSIMMConfig:
+    """Mode set and options of the VS-IMM.
+
+    Args:
+        road_sigmas: ``((sigma_along, sigma_across), ...)`` of the road-constrained CV models in
+            m/s^2 (the chapter: M1 ``(0.05, 0.05)``, M2 ``(0.8, 0.4)``).
+        stop: include the stop model M0 as mode 0.
+        off_road_sigma: acceleration deviation (m/s^2) of an unconstrained CV mode appended last,
+            or ``None`` (no off-road mode).
+        trans: ``(r, r)`` mode transition matrix, ``trans[i, j] = P(i -> j)`` (rows sum to 1);
+            ``None`` gives 0.9 on the diagonal and the rest spread evenly (our choice; the
+            chapter takes its matrix from its reference [14]).
+        relax: relax the across-road noise near segment ends (24.9-24.12).
+        use_mdv: mode-dependent ``PD`` from the sensor's MDV notch (GMTI).
+        noise: ``"discrete"`` (default): piecewise-constant white acceleration,
+            ``Q = Gamma(dt) Sigma Gamma(dt)'`` as in 24.5 with ``Gamma`` of [1]; ``"continuous"``
+            (our addition): continuous white acceleration of power spectral density ``Sigma``
+            (per axis ``[[dt^3/3, dt^2/2], [dt^2/2, dt]]``), whose ``Q`` splits exactly over
+            sub-intervals, so that the OOSM retrodiction is exact for a linear model.
+
+    Examples:
+        >>> VSIMMConfig().kinds
+        ('stop', 'road', 'road')
+    """
+
+    road_sigmas: tuple[tuple[float, float], ...] = ((0.05, 0.05), (0.8, 0.4))
+    stop: bool = True
+    off_road_sigma: float | None = None
+    trans: Any = None
+    relax: bool = True
+    use_mdv: bool = True
+    noise: str = "discrete"
+    kinds: tuple[str, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        check_choice("noise", self.noise, ("discrete", "continuous"))
+        for i, pair in enumerate(self.road_sigmas):
+            if len(pair) != 2:
+                raise ValueError(
+                    "`road_sigmas`: expected (sigma_along, sigma_across) pairs, got "
+                    f"{pair!r} at {i}"
+                )
+            check_number("sigma_along", pair[0], low=0.0)
+            check_number("sigma_across", pair[1], low=0.0)
+        if self.off_road_sigma is not None:
+            check_number("off_road_sigma", self.off_road_sigma, low=0.0)
+        kinds = ("stop",) * self.stop + ("road",) * len(self.road_sigmas)
+        kinds += ("off",) * (self.off_road_sigma is not None)
+        if not kinds:
+            raise ValueError("`road_sigmas`: expected at least one mode, got none")
+        object.__setattr__(self, "kinds", kinds)
+        trans = self.trans if self.trans is not None else _default_trans(len(kinds))
+        t = as_float64("trans", trans, min_dim=2)
+        r = len(kinds)
+        if t.shape != (r, r):
+            raise ValueError(
+                f"`trans`: expected shape ({r}, {r}) for modes {kinds}, got {tuple(t.shape)}"
+            )
+        imm_mixing_probabilities(torch.full((1, r), 1.0 / r, dtype=DTYPE), t)  # row-sum checks
+        object.__setattr__(self, "trans", tuple(tuple(row) for row in t.tolist()))
+
+    @property
+    def num_modes(self) -> int:
+        """``r``."""
+        return len(self.kinds)
+
+    def trans_tensor(self) -> torch.Tensor:
+        """``(r, r)`` float64 transition matrix."""
+        return torch.tensor(self.trans, dtype=DTYPE)
+
+    def sigma_tensors(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per-mode ``sigma_along``, ``sigma_across`` ``(r,)`` (m/s^2) and the road-mode mask."""
+        sa, sc, road = [], [], []
+        it = iter(self.road_sigmas)
+        for k in self.kinds:
+            if k == "road":
+                a, c = next(it)
+            elif k == "off":
+                a = c = float(self.off_road_sigma)
+            else:
+                a = c = 0.0
+            sa.append(a)
+            sc.append(c)
+            road.append(k != "off")
+        return (
+            torch.tensor(sa, dtype=DTYPE),
+            torch.tensor(sc, dtype=DTYPE),
+            torch.tensor(road, dtype=torch.bool),
+        )
+
+
+class VSIMMState(NamedTuple):
+    """State of ``B`` rows (track x section hypothesis), all float64 unless said.
+
+    Attributes:
+        mu: ``(B, r)`` mode probabilities.
+        x: ``(B, r, 4)`` mode-matched estimates (m, m/s), projected on their segments.
+        P: ``(B, r, 4, 4)``.
+        segment: ``(B, r)`` int64 active segment per mode (``-1`` off-road).
+        section: ``(B,)`` int64 section hypothesis (``-1``: whole network).
+        track: ``(B,)`` int64 track id.
+        mu_section: ``(B,)`` section probability ``mu_h`` (24.38), sums to 1 per track.
+        t: ``(B,)`` time of the estimate, s.
+        t_prev: ``(B,)`` time of the previous scan, s (the OOSM lag limit).
+        P_pred: ``(B, r, 4, 4)`` ``P(k|k-1)`` of the last step (OOSM memory).
+        g: ``(B, r, 4)`` ``H' S^-1 nu`` of the last update, the road projection included as a
+            perfect pseudo-measurement (see ``_oosm_memory``).
+        G: ``(B, r, 4, 4)`` ``H' S^-1 H`` of the last update, likewise.
+        accel_cov: ``(B, r, 2, 2)`` acceleration covariance (m/s^2)^2 used in the last step.
+    """
+
+    mu: torch.Tensor
+    x: torch.Tensor
+    P: torch.Tensor
+    segment: torch.Tensor
+    section: torch.Tensor
+    track: torch.Tensor
+    mu_section: torch.Tensor
+    t: torch.Tensor
+    t_prev: torch.Tensor
+    P_pred: torch.Tensor
+    g: torch.Tensor
+    G: torch.Tensor
+    accel_cov: torch.Tensor
+
+    def combined(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Combined estimate (24.37) and covariance: ``(B, 4)``, ``(B, 4, 4)``."""
+        return _combine(self.mu, self.x, self.P)
+
+    def select(self, rows: Any) -> VSIMMState:
+        """The rows ``rows`` (index or bool mask) of every field."""
+        return VSIMMState(*(f[rows] for f in self))
+
+
+class VSIMMPrediction(NamedTuple):
+    """Result of :func:`vsimm_predict`.
+
+    Attributes:
+        cbar: ``(B, r)`` predicted mode probabilities ``mu_i(k|k-1)``.
+        x: ``(B, r, 4)`` mode-matched predictions.
+        P: ``(B, r, 4, 4)``.
+        segment: ``(B, r)`` int64 active segments (``-1`` off-road).
+        p_on: ``(B, r)`` on-segment probabilities ``P{e_s(k) | Z^{k-1}}`` (24.11; 1 off-road).
+        accel_cov: ``(B, r, 2, 2)`` acceleration covariances (24.9).
+        t: ``(B,)`` prediction time, s.
+    """
+
+    cbar: torch.Tensor
+    x: torch.Tensor
+    P: torch.Tensor
+    segment: torch.Tensor
+    p_on: torch.Tensor
+    accel_cov: torch.Tensor
+    t: torch.Tensor
+
+
+def _cv_matrices(dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """CV ``F (..., 4, 4)`` and ``Gamma (..., 4, 2)`` for time steps ``dt (...)`` (any sign)."""
+    F = torch.eye(4, dtype=DTYPE).expand(*dt.shape, 4, 4).clone()
+    F[..., 0, 1] = dt
+    F[..., 2, 3] = dt
+    Gm = torch.zeros(*dt.shape, 4, 2, dtype=DTYPE)
+    Gm[..., 0, 0] = Gm[..., 2, 1] = 0.5 * dt * dt
+    Gm[..., 1, 0] = Gm[..., 3, 1] = dt
+    return F, Gm
+
+
+def _mode_F(kinds: tuple[str, ...], dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-row, per-mode ``F (B, r, 4, 4)`` and ``Gamma (B, r, 4, 2)``; the stop mode has F0."""
+    F, Gm = _cv_matrices(dt)
+    r = len(kinds)
+    F = F.unsqueeze(1).repeat(1, r, 1, 1)
+    Gm = Gm.unsqueeze(1).repeat(1, r, 1, 1)
+    for i, k in enumerate(kinds):
+        if k == "stop":
+            F[:, i] = torch.diag(torch.tensor([1.0, 0.0, 1.0, 0.0], dtype=DTYPE))
+            Gm[:, i] = 0.0
+    return F, Gm
+
+
+def _process_noise(
+    kinds: tuple[str, ...], noise: str, dt: torch.Tensor, Gm: torch.Tensor, cov: torch.Tensor
+) -> torch.Tensor:
+    """``Q (B, r, 4, 4)`` from acceleration covariances ``cov (B, r, 2, 2)`` over ``dt (B,)``."""
+    if noise == "discrete":
+        return Gm @ cov @ Gm.transpose(-1, -2)
+    d = dt.abs().view(-1, 1, 1, 1)
+    blk = torch.cat(
+        [torch.cat([d**3 / 3.0, d**2 / 2.0], -1), torch.cat([d**2 / 2.0, d], -1)], -2
+    )  # (B, 1, 2, 2)
+    T = cov[..., :, None, :, None] * blk[..., None, :, None, :]
+    Q = T.reshape(*cov.shape[:-2], 4, 4)
+    stop = torch.tensor([k == "stop" for k in kinds]).view(1, -1, 1, 1)
+    return torch.where(stop, torch.zeros_like(Q), Q)
+
+
+def _phi(t: torch.Tensor) -> torch.Tensor:
+    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
+
+
+def _accel_cov(
+    net: RoadNetwork,
+    seg: torch.Tensor,
+    x_pred: torch.Tensor,
+    P_tmp_fn: Any,
+    sa: torch.Tensor,
+    sc: torch.Tensor,
+    road: torch.Tensor,
+    relax: bool,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Acceleration covariances 24.6 / 24.9 ``(B, r, 2, 2)`` and ``p_on`` ``(B, r)``."""
+    s = seg.clamp(min=0)
+    u = net.direction[s]  # (B, r, 2)
+    nrm = torch.stack([-u[..., 1], u[..., 0]], -1)
+    uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+    nn = nrm.unsqueeze(-1) * nrm.unsqueeze(-2)
+    sa2 = (sa * sa).view(1, -1, 1, 1)
+    sc2 = (sc * sc).view(1, -1, 1, 1)
+    iso = torch.eye(2, dtype=DTYPE)
+    base = torch.where(road.view(1, -1, 1, 1), sa2 * uu + sc2 * nn, sa2 * iso)
+    p_on = torch.ones(seg.shape, dtype=DTYPE)
+    if relax:
+        P_tmp = P_tmp_fn(base)
+        along = ((x_pred[..., [0, 2]] - net.p0[s]) * u).sum(-1)
+        Ppos = P_tmp[..., [0, 2], :][..., [0, 2]]
+        var = (u.unsqueeze(-2) @ Ppos @ u.unsqueeze(-1)).squeeze(-1).squeeze(-1)
+        length = net.length[s]
+        sd = var.clamp(min=0.0).sqrt()
+        safe = torch.where(sd > 0, sd, torch.ones_like(sd))
+        p = _phi((length - along) / safe) - _phi(-along / safe)
+        inside = ((along >= 0) & (along <= length)).to(DTYPE)
+        p = torch.where(sd > 0, p, inside).clamp(0.0, 1.0)
+        p_on = torch.where(road.view(1, -1) & (seg >= 0), p, p_on)
+        q = sc2.squeeze(-1).squeeze(-1) * p_on + sa2.squeeze(-1).squeeze(-1) * (1.0 - p_on)
+        relaxed = sa2 * uu + q.unsqueeze(-1).unsqueeze(-1) * nn
+        base = torch.where(
+            (road.view(1, -1) & (seg >= 0)).unsqueeze(-1).unsqueeze(-1), relaxed, base
+        )
+    return base, p_on
+
+
+def _times(name: str, t: Any, B: int) -> torch.Tensor:
+    tt = as_float64(name, t)
+    if tt.dim() == 0:
+        tt = tt.expand(B)
+    if tt.shape != (B,):
+        raise ValueError(f"`{name}`: expected a scalar or shape ({B},) in s, got {tuple(tt.shape)}")
+    return tt
+
+
+def vsimm_init(
+    net: RoadNetwork,
+    x0: Any,
+    P0: Any,
+    config: VSIMMConfig,
+    t0: Any = 0.0,
+    *,
+    section: Any | None = None,
+    track: Any | None = None,
+    mu0: Any | None = None,
+) -> VSIMMState:
+    """Initial VS-IMM rows: every mode starts at ``(x0, P0)`` projected on the nearest segment.
+
+    Args:
+        net: the road network.
+        x0: ``(N, 4)`` initial states (m, m/s).
+        P0: ``(N, 4, 4)`` or ``(4, 4)``.
+        config: :class:`VSIMMConfig`.
+        t0: scalar or ``(N,)`` s.
+        section: ``(N,)`` section hypotheses, default the section of the nearest segment
+            (``-1`` for the whole network).
+        track: ``(N,)`` track ids (default ``0..N-1``).
+        mu0: ``(N, r)`` or ``(r,)`` initial mode probabilities (default uniform).
+
+    Returns:
+        :class:`VSIMMState` with ``N`` rows.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> s = vsimm_init(net, torch.tensor([[10.0, 5.0, 3.0, 1.0]]), 100 * torch.eye(4),
+        ...                VSIMMConfig())
+        >>> s.x[0].tolist()  # stop, M1, M2 on the road y = 0 (the stop mode has no velocity)
+        [[10.0, 0.0, 0.0, 0.0], [10.0, 5.0, 0.0, 0.0], [10.0, 5.0, 0.0, 0.0]]
+    """
+    x0 = as_float64("x0", x0, min_dim=2)
+    N = x0.shape[0]
+    if x0.shape != (N, 4):
+        raise ValueError(f"`x0`: expected shape (N, 4), got {tuple(x0.shape)}")
+    P0 = as_float64("P0", P0, min_dim=2, square=True).expand(N, 4, 4)
+    r = config.num_modes
+    if section is None:
+        loc = net.locate(x0)
+        sec = loc.section
+    else:
+        sec = torch.as_tensor(section, dtype=torch.int64).expand(N)
+    loc = net.locate(x0, allowed=net.section_mask(sec))
+    _, _, road = config.sigma_tensors()
+    seg = torch.where(road, loc.segment.unsqueeze(-1), torch.full((N, r), -1, dtype=torch.int64))
+    x = x0.unsqueeze(1).repeat(1, r, 1)
+    P = P0.unsqueeze(1).repeat(1, r, 1, 1)
+    for i, k in enumerate(config.kinds):
+        if k == "stop":
+            x[:, i, [1, 3]] = 0.0
+            P[:, i, [1, 3], :] = 0.0
+            P[:, i, :, [1, 3]] = 0.0
+    D, L = net.constraint(seg.clamp(min=0))
+    xs, A = _projection(x, P, D, L)
+    Ps = A @ P @ A.transpose(-1, -2)
+    rm = (seg >= 0).unsqueeze(-1)
+    x = torch.where(rm, xs, x)
+    P = torch.where(rm.unsqueeze(-1), 0.5 * (Ps + Ps.transpose(-1, -2)), P)
+    mu = (
+        torch.full((N, r), 1.0 / r, dtype=DTYPE)
+        if mu0 is None
+        else as_float64("mu0", mu0).expand(N, r).clone()
+    )
+    t = _times("t0", t0, N)
+    trk = torch.arange(N) if track is None else torch.as_tensor(track, dtype=torch.int64).expand(N)
+    z4 = torch.zeros(N, r, 4, dtype=DTYPE)
+    return VSIMMState(
+        mu,
+        x,
+        P,
+        seg,
+        sec.clone(),
+        trk.clone(),
+        torch.ones(N, dtype=DTYPE),
+        t,
+        t.clone(),
+        P.clone(),
+        z4,
+        torch.zeros(N, r, 4, 4, dtype=DTYPE),
+        torch.zeros(N, r, 2, 2, dtype=DTYPE),
+    )
+
+
+def vsimm_predict(
+    state: VSIMMState, net: RoadNetwork, config: VSIMMConfig, t: Any
+) -> VSIMMPrediction:
+    """Mixing (24.33-24.35) and the road-constrained prediction of every mode (24.5-24.12).
+
+    For each row and mode: mixed estimate ``(x0, P0)``; ``x_pred = F x0``; active segment ``s``
+    = the segment of the row's section nearest to ``x_pred`` (the variable structure); the
+    acceleration covariance ``R_theta_s diag(s_along^2, q) R_theta_s'`` with
+    ``q = s_across^2 P{e_s} + s_along^2 (1 - P{e_s})`` (24.9 as read in
+    :mod:`hocnet.tracking.road`), ``P{e_s}`` from 24.11 at ``x_pred`` and
+    ``F P0 F' + Gamma Q_s Gamma'`` (the un-relaxed prediction); ``P_pred = F P0 F' +
+    Gamma Q~ Gamma'``. The stop mode has ``F0``, ``Q0 = 0``; the off-road mode isotropic noise.
+
+    Args:
+        state: :class:`VSIMMState` (``B`` rows).
+        net: road network.
+        config: :class:`VSIMMConfig` (``r`` modes).
+        t: scalar or ``(B,)`` prediction time, s (``>= state.t``).
+
+    Returns:
+        :class:`VSIMMPrediction`.
+
+    Raises:
+        ValueError: ``t`` before the track time (use :func:`vsimm_oosm`), bad shapes.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        >>> cfg = VSIMMConfig(stop=False)
+        >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> pred = vsimm_predict(s, net, cfg, 5.0)
+        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # still on the first segment
+        ([[0, 0]], [140.0, 10.0, 0.0, 0.0])
+    """
+    B, r = state.mu.shape
+    if r != config.num_modes:
+        raise ValueError(f"`state`: expected {config.num_modes} modes for {config.kinds}, got {r}")
+    tt = _times("t", t, B)
+    dt = tt - state.t
+    if dt.numel() and bool((dt < 0).any()):
+        raise ValueError(
+            f"`t`: expected a time >= the track time (scan order), got dt = {float(dt.min()):g} s; "
+            "process delayed measurements with vsimm_oosm"
+        )
+    cbar, omega = _mixing(state.mu, config.trans_tensor())
+    x0, P0 = _mix(state.x, state.P, omega)
+    F, Gm = _mode_F(config.kinds, dt)
+    x_pred = (F @ x0.unsqueeze(-1)).squeeze(-1)
+    FPF = F @ P0 @ F.transpose(-1, -2)
+    sa, sc, road = config.sigma_tensors()
+    allowed = net.section_mask(state.section).unsqueeze(1)
+    loc = net.locate(x_pred, allowed=allowed)
+    seg = torch.where(road.view(1, -1), loc.segment, torch.full_like(loc.segment, -1))
+
+    def p_tmp(cov: torch.Tensor) -> torch.Tensor:
+        return FPF + _process_noise(config.kinds, config.noise, dt, Gm, cov)
+
+    cov, p_on = _accel_cov(net, seg, x_pred, p_tmp, sa, sc, road, config.relax)
+    P_pred = p_tmp(cov)
+    return VSIMMPrediction(
+        cbar, x_pred, 0.5 * (P_pred + P_pred.transpose(-1, -2)), seg, p_on, cov, tt
+    )
+
+
+class VSIMMUpdate(NamedTuple):
+    """Likelihoods of :func:`vsimm_update` and :func:`vsimm_oosm`.
+
+    Attributes:
+        log_likelihood: ``(B,)`` ``log Lambda`` (24.32).
+        mode_log_likelihood: ``(B, r)`` ``log Lambda_i`` (24.30-24.31).
+    """
+
+    log_likelihood: torch.Tensor
+    mode_log_likelihood: torch.Tensor
+
+
+def _oosm_memory(
+    pred: VSIMMPrediction,
+    H: torch.Tensor,
+    nu: torch.Tensor,
+    R: torch.Tensor,
+    det: torch.Tensor,
+    D: torch.Tensor,
+    L: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A1 memory ``g = Ht' St^+ nut``, ``G = Ht' St^+ Ht`` of the whole update at ``t_k``.
+
+    The update of a road mode is the measurement followed by the projection on ``D x = L``, i.e.
+    the conditioning on a perfect pseudo-measurement; both are stacked (``Ht = [H; D]``,
+    ``nut = [nu; L - D x_pred]``, ``Rt = blockdiag(R, 0)``, zero rows where a part is absent:
+    undetected rows, off-road modes) so that ``P(k|k) = P(k|k-1) - P(k|k-1) G P(k|k-1)`` holds as
+    A1 assumes (our addition; with the measurement alone the retrodicted covariance can become
+    indefinite). ``St^+`` is the pseudo-inverse (a stopped mode has no velocity variance).
+    """
+    B, r, m, _ = H.shape
+    d = det.view(B, 1, 1)
+    on = (pred.segment >= 0).unsqueeze(-1)
+    Hz = torch.where(d.unsqueeze(-1), H, torch.zeros_like(H))
+    Dz = torch.where(on.unsqueeze(-1), D, torch.zeros_like(D))
+    Ht = torch.cat([Hz, Dz], -2)
+    resid = L - (D @ pred.x.unsqueeze(-1)).squeeze(-1)
+    nut = torch.cat(
+        [torch.where(d, nu, torch.zeros_like(nu)), torch.where(on, resid, torch.zeros_like(resid))],
+        -1,
+    )
+    c = D.shape[-2]
+    Rt = torch.zeros(B, r, m + c, m + c, dtype=DTYPE)
+    Rt[..., :m, :m] = torch.where(d.unsqueeze(-1), R, torch.zeros_like(R))
+    St = Ht @ pred.P @ Ht.transpose(-1, -2) + Rt
+    St = 0.5 * (St + St.transpose(-1, -2))
+    Sp = torch.linalg.pinv(St, hermitian=True, rtol=1e-9)
+    HtS = Ht.transpose(-1, -2) @ Sp
+    G = HtS @ Ht
+    g = (HtS @ nut.unsqueeze(-1)).squeeze(-1)
+    return g, 0.5 * (G + G.transpose(-1, -2))
+
+
+def vsimm_update(
+    state: VSIMMState,
+    pred: VSIMMPrediction,
+    z: Any,
+    sensor: Any,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+    *,
+    detected: Any | None = None,
+) -> tuple[VSIMMState, VSIMMUpdate]:
+    """Mode-matched update, PD-aware likelihoods, projection on the road, combination.
+
+    Steps 3-5 of [PD] 24.4.2: the (AEKF / linear) update of every mode with the row's
+    measurement, ``log Lambda_i`` of 24.30-24.31, the mode probabilities 24.36, the projection of
+    every road mode on its active segment (24.14-24.16, pseudo-inverse for a singular
+    ``D P D'``), and the OOSM memory (``g``, ``G``, ``P(k|k-1)``).
+
+    Args:
+        state: the rows before the step.
+        pred: :func:`vsimm_predict` output.
+        z: ``(B, m)`` one measurement per row (rows with ``detected=False`` are ignored and may
+            be NaN); ``m`` = ``sensor.dim``.
+        sensor: :class:`~hocnet.tracking.sensors.GMTISensor` or
+            :class:`~hocnet.tracking.sensors.VideoSensor`.
+        net: road network.
+        config: :class:`VSIMMConfig`.
+        detected: ``(B,)`` bool (default all).
+
+    Returns:
+        ``(new_state, VSIMMUpdate)``.
+
+    Raises:
+        ValueError: non-finite measurement in a detected row, bad shapes.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> pred = vsimm_predict(s, net, cfg, 10.0)
+        >>> new, out = vsimm_update(s, pred, torch.tensor([[float("nan"), 0.0]]), VideoSensor(),
+        ...                         net, cfg, detected=torch.tensor([False]))
+        >>> new.mu[0, 0] > s.mu[0, 0]  # a missed detection favours the stop model
+        tensor(True)
+    """
+    B, r = pred.cbar.shape
+    if detected is None:
+        det = torch.ones(B, dtype=torch.bool)
+    else:
+        det = torch.as_tensor(detected)
+        if det.dtype != torch.bool or det.shape != (B,):
+            raise ValueError(
+                f"`detected`: expected a bool tensor of shape ({B},), got dtype {det.dtype} and "
+                f"shape {tuple(det.shape)}"
+            )
+    m = sensor.dim
+    zt = torch.as_tensor(z, dtype=DTYPE)
+    if zt.shape != (B, m):
+        raise ValueError(
+            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
+        )
+    check_measurements("z", zt[det], m)
+    xc_pred = _combine(pred.cbar, pred.x, pred.P)[0]
+    zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc_pred))
+    hx, H, R = sensor.linearize(pred.x, zt.unsqueeze(1))
+    H = H.expand(B, r, m, 4)
+    R = R.expand(B, r, m, m)
+    nu = zt.unsqueeze(1) - hx
+    x_upd, P_upd, ll = _update(pred.x, pred.P, nu, H, R)
+    if config.use_mdv and hasattr(sensor, "mdv"):
+        pd = sensor.expected_detection_probability(pred.x, pred.P)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    pd = pd.clamp(_PD_FLOOR, 1.0)
+    d = det.unsqueeze(-1)
+    moving = torch.where(d, torch.log(pd) + ll, torch.log1p(-pd))
+    stop = torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll))
+    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    mode_ll = torch.where(is_stop, stop, moving)
+    x_upd = torch.where(d.unsqueeze(-1), x_upd, pred.x)
+    P_upd = torch.where(d.unsqueeze(-1).unsqueeze(-1), P_upd, pred.P)
+    # projection on the active segments (road and stop modes)
+    D, L = net.constraint(pred.segment.clamp(min=0))
+    xs, A = _projection(x_upd, P_upd, D, L)
+    Ps = A @ P_upd @ A.transpose(-1, -2)
+    on = (pred.segment >= 0).unsqueeze(-1)
+    x_new = torch.where(on, xs, x_upd)
+    P_new = torch.where(on.unsqueeze(-1), 0.5 * (Ps + Ps.transpose(-1, -2)), P_upd)
+    a = mode_ll + torch.log(pred.cbar)
+    total = torch.logsumexp(a, dim=-1, keepdim=True)
+    if a.numel() and bool(torch.isinf(total).any()):
+        raise ValueError(
+            "`z`: expected at least one mode with non-zero likelihood per row, got "
+            f"{int(torch.isinf(total).sum())} rows with none"
+        )
+    mu = torch.exp(a - total)
+    g, G = _oosm_memory(pred, H, nu, R, det, D, L)
+    new = VSIMMState(
+        mu,
+        x_new,
+        P_new,
+        pred.segment,
+        state.section,
+        state.track,
+        state.mu_section,
+        pred.t,
+        state.t,
+        pred.P,
+        g,
+        G,
+        pred.accel_cov,
+    )
+    return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
+
+
+class VSIMMAssociation(NamedTuple):
+    """Result of :func:`vsimm_association_log_likelihood`.
+
+    Attributes:
+        log_likelihood: ``(B, M)`` ``log Lambda`` (24.32) of row ``b`` updated with measurement
+            ``j`` (PD-aware, 24.30-24.31 with ``m_j != 0``).
+        missed_log_likelihood: ``(B,)`` ``log Lambda`` of a missed detection (``m_j = 0``).
+        d2: ``(B, M, r)`` squared Mahalanobis distances of every mode's innovation (for gating).
+    """
+
+    log_likelihood: torch.Tensor
+    missed_log_likelihood: torch.Tensor
+    d2: torch.Tensor
+
+
+def vsimm_association_log_likelihood(
+    pred: VSIMMPrediction, z: Any, sensor: Any, config: VSIMMConfig
+) -> VSIMMAssociation:
+    """Likelihoods of every (row, measurement) pair of a scan, for gating and track scores.
+
+    The same mode likelihoods as :func:`vsimm_update` (24.29-24.32), for all ``B x M`` pairs at
+    once, without updating: the ``Lambda`` of the LLR increment 24.42 of each association
+    hypothesis, and the missed-detection ``Lambda`` (``sum_i (1 - PD_i) mu_i(k|k-1)`` over the
+    moving modes plus the stop mode's ``mu_0(k|k-1)``).
+
+    Args:
+        pred: :func:`vsimm_predict` output (``B`` rows, ``r`` modes).
+        z: ``(M, m)`` measurements of the scan (finite).
+        sensor: the sensor of the scan.
+        config: :class:`VSIMMConfig`.
+
+    Returns:
+        :class:`VSIMMAssociation`.
+
+    Raises:
+        ValueError: non-finite measurements, wrong measurement size.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> a = vsimm_association_log_likelihood(vsimm_predict(s, net, cfg, 10.0),
+        ...     torch.tensor([[100.0, 0.0], [400.0, 0.0]]), VideoSensor(), cfg)
+        >>> bool(a.log_likelihood[0, 0] > a.log_likelihood[0, 1]), a.d2.shape
+        (True, torch.Size([1, 2, 3]))
+    """
+    B, r = pred.cbar.shape
+    m = sensor.dim
+    zz = check_measurements("z", z, m)
+    if zz.dim() != 2:
+        raise ValueError(f"`z`: expected shape (M, {m}), got {tuple(zz.shape)}")
+    M = zz.shape[0]
+    xb = pred.x.unsqueeze(1)  # (B, 1, r, 4)
+    Pb = pred.P.unsqueeze(1)
+    zb = zz.view(1, M, 1, m)
+    hx, H, R = sensor.linearize(xb, zb)
+    shape = (B, M, r)
+    H = H.expand(*shape, m, 4)
+    R = R.expand(*shape, m, m)
+    nu = zb - hx
+    S = H @ Pb @ H.transpose(-1, -2) + R
+    S = 0.5 * (S + S.transpose(-1, -2))
+    L, info = torch.linalg.cholesky_ex(S)
+    if bool((info != 0).any()):
+        raise ValueError(
+            "`z`: expected positive definite innovation covariances, got some that are not"
+        )
+    w = torch.linalg.solve_triangular(L, nu.unsqueeze(-1), upper=False).squeeze(-1)
+    d2 = (w * w).sum(-1)
+    logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
+    ll = -0.5 * (d2 + logdet + m * math.log(2.0 * math.pi))
+    if config.use_mdv and hasattr(sensor, "mdv"):
+        pd = sensor.expected_detection_probability(pred.x, pred.P)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    pd = pd.clamp(_PD_FLOOR, 1.0)
+    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    log_cbar = torch.log(pred.cbar)
+    det = torch.where(is_stop.unsqueeze(1), -torch.inf, torch.log(pd).unsqueeze(1) + ll)
+    miss = torch.where(is_stop, 0.0, torch.log1p(-pd))
+    return VSIMMAssociation(
+        torch.logsumexp(det + log_cbar.unsqueeze(1), -1),
+        torch.logsumexp(miss + log_cbar, -1),
+        d2,
+    )
+
+
+def vsimm_step(
+    state: VSIMMState,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+    t: Any,
+    z: Any,
+    sensor: Any,
+    *,
+    detected: Any | None = None,
+) -> tuple[VSIMMState, VSIMMUpdate]:
+    """:func:`vsimm_predict` then :func:`vsimm_update` (one scan for all rows).
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]),
+        ...                torch.diag(torch.tensor([100.0, 4.0, 100.0, 4.0])), cfg)
+        >>> s, out = vsimm_step(s, net, cfg, 10.0, torch.tensor([[101.0, 2.0]]), VideoSensor())
+        >>> s.combined()[0][0, 2].abs().item() < 1e-9  # on the road y = 0
+        True
+    """
+    pred = vsimm_predict(state, net, config, t)
+    return vsimm_update(state, pred, z, sensor, net, config, detected=detected)
+
+
+# ------------------------------------------------------------------------------------------
+# Road-section hypotheses at junctions: 24.38-24.40
+# ------------------------------------------------------------------------------------------
+
+
+def sprt_thresholds(alpha: float, beta: float) -> tuple[float, float]:
+    """Wald's SPRT thresholds ``(upper, lower) = ((1 - beta) / alpha, beta / (1 - alpha))``.
+
+    ``upper`` is the acceptance bound of 24.39 and ``lower`` the rejection bound of 24.40 (the
+    chapter prints them as ``B`` and ``A``; see the module docstring).
+
+    Args:
+        alpha: probability of accepting a wrong section, in (0, 1).
+        beta: probability of rejecting the true section, in (0, 1).
+
+    Examples:
+        >>> [round(v, 6) for v in sprt_thresholds(0.01, 0.01)]
+        [99.0, 0.010101]
+    """
+    a = check_number("alpha", alpha, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    b = check_number("beta", beta, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
+    if a + b >= 1.0:
+        raise ValueError(f"`beta`: expected alpha + beta < 1, got {a:g} + {b:g}")
+    return (1.0 - b) / a, b / (1.0 - a)
+
+
+def section_probabilities(
+    mu_prev: Any, log_lambda: Any, omega: Any, valid: Any | None = None
+) -> torch.Tensor:
+    """Section-hypothesis probabilities, eq. 24.38 (our reading of the sum limit), batched.
+
+    ``mu_h(k) = Lambda_h(k) sum_{h_bar} Omega[h_bar, h] mu_h_bar(k-1) / c`` over the hypotheses
+    of each track (padded to ``H``; ``valid`` masks the real ones).
+
+    Args:
+        mu_prev: ``(T, H)`` probabilities at ``k-1`` (0 for newly spawned hypotheses).
+        log_lambda: ``(T, H)`` ``log Lambda_h`` (24.32 of each hypothesis' IMM).
+        omega: ``(H, H)`` or ``(T, H, H)``, ``omega[..., h_bar, h] = P(h_bar -> h)``.
+        valid: ``(T, H)`` bool, default all.
+
+    Returns:
+        ``(T, H)`` float64, rows summing to 1 over valid entries (0 elsewhere).
+
+    Examples:
+        >>> section_probabilities(torch.tensor([[0.5, 0.5]]), torch.log(torch.tensor([[1.0, 3.0]])),
+        ...                       torch.eye(2))
+        tensor([[0.2500, 0.7500]], dtype=torch.float64)
+    """
+    mu = as_float64("mu_prev", mu_prev, min_dim=2)
+    ll = torch.as_tensor(log_lambda, dtype=DTYPE)
+    if ll.shape != mu.shape:
+        raise ValueError(f"`log_lambda`: expected shape {tuple(mu.shape)}, got {tuple(ll.shape)}")
+    om = as_float64("omega", omega, min_dim=2)
+    Hn = mu.shape[-1]
+    if om.shape[-2:] != (Hn, Hn):
+        raise ValueError(
+            f"`omega`: expected shape ({Hn}, {Hn}) or (T, {Hn}, {Hn}), got {tuple(om.shape)}"
+        )
+    val = (
+        torch.ones_like(mu, dtype=torch.bool)
+        if valid is None
+        else torch.as_tensor(valid, dtype=torch.bool)
+    )
+    mu = torch.where(val, mu, torch.zeros_like(mu))
+    prior = (mu.unsqueeze(-1) * om).sum(-2)  # sum over valid hbar of mu_hbar Omega[hbar, h]
+    a = torch.where(
+        val & (prior > 0), ll + torch.log(prior.clamp(min=1e-300)), torch.full_like(ll, -torch.inf)
+    )
+    total = torch.logsumexp(a, -1, keepdim=True)
+    out = torch.exp(a - total)
+    return torch.where(torch.isfinite(total), out, torch.zeros_like(out))
+
+
+def sprt_decide(
+    mu: Any, upper: float, lower: float, valid: Any | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Wald's SPRT on hypothesis probabilities, eq. 24.39-24.40, batched over tracks.
+
+    Accept ``h`` when ``mu_h / mu_h' >= upper`` for all valid ``h' != h``; reject ``h`` when
+    ``mu_h / mu_h' <= lower`` for all valid ``h' != h`` (as printed); otherwise wait for the next
+    scan. A track with a single valid hypothesis accepts it.
+
+    Args:
+        mu: ``(T, H)`` probabilities.
+        upper: acceptance bound (Wald's ``(1 - beta) / alpha``).
+        lower: rejection bound (Wald's ``beta / (1 - alpha)``).
+        valid: ``(T, H)`` bool.
+
+    Returns:
+        ``(accepted, rejected)``: two ``(T, H)`` bool tensors.
+
+    Examples:
+        >>> acc, rej = sprt_decide(torch.tensor([[0.995, 0.005]]), 99.0, 0.0101)
+        >>> acc.tolist(), rej.tolist()
+        ([[True, False]], [[False, True]])
+    """
+    mu = as_float64("mu", mu, min_dim=2)
+    val = (
+        torch.ones_like(mu, dtype=torch.bool)
+        if valid is None
+        else torch.as_tensor(valid, dtype=torch.bool)
+    )
+    num = mu.unsqueeze(-1)
+    den = mu.unsqueeze(-2)
+    ratio = torch.where(den > 0, num / den.clamp(min=1e-300), torch.where(num > 0, torch.inf, 1.0))
+    others = val.unsqueeze(-2) & ~torch.eye(mu.shape[-1], dtype=torch.bool)
+    acc = torch.where(others, ratio >= upper, torch.ones_like(others)).all(-1) & val
+    rej = torch.where(others, ratio <= lower, torch.ones_like(others)).all(-1) & val
+    rej = rej & others.any(-1)  # a lone hypothesis is never rejected
+    return acc, rej
+
+
+def section_transition(
+    net: RoadNetwork,
+    sections: Any,
+    *,
+    same_kind: float = 1.0,
+    other_kind: float = 0.2,
+    key: str = "kind",
+) -> torch.Tensor:
+    """``Omega`` of 24.38 between the roads of hypotheses, ``(..., H, H)`` (our choice of values).
+
+    ``Omega[h_bar, h]`` proportional to ``same_kind`` when the two sections have the same
+    ``properties[key]`` (e.g. highway -> highway) and to ``other_kind`` otherwise (highway ->
+    byway: "the transition probability is small"), rows normalised to 1.
+
+    Args:
+        net: road network.
+        sections: ``(..., H)`` int section indices.
+        same_kind: weight of a transition between sections of the same kind.
+        other_kind: weight between different kinds.
+        key: the properties key holding the kind.
+
+    Examples:
+        >>> net = RoadNetwork([[[0, 0], [1, 0]], [[1, 0], [2, 0]], [[1, 0], [1, 1]]],
+        ...                   [{"kind": "highway"}, {"kind": "highway"}, {"kind": "byway"}])
+        >>> section_transition(net, torch.tensor([1, 2]))
+        tensor([[0.8333, 0.1667],
+                [0.1667, 0.8333]], dtype=torch.float64)
+    """
+    same = check_number("same_kind", same_kind, low=0.0)
+    other = check_number("other_kind", other_kind, low=0.0)
+    secs = torch.as_tensor(sections, dtype=torch.int64)
+    kinds = [p.get(key) for p in net.section_properties]
+    codes = {k: i for i, k in enumerate(dict.fromkeys(map(repr, kinds)))}
+    kind_id = torch.tensor([codes[repr(k)] for k in kinds], dtype=torch.int64)
+    kid = kind_id[secs.clamp(min=0)]
+    w = torch.where(kid.unsqueeze(-1) == kid.unsqueeze(-2), same, other).to(DTYPE)
+    return w / w.sum(-1, keepdim=True)
+
+
+def _groups(track: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Rows grouped by track: ``index (T, H)`` of rows (``-1`` padding), ``valid``, track ids."""
+    ids, inv = torch.unique(track, return_inverse=True)
+    T = ids.numel()
+    counts = torch.bincount(inv, minlength=T)
+    Hn = int(counts.max()) if T else 0
+    order = torch.argsort(inv, stable=True)
+    starts = torch.cumsum(counts, 0) - counts
+    pos = torch.arange(track.numel()) - starts[inv[order]]
+    index = torch.full((T, Hn), -1, dtype=torch.int64)
+    index[inv[order], pos] = order
+    return index, index >= 0, ids
+
+
+def vsimm_section_sprt(
+    state: VSIMMState,
+    log_lambda: Any,
+    net: RoadNetwork,
+    *,
+    alpha: float = 0.01,
+    beta: float = 0.01,
+    omega: Any | None = None,
+) -> tuple[VSIMMState, torch.Tensor]:
+    """Update ``mu_section`` by 24.38 and keep the rows the SPRT (24.39-24.40) does not reject.
+
+    Rows are grouped by ``state.track``; when a hypothesis is accepted the other rows of its
+    track are dropped; rejected rows are dropped; survivors' ``mu_section`` are renormalised.
+
+    Args:
+        state: rows after :func:`vsimm_update`.
+        log_lambda: ``(B,)`` ``log Lambda`` of each row (``VSIMMUpdate.log_likelihood``).
+        net: road network (for :func:`section_transition` when ``omega`` is None).
+        alpha: SPRT probability of accepting a wrong section (:func:`sprt_thresholds`).
+        beta: SPRT probability of rejecting the true section.
+        omega: optional callable ``sections (T, H) -> (T, H, H)`` or a fixed ``(H, H)`` tensor.
+
+    Returns:
+        ``(kept_state, kept_rows)`` with ``kept_rows`` the ``(B',)`` indices into ``state``.
+
+    Examples:
+        >>> net = RoadNetwork([[[0, 0], [1, 0]], [[1, 0], [2, 0]], [[1, 0], [1, 1]]])
+        >>> s = vsimm_init(net, torch.zeros(2, 4), torch.eye(4), VSIMMConfig(),
+        ...                section=torch.tensor([1, 2]), track=torch.tensor([0, 0]))
+        >>> s = s._replace(mu_section=torch.tensor([0.5, 0.5], dtype=torch.float64))
+        >>> kept, rows = vsimm_section_sprt(s, torch.tensor([0.0, -8.0]), net)
+        >>> rows.tolist(), kept.mu_section.tolist()
+        ([0], [1.0])
+    """
+    B = state.mu.shape[0]
+    ll = torch.as_tensor(log_lambda, dtype=DTYPE)
+    if ll.shape != (B,):
+        raise ValueError(f"`log_lambda`: expected shape ({B},), got {tuple(ll.shape)}")
+    upper, lower = sprt_thresholds(alpha, beta)
+    index, valid, _ = _groups(state.track)
+    safe = index.clamp(min=0)
+    secs = state.section[safe]
+    if omega is None:
+        om = section_transition(net, secs)
+    elif callable(omega):
+        om = omega(secs)
+    else:
+        om = as_float64("omega", omega, min_dim=2)
+    mu_prev = torch.where(valid, state.mu_section[safe], torch.zeros_like(secs, dtype=DTYPE))
+    mu = section_probabilities(mu_prev, ll[safe], om, valid)
+    acc, rej = sprt_decide(mu, upper, lower, valid)
+    keep = valid & ~rej
+    has_acc = acc.any(-1, keepdim=True)
+    keep = torch.where(has_acc, acc, keep)
+    mu_k = torch.where(keep, mu, torch.zeros_like(mu))
+    mu_k = mu_k / mu_k.sum(-1, keepdim=True).clamp(min=1e-300)
+    rows = index[keep]
+    rows = torch.sort(rows).values
+    new_mu = torch.zeros(B, dtype=DTYPE)
+    new_mu[index[keep]] = mu_k[keep]
+    out = state._replace(mu_section=new_mu).select(rows)
+    return out, rows
+
+
+def vsimm_expand_sections(
+    state: VSIMMState,
+    net: RoadNetwork,
+    dt: float,
+    *,
+    n_sigma: float = 3.0,
+) -> VSIMMState:
+    """Add one row per road section reachable within the next scan (junction hypotheses, 24.4.3).
+
+    For each row with a section hypothesis: its combined estimate is located on the row's
+    section, the travel ``|v| dt + n_sigma sqrt(trace P_pos)`` (m) gives the reachable segments
+    (:meth:`~hocnet.tracking.road.RoadNetwork.reachable`; only ahead when the along-road speed
+    exceeds ``n_sigma`` of its standard deviation, both ways otherwise), and every section among
+    them that the track does not have yet becomes a new row (a copy of the row, with
+    ``mu_section = 0``: 24.38 gives it probability through ``Omega`` at the next update).
+
+    Returns:
+        The rows of ``state`` followed by the new rows (``state`` itself when nothing is added).
+
+    Examples:
+        >>> net = RoadNetwork([[[0, 0], [100, 0]], [[100, 0], [200, 0]], [[100, 0], [100, 90]]])
+        >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), torch.eye(4),
+        ...                VSIMMConfig(), mu0=torch.tensor([0.0, 0.5, 0.5]))
+        >>> vsimm_expand_sections(s, net, 10.0).section.tolist()
+        [0, 1, 2]
+    """
+    dt = check_number("dt", dt, low=0.0)
+    B = state.mu.shape[0]
+    if B == 0:
+        return state
+    xc, Pc = state.combined()
+    sec_rows = state.section >= 0
+    loc = net.locate(xc, allowed=net.section_mask(state.section))
+    speed = torch.linalg.vector_norm(xc[:, [1, 3]], dim=-1)
+    spread = torch.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]).clamp(min=0.0)
+    travel = speed * dt + n_sigma * spread
+    # travel direction along the segment when the along-road speed is significant
+    u = net.direction[loc.segment]
+    v_along = (u * xc[:, [1, 3]]).sum(-1)
+    Pv = Pc[:, [1, 3]][:, :, [1, 3]]
+    sd_v = (u.unsqueeze(-2) @ Pv @ u.unsqueeze(-1)).flatten().clamp(min=0.0).sqrt()
+    direction = torch.where(v_along.abs() > n_sigma * sd_v, torch.sign(v_along), 0.0)
+    reach = net.reachable(loc.segment, loc.abscissa, travel, direction=direction)
+    # sections reached by each row, (B, n_sections), restricted to rows with a hypothesis
+    onehot = torch.nn.functional.one_hot(net.segment_section, net.num_sections).to(DTYPE)
+    reached = ((reach.to(DTYPE) @ onehot) > 0) & sec_rows.unsqueeze(-1)
+    ids, inv = torch.unique(state.track, return_inverse=True)
+    have = torch.zeros(ids.numel(), net.num_sections, dtype=torch.bool)
+    have[inv[sec_rows], state.section[sec_rows]] = True
+    cand = reached & ~have[inv]
+    # one new row per (track, section): a copy of the first row of the track that reaches it
+    T, n_sec = ids.numel(), net.num_sections
+    rows_of = torch.arange(B).unsqueeze(-1).expand(B, n_sec)
+    flat = (inv.unsqueeze(-1) * n_sec + torch.arange(n_sec))[cand]
+    first = torch.full((T * n_sec,), B, dtype=torch.int64)
+    first = first.scatter_reduce(0, flat, rows_of[cand], "amin").view(T, n_sec)
+    new_tr, sec = torch.nonzero(first < B, as_tuple=True)
+    if not sec.numel():
+        return state
+    idx = first[new_tr, sec]
+    add = state.select(idx)
+    add = add._replace(section=sec, mu_section=torch.zeros(sec.numel(), dtype=DTYPE))
+    return VSIMMState(*(torch.cat([a, b_]) for a, b_ in zip(state, add, strict=True)))
+
+
+# ------------------------------------------------------------------------------------------
+# Out-of-sequence measurements on the road (24.4.5)
+# ------------------------------------------------------------------------------------------
+
+
+def vsimm_oosm(
+    state: VSIMMState,
+    z: Any,
+    t: Any,
+    sensor: Any,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+    *,
+    detected: Any | None = None,
+) -> tuple[VSIMMState, VSIMMUpdate]:
+    """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
+
+    For every mode: ``F(tau, k)`` (CV with ``-(t_k - tau)``; the stop mode keeps its position),
+    ``Q(k, tau)`` over ``t_k - tau`` (``config.noise``) with the mode's last acceleration
+    covariance, the A1 retrodiction (:mod:`hocnet.tracking.oosm`), the retrodiction projected on
+    the segment of the section nearest to the retrodicted position (24.14-24.16, "retrodiction
+    done on the road"), the A1 update of ``x(k|k)``, the projection of the result on the mode's
+    current segment, and the mode probabilities ``mu_i ∝ mu_i Lambda_i(tau)`` with the
+    PD-aware likelihoods of 24.30-24.31 (the IMM-OOSM of Bar-Shalom and Chen, the chapter's [3],
+    in its simplest form: mode probabilities at ``t_k`` re-weighted; our reading). The OOSM
+    memory is kept, so a second OOSM in the same interval is approximate.
+
+    Args:
+        state: rows at time ``t_k``.
+        z: ``(B, m)`` delayed measurements (NaN allowed where ``detected`` is False).
+        t: scalar or ``(B,)`` measurement times, s, with ``t_{k-1} <= t <= t_k``.
+        sensor: the sensor of the delayed measurements.
+        net: road network.
+        config: :class:`VSIMMConfig`.
+        detected: ``(B,)`` bool (default all).
+
+    Returns:
+        ``(new_state, VSIMMUpdate)``; undetected rows are unchanged.
+
+    Raises:
+        ValueError: a measurement older than the one-step lag (message names the lag; ``state``
+            is not modified), non-finite measurements, bad shapes.
+
+    Examples:
+        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg, video = VSIMMConfig(), VideoSensor(10.0)
+        >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
+        >>> s, _ = vsimm_step(s, net, cfg, 10.0, torch.tensor([[100.0, 0.0]]), video)
+        >>> s, _ = vsimm_step(s, net, cfg, 20.0, torch.tensor([[200.0, 0.0]]), video)
+        >>> s2, out = vsimm_oosm(s, torch.tensor([[150.0, 0.0]]), 15.0, video, net, cfg)
+        >>> vsimm_oosm(s, torch.tensor([[50.0, 0.0]]), 5.0, video, net, cfg)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: `t`: expected an out-of-sequence measurement within the one-step lag ... 15 s
+    """
+    B, r = state.mu.shape
+    tau = _times("t", t, B)
+    check_oosm_time(tau, state.t_prev, state.t)
+    det = (
+        torch.ones(B, dtype=torch.bool)
+        if detected is None
+        else torch.as_tensor(detected, dtype=torch.bool)
+    )
+    if det.shape != (B,):
+        raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    m = sensor.dim
+    zt = torch.as_tensor(z, dtype=DTYPE)
+    if zt.shape != (B, m):
+        raise ValueError(
+            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
+        )
+    check_measurements("z", zt[det], m)
+    lag = state.t - tau
+    Fb, _ = _mode_F(config.kinds, -lag)
+    _, Gm = _mode_F(config.kinds, lag)
+    Q = _process_noise(config.kinds, config.noise, lag, Gm, state.accel_cov)
+    r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q)
+    allowed = net.section_mask(state.section).unsqueeze(1)
+    loc = net.locate(r0.x, allowed=allowed)
+    on = state.segment >= 0
+    D, L = net.constraint(loc.segment)
+    xs, A = _projection(r0.x, r0.P, D, L)
+    At = A.transpose(-1, -2)
+    onx = on.unsqueeze(-1)
+    r1 = Retrodiction(
+        torch.where(onx, xs, r0.x),
+        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
+        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
+    )
+    xc = _combine(state.mu, r1.x, r1.P)[0]
+    zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc))
+    hx, H, R = sensor.linearize(r1.x, zt.unsqueeze(1))
+    H = H.expand(B, r, m, 4)
+    R = R.expand(B, r, m, m)
+    x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
+    if config.use_mdv and hasattr(sensor, "mdv"):
+        pd = sensor.expected_detection_probability(r1.x, r1.P)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    pd = pd.clamp(_PD_FLOOR, 1.0)
+    d = det.unsqueeze(-1)
+    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    mode_ll = torch.where(
+        is_stop,
+        torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll)),
+        torch.where(d, torch.log(pd) + ll, torch.log1p(-pd)),
+    )
+    Dk, Lk = net.constraint(state.segment.clamp(min=0))
+    xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
+    Pk = Ak @ P_upd @ Ak.transpose(-1, -2)
+    x_upd = torch.where(onx, xk, x_upd)
+    P_upd = torch.where(onx.unsqueeze(-1), 0.5 * (Pk + Pk.transpose(-1, -2)), P_upd)
+    a = mode_ll + torch.log(state.mu)
+    total = torch.logsumexp(a, -1, keepdim=True)
+    ok = torch.isfinite(total).squeeze(-1) & det
+    mu = torch.where(ok.unsqueeze(-1), torch.exp(a - total), state.mu)
+    x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
+    P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
+    new = state._replace(mu=mu, x=x_new, P=P_new)
+    return new, VSIMMUpdate(
+        torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE)), mode_ll
+    )

@@ -1,0 +1,136 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import norm
+
+from hocnet.tracking.sensors import (
+    GMTISensor,
+    VideoSensor,
+    check_measurements,
+    gmti_aekf_matrix,
+    gmti_jacobian,
+    gmti_measure,
+    gmti_report_to_tcf,
+    gmti_tcf_to_report,
+    make_sensor,
+)
+
+SENSOR = (-50000.0, -60000.0, 4000.0)  # the chapter's GMTI (24.6.1)
+
+
+def random_states(rng, n):
+    x = rng.uniform(-6000, 6000, size=(n, 4))
+    x[:, [1, 3]] = rng.normal(size=(n, 2)) * 15
+    return x
+
+
+def loop_h(x, pos):
+    dx, dy = x[0] - pos[0], x[2] - pos[1]
+    rho = math.sqrt(dx * dx + dy * dy + pos[2] ** 2)
+    return np.array([x[0], x[2], (dx * x[1] + dy * x[3]) / rho])
+
+
+@pytest.mark.parametrize("pos", [SENSOR, (100.0, -200.0, 0.0)])
+def test_gmti_measure_and_jacobian_against_finite_differences(pos):
+    rng = np.random.default_rng(0)
+    x = random_states(rng, 10)
+    z = gmti_measure(torch.tensor(x), torch.tensor(pos))
+    J = gmti_jacobian(torch.tensor(x), torch.tensor(pos))
+    for k in range(10):
+        np.testing.assert_allclose(z[k].numpy(), loop_h(x[k], pos), rtol=1e-12)
+        fd = np.zeros((3, 4))
+        for j in range(4):
+            e = np.zeros(4)
+            e[j] = 1e-3
+            fd[:, j] = (loop_h(x[k] + e, pos) - loop_h(x[k] - e, pos)) / 2e-3
+        np.testing.assert_allclose(J[k].numpy(), fd, rtol=1e-6, atol=1e-9)
+        # the AEKF matrix (24.20): velocity partials of the EKF, no position partials, and
+        # H(x) x = h(x) exactly (24.19 without noise)
+        Ha = gmti_aekf_matrix(torch.tensor(x[k]), torch.tensor(pos)).numpy()
+        np.testing.assert_allclose(Ha[2, [1, 3]], fd[2, [1, 3]], rtol=1e-6)
+        assert Ha[2, 0] == 0.0 and Ha[2, 2] == 0.0
+        np.testing.assert_allclose(Ha[:2], [[1, 0, 0, 0], [0, 0, 1, 0]])
+        np.testing.assert_allclose(Ha @ x[k], loop_h(x[k], pos), rtol=1e-12)
+
+
+def test_polar_report_conversion_and_covariance():
+    rng = np.random.default_rng(1)
+    x = random_states(rng, 6)
+    pos = torch.tensor(SENSOR)
+    rep = gmti_tcf_to_report(torch.tensor(x), pos)
+    z, R = gmti_report_to_tcf(rep, pos, 20.0, 0.0008, 1.0)
+    np.testing.assert_allclose(z.numpy(), gmti_measure(torch.tensor(x), pos).numpy(), atol=1e-6)
+
+    def to_xy(rho, az):
+        g = math.sqrt(rho * rho - SENSOR[2] ** 2)
+        return np.array([SENSOR[0] + g * math.cos(az), SENSOR[1] + g * math.sin(az)])
+
+    for k in range(6):
+        rho, az = float(rep[k, 0]), float(rep[k, 1])
+        J = np.column_stack(
+            [
+                (to_xy(rho + 1e-3, az) - to_xy(rho - 1e-3, az)) / 2e-3,
+                (to_xy(rho, az + 1e-9) - to_xy(rho, az - 1e-9)) / 2e-9,
+            ]
+        )
+        Rxy = J @ np.diag([20.0**2, 0.0008**2]) @ J.T
+        np.testing.assert_allclose(R[k, :2, :2].numpy(), Rxy, rtol=1e-5)
+        assert float(R[k, 2, 2]) == 1.0 and float(R[k, 0, 2]) == 0.0
+    # the cross-range deviation is about ground range times the azimuth deviation (~62 m here)
+    s = GMTISensor(SENSOR)
+    R0 = s.covariance(torch.tensor([[0.0, 0.0, 3.0]]))[0, :2, :2].numpy()
+    ev = np.sqrt(np.linalg.eigvalsh(R0))
+    g = math.hypot(50000, 60000)
+    assert ev[1] == pytest.approx(g * 0.0008, rel=1e-3)
+    assert ev[0] == pytest.approx(20.0 * math.hypot(g, 4000) / g, rel=1e-3)
+
+
+def test_gmti_linearize_and_mdv():
+    s = GMTISensor(SENSOR, pd=0.9, mdv=1.0)
+    x = torch.tensor([[1000.0, 10.0, 2000.0, -3.0], [0.0, 0.3, 0.0, 0.2]], dtype=torch.float64)
+    z = s.measure(x) + torch.tensor([30.0, -20.0, 0.5], dtype=torch.float64)
+    hx, H, R = s.linearize(x, z)
+    torch.testing.assert_close(H, gmti_aekf_matrix(z[:, :2], torch.tensor(SENSOR)))
+    torch.testing.assert_close(hx, (H @ x.unsqueeze(-1)).squeeze(-1))
+    hx_p, _, _ = s.linearize(x, z, reference="prediction")
+    torch.testing.assert_close(hx_p, s.measure(x))
+    assert R.shape == (2, 3, 3)
+    # hard notch
+    rr = s.measure(x)[:, 2]
+    assert s.detection_probability(x).tolist() == [0.9 if abs(v) >= 1 else 0.0 for v in rr]
+    # expected PD against the Gaussian formula and against sampling
+    rng = np.random.default_rng(2)
+    P = torch.diag(torch.tensor([400.0, 1.0, 400.0, 1.0], dtype=torch.float64)).expand(2, 4, 4)
+    pe = s.expected_detection_probability(x, P)
+    for k in range(2):
+        h3 = gmti_aekf_matrix(x[k], torch.tensor(SENSOR))[2].numpy()
+        m, sd = float(h3 @ x[k].numpy()), math.sqrt(float(h3 @ P[k].numpy() @ h3))
+        ref = 0.9 * (1 - (norm.cdf((1 - m) / sd) - norm.cdf((-1 - m) / sd)))
+        assert float(pe[k]) == pytest.approx(ref, abs=1e-12)
+        samples = rng.multivariate_normal(x[k].numpy(), P[k].numpy(), size=20000)
+        mc = float(s.detection_probability(torch.tensor(samples)).mean())
+        assert float(pe[k]) == pytest.approx(mc, abs=0.02)
+
+
+def test_video_and_factory_and_errors():
+    v = make_sensor("video", sigma=10.0, pd=0.9)
+    hx, H, R = v.linearize(torch.tensor([[1.0, 2.0, 3.0, 4.0]]), torch.tensor([[0.0, 0.0]]))
+    assert hx.tolist() == [[1.0, 3.0]]
+    assert H.tolist() == [[1, 0, 0, 0], [0, 0, 1, 0]]
+    assert R[0].tolist() == [[100.0, 0.0], [0.0, 100.0]]
+    assert isinstance(make_sensor("gmti"), GMTISensor)
+    assert make_sensor("ugs").name == "ugs" and isinstance(make_sensor("ugs"), VideoSensor)
+    with pytest.raises(ValueError, match="`sensor`: expected one of 'gmti', 'video', 'ugs'"):
+        make_sensor("lidar")
+    with pytest.raises(ValueError, match=r"`z`: expected finite measurements, got NaN/inf"):
+        check_measurements("z", [[1.0, float("nan")]], 2)
+    with pytest.raises(ValueError, match=r"`z`: expected finite"):
+        v.linearize(torch.zeros(4), torch.tensor([float("inf"), 0.0]))
+    with pytest.raises(ValueError, match=r"`z`: expected measurements of shape \(\.\.\., 3\)"):
+        GMTISensor(SENSOR).linearize(torch.zeros(4), torch.zeros(2))
+    with pytest.raises(ValueError, match="`report`"):
+        gmti_report_to_tcf(torch.tensor([100.0, 0.0, 0.0]), torch.tensor(SENSOR), 1.0, 1.0, 1.0)
+    with pytest.raises(ValueError, match="`pd`"):
+        VideoSensor(pd=1.5)

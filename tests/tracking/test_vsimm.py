@@ -1,0 +1,639 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import norm
+
+from hocnet.tracking.road import RoadNetwork
+from hocnet.tracking.sensors import GMTISensor, VideoSensor, gmti_tcf_to_report
+from hocnet.tracking.vsimm import (
+    VSIMMConfig,
+    VSIMMState,
+    section_probabilities,
+    section_transition,
+    sprt_decide,
+    sprt_thresholds,
+    vsimm_association_log_likelihood,
+    vsimm_expand_sections,
+    vsimm_init,
+    vsimm_oosm,
+    vsimm_predict,
+    vsimm_section_sprt,
+    vsimm_step,
+    vsimm_update,
+)
+
+GMTI_POS = (-50000.0, -60000.0, 4000.0)
+
+
+def small_network():
+    return RoadNetwork(
+        [
+            [[0, 0], [800, 0], [1500, 400]],
+            [[800, 0], [900, -700]],
+            [[1500, 400], [2500, 400]],
+        ],
+        [{"kind": "highway"}, {"kind": "byway"}, {"kind": "highway"}],
+    )
+
+
+# --------------------------------------------------------------------------------------
+# slow reference: one row, one mode at a time, straight from the equations
+# --------------------------------------------------------------------------------------
+
+
+def ref_nearest(net, pos, section):
+    best = None
+    for s in range(net.num_segments):
+        if section >= 0 and int(net.segment_section[s]) != section:
+            continue
+        p0, p1 = net.p0[s].numpy(), net.p1[s].numpy()
+        length = float(np.linalg.norm(p1 - p0))
+        u = (p1 - p0) / length
+        t = min(max(float(u @ (pos - p0)), 0.0), length)
+        d = float(np.linalg.norm(pos - p0 - t * u))
+        if best is None or d < best[1]:
+            best = (s, d)
+    return best[0]
+
+
+def ref_cv(dt):
+    F = np.eye(4)
+    F[0, 1] = F[2, 3] = dt
+    G = np.array([[dt * dt / 2, 0], [dt, 0], [0, dt * dt / 2], [0, dt]])
+    return F, G
+
+
+def ref_gmti(sensor, z):
+    xc, yc, zc = sensor.position
+    dx, dy = z[0] - xc, z[1] - yc
+    g = math.hypot(dx, dy)
+    rho = math.sqrt(g * g + zc * zc)
+    H = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, dx / rho, 0, dy / rho]], dtype=float)
+    c, s = dx / g, dy / g
+    J = np.array([[rho / g * c, -g * s], [rho / g * s, g * c]])
+    R = np.zeros((3, 3))
+    R[:2, :2] = J @ np.diag([sensor.sigma_range**2, sensor.sigma_azimuth**2]) @ J.T
+    R[2, 2] = sensor.sigma_range_rate**2
+    return H, R
+
+
+def ref_step(net, cfg, state, t, z, det, sensor):
+    """The VS-IMM cycle for every row and mode with Python loops and numpy."""
+    T = np.array(cfg.trans)
+    kinds = cfg.kinds
+    r = len(kinds)
+    sig = []
+    it = iter(cfg.road_sigmas)
+    for k in kinds:
+        sig.append(next(it) if k == "road" else (0.0, 0.0))
+    out = []
+    for b in range(state.mu.shape[0]):
+        mu = state.mu[b].numpy()
+        xs, Ps = state.x[b].numpy(), state.P[b].numpy()
+        dt = float(t[b]) - float(state.t[b])
+        cbar = T.T @ mu
+        rows = []
+        for j in range(r):
+            w = T[:, j] * mu / cbar[j]
+            x0 = sum(w[i] * xs[i] for i in range(r))
+            P0 = sum(w[i] * (Ps[i] + np.outer(xs[i] - x0, xs[i] - x0)) for i in range(r))
+            F, G = ref_cv(dt)
+            if kinds[j] == "stop":
+                F, G = np.diag([1.0, 0, 1, 0]), np.zeros((4, 2))
+            xp = F @ x0
+            FPF = F @ P0 @ F.T
+            seg, p_on = -1, 1.0
+            if kinds[j] == "off":
+                cov = cfg.off_road_sigma**2 * np.eye(2)
+            else:
+                seg = ref_nearest(net, xp[[0, 2]], int(state.section[b]))
+                p0 = net.p0[seg].numpy()
+                length = float(net.length[seg])
+                u = net.direction[seg].numpy()
+                n = np.array([-u[1], u[0]])
+                sa, sc = sig[j]
+                base = sa**2 * np.outer(u, u) + sc**2 * np.outer(n, n)
+                Ptmp = FPF + G @ base @ G.T
+                a = float(u @ (xp[[0, 2]] - p0))
+                sd = math.sqrt(float(u @ Ptmp[np.ix_([0, 2], [0, 2])] @ u))
+                p_on = min(max(norm.cdf((length - a) / sd) - norm.cdf(-a / sd), 0.0), 1.0)
+                q = sc**2 * p_on + sa**2 * (1 - p_on)
+                cov = sa**2 * np.outer(u, u) + q * np.outer(n, n)
+            Pp = FPF + G @ cov @ G.T
+            if det[b]:
+                if sensor.name == "gmti":
+                    H, R = ref_gmti(sensor, z[b])
+                else:
+                    H, R = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0]]), sensor.sigma**2 * np.eye(2)
+                nu = z[b] - H @ xp
+                S = H @ Pp @ H.T + R
+                K = Pp @ H.T @ np.linalg.inv(S)
+                xu = xp + K @ nu
+                A = np.eye(4) - K @ H
+                Pu = A @ Pp @ A.T + K @ R @ K.T
+                ll = -0.5 * (
+                    nu @ np.linalg.solve(S, nu)
+                    + np.log(np.linalg.det(S))
+                    + len(nu) * np.log(2 * np.pi)
+                )
+            else:
+                xu, Pu, ll = xp, Pp, 0.0
+            if cfg.use_mdv and sensor.name == "gmti":
+                xc, yc, zc = sensor.position
+                dx, dy = xp[0] - xc, xp[2] - yc
+                rho = math.sqrt(dx * dx + dy * dy + zc * zc)
+                h3 = np.array([0, dx / rho, 0, dy / rho])
+                m, s = float(h3 @ xp), math.sqrt(float(h3 @ Pp @ h3))
+                if s > 0:
+                    inside = norm.cdf((sensor.mdv - m) / s) - norm.cdf((-sensor.mdv - m) / s)
+                else:  # a stopped mode: no velocity uncertainty, the hard notch
+                    inside = float(abs(m) < sensor.mdv)
+                pd = sensor.pd * (1 - inside)
+            else:
+                pd = sensor.pd
+            pd = min(max(pd, 1e-12), 1.0)
+            if kinds[j] == "stop":
+                lam = 0.0 if det[b] else 1.0
+            else:
+                lam = pd * math.exp(ll) if det[b] else 1 - pd
+            # OOSM memory: the measurement and the projection (a perfect pseudo-measurement)
+            parts = []
+            if det[b]:
+                parts.append((H, nu, R))
+            if seg >= 0:
+                D, L = (t_.numpy() for t_ in net.constraint(seg))
+                parts.append((D, L - D @ xp, np.zeros((2, 2))))
+            if parts:
+                Ht = np.concatenate([p[0] for p in parts])
+                nut = np.concatenate([p[1] for p in parts])
+                Rt = np.zeros((len(nut), len(nut)))
+                i0 = 0
+                for p in parts:
+                    k = len(p[1])
+                    Rt[i0 : i0 + k, i0 : i0 + k] = p[2]
+                    i0 += k
+                Sp = np.linalg.pinv(Ht @ Pp @ Ht.T + Rt, rcond=1e-9, hermitian=True)
+                g, Gm = Ht.T @ Sp @ nut, Ht.T @ Sp @ Ht
+            else:
+                g, Gm = np.zeros(4), np.zeros((4, 4))
+            if seg >= 0:
+                p0 = net.p0[seg].numpy()
+                u = net.direction[seg].numpy()
+                a_, b_ = -u[1], u[0]
+                c_ = -(a_ * p0[0] + b_ * p0[1])
+                D = np.array([[a_, 0, b_, 0], [0, a_, 0, b_]])
+                L = np.array([-c_, 0.0])
+                Kp = Pu @ D.T @ np.linalg.pinv(D @ Pu @ D.T, rcond=1e-9, hermitian=True)
+                xu = xu - Kp @ (D @ xu - L)
+                Ap = np.eye(4) - Kp @ D
+                Pu = Ap @ Pu @ Ap.T
+            rows.append((xp, Pp, seg, p_on, xu, Pu, lam, g, Gm))
+        lam = np.array([row[6] for row in rows])
+        c = float(lam @ cbar)
+        out.append(
+            {
+                "x_pred": np.stack([row[0] for row in rows]),
+                "P_pred": np.stack([row[1] for row in rows]),
+                "segment": [row[2] for row in rows],
+                "p_on": np.array([row[3] for row in rows]),
+                "x": np.stack([row[4] for row in rows]),
+                "P": np.stack([row[5] for row in rows]),
+                "mu": lam * cbar / c,
+                "log_lambda": math.log(c),
+                "g": np.stack([row[7] for row in rows]),
+                "G": np.stack([row[8] for row in rows]),
+            }
+        )
+    return out
+
+
+def random_rows(net, cfg, rng, n):
+    along = rng.uniform(0, 1, size=n)
+    segs = rng.integers(0, net.num_segments, size=n)
+    pos = net.p0[segs].numpy() + along[:, None] * (net.p1[segs] - net.p0[segs]).numpy()
+    u = net.direction[segs].numpy()
+    speed = rng.uniform(-15, 15, size=n)
+    x = np.stack([pos[:, 0], speed * u[:, 0], pos[:, 1], speed * u[:, 1]], -1)
+    x += rng.normal(size=(n, 4)) * [15, 1, 15, 1]
+    P = np.stack([np.diag(rng.uniform([100, 1, 100, 1], [900, 9, 900, 9])) for _ in range(n)])
+    sections = rng.integers(-1, net.num_sections, size=n)
+    sections[0] = -1
+    mu0 = rng.dirichlet(np.ones(cfg.num_modes), size=n)
+    s = vsimm_init(net, torch.tensor(x), torch.tensor(P), cfg, 0.0, mu0=torch.tensor(mu0))
+    # perturb the modes so that mixing has something to do, and use the drawn sections
+    xm = s.x + torch.tensor(rng.normal(size=tuple(s.x.shape)) * 5)
+    return s._replace(x=xm, section=torch.tensor(sections))
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "gmti"])
+def test_vsimm_step_matches_loop_reference(sensor_name):
+    net = small_network()
+    rng = np.random.default_rng(7)
+    trans = rng.dirichlet(np.ones(4) * 3, size=4)
+    cfg = VSIMMConfig(
+        road_sigmas=((0.05, 0.05), (0.8, 0.4)), off_road_sigma=1.0, trans=torch.tensor(trans)
+    )
+    assert cfg.kinds == ("stop", "road", "road", "off")
+    n = 7
+    s = random_rows(net, cfg, rng, n)
+    t = torch.tensor(rng.uniform(5, 12, size=n))
+    xc = s.combined()[0].numpy()
+    if sensor_name == "video":
+        sensor = VideoSensor(10.0, pd=0.9)
+        z = xc[:, [0, 2]] + rng.normal(size=(n, 2)) * 40
+    else:
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        z = sensor.measure(torch.tensor(xc)).numpy() + rng.normal(size=(n, 3)) * [40, 40, 1]
+    det = np.ones(n, dtype=bool)
+    det[[2, 5]] = False
+    z_in = z.copy()
+    z_in[2] = np.nan  # ignored: not detected
+    pred = vsimm_predict(s, net, cfg, t)
+    new, out = vsimm_update(
+        s, pred, torch.tensor(z_in), sensor, net, cfg, detected=torch.tensor(det)
+    )
+    ref = ref_step(net, cfg, s, t, z, det, sensor)
+    for b in range(n):
+        rb = ref[b]
+        assert pred.segment[b].tolist() == rb["segment"]
+        np.testing.assert_allclose(pred.x[b].numpy(), rb["x_pred"], rtol=1e-10, atol=1e-8)
+        np.testing.assert_allclose(pred.P[b].numpy(), rb["P_pred"], rtol=1e-10, atol=1e-8)
+        np.testing.assert_allclose(pred.p_on[b].numpy(), rb["p_on"], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(new.x[b].numpy(), rb["x"], rtol=1e-9, atol=1e-7)
+        np.testing.assert_allclose(new.P[b].numpy(), rb["P"], rtol=1e-8, atol=1e-7)
+        np.testing.assert_allclose(new.mu[b].numpy(), rb["mu"], rtol=1e-8, atol=1e-12)
+        assert float(out.log_likelihood[b]) == pytest.approx(rb["log_lambda"], rel=1e-9, abs=1e-9)
+        np.testing.assert_allclose(new.g[b].numpy(), rb["g"], rtol=1e-8, atol=1e-12)
+        np.testing.assert_allclose(new.G[b].numpy(), rb["G"], rtol=1e-8, atol=1e-12)
+    # the road modes are on their segments after the update
+    D, L = net.constraint(new.segment[:, :3])
+    resid = (D @ new.x[:, :3].unsqueeze(-1)).squeeze(-1) - L
+    assert float(resid.abs().max()) < 1e-7
+    assert torch.equal(new.t, t) and torch.equal(new.t_prev, s.t)
+
+
+# --------------------------------------------------------------------------------------
+# road-section hypotheses: 24.38-24.40
+# --------------------------------------------------------------------------------------
+
+
+def test_sprt_thresholds_are_walds():
+    up, low = sprt_thresholds(0.05, 0.1)
+    assert up == pytest.approx(0.9 / 0.05) and low == pytest.approx(0.1 / 0.95)
+    with pytest.raises(ValueError, match="`alpha`"):
+        sprt_thresholds(0.0, 0.1)
+    with pytest.raises(ValueError, match="alpha \\+ beta < 1"):
+        sprt_thresholds(0.6, 0.5)
+
+
+def test_section_probabilities_and_decisions_match_loop():
+    rng = np.random.default_rng(8)
+    T, Hn = 6, 3
+    mu_prev = rng.dirichlet(np.ones(Hn), size=T)
+    mu_prev[0, 2] = 0.0  # a newly spawned hypothesis
+    ll = rng.normal(size=(T, Hn)) * 3
+    omega = rng.dirichlet(np.ones(Hn) * 2, size=(T, Hn))
+    valid = np.ones((T, Hn), dtype=bool)
+    valid[1, 2] = False
+    mu = section_probabilities(
+        torch.tensor(mu_prev), torch.tensor(ll), torch.tensor(omega), torch.tensor(valid)
+    )
+    up, low = 20.0, 0.05
+    acc, rej = sprt_decide(mu, up, low, torch.tensor(valid))
+    for t in range(T):
+        hs = [h for h in range(Hn) if valid[t, h]]
+        w = {h: math.exp(ll[t, h]) * sum(omega[t, hb, h] * mu_prev[t, hb] for hb in hs) for h in hs}
+        c = sum(w.values())
+        for h in range(Hn):
+            expect = w[h] / c if h in hs else 0.0
+            assert float(mu[t, h]) == pytest.approx(expect, rel=1e-10, abs=1e-15)
+        for h in hs:
+            ratios = [float(mu[t, h]) / float(mu[t, o]) for o in hs if o != h]
+            assert bool(acc[t, h]) == all(q >= up for q in ratios)
+            assert bool(rej[t, h]) == (len(ratios) > 0 and all(q <= low for q in ratios))
+        assert not bool(acc[t, 2]) or valid[t, 2]
+
+
+def test_section_transition_prefers_same_kind():
+    net = small_network()
+    kinds = [p["kind"] for p in net.section_properties]
+    hw = [i for i, k in enumerate(kinds) if k == "highway"]
+    bw = [i for i, k in enumerate(kinds) if k == "byway"]
+    om = section_transition(net, torch.tensor([hw[0], hw[1], bw[0]]))
+    torch.testing.assert_close(om.sum(-1), torch.ones(3, dtype=torch.float64))
+    assert float(om[0, 1]) > float(om[0, 2])
+
+
+def y_junction():
+    c45 = 1500 / math.sqrt(2)
+    c30, s30 = 1500 * math.cos(math.pi / 6), 1500 * math.sin(math.pi / 6)
+    return RoadNetwork.from_geojson(
+        {
+            "type": "FeatureCollection",
+            "features": [
+                {
+                    "type": "Feature",
+                    "properties": {"kind": "highway"},
+                    "geometry": {
+                        "type": "LineString",
+                        "coordinates": [[0, 0], [500, 0], [1000, 0]],
+                    },
+                },
+                {
+                    "type": "Feature",
+                    "properties": {"kind": "highway"},
+                    "geometry": {
+                        "type": "LineString",
+                        "coordinates": [[1000, 0], [1000 + c30, -s30]],
+                    },
+                },
+                {
+                    "type": "Feature",
+                    "properties": {"kind": "byway"},
+                    "geometry": {
+                        "type": "LineString",
+                        "coordinates": [[1000, 0], [1000 + c45, c45]],
+                    },
+                },
+            ],
+        }
+    )
+
+
+def junction_truth(branch, t, speed=15.0):
+    s = speed * t
+    if s <= 1000:
+        return np.array([s, speed, 0.0, 0.0])
+    ang = -math.pi / 6 if branch == "highway" else math.pi / 4
+    d = s - 1000
+    c, si = math.cos(ang), math.sin(ang)
+    return np.array([1000 + d * c, speed * c, d * si, speed * si])
+
+
+def run_junction(branch, sensor, n_tracks=3, seed=0):
+    """Independent tracks (one batch) through the Y junction.
+
+    Returns the accepted section per scan and track (``None`` while undecided) and the errors.
+    """
+    rng = np.random.default_rng(seed)
+    net = y_junction()
+    cfg = VSIMMConfig()
+    x0 = torch.tensor(junction_truth(branch, 0.0)).expand(n_tracks, 4)
+    st = vsimm_init(net, x0, torch.diag(torch.tensor([400.0, 25, 400, 25])), cfg)
+    decided, errors = [], []
+    for k in range(1, 16):
+        t = 10.0 * k
+        st = vsimm_expand_sections(st, net, 10.0)
+        xt = junction_truth(branch, t)
+        if sensor.name == "gmti":
+            pol = gmti_tcf_to_report(torch.tensor(xt), torch.tensor(sensor.position)).numpy()
+            sd = [sensor.sigma_range, sensor.sigma_azimuth, sensor.sigma_range_rate]
+            pol = pol + rng.normal(size=(n_tracks, 3)) * sd
+            z = sensor.from_report(torch.tensor(pol))[0]
+        else:
+            z = torch.tensor(xt[[0, 2]] + rng.normal(size=(n_tracks, 2)) * sensor.sigma)
+        st, out = vsimm_step(st, net, cfg, t, z[st.track], sensor)
+        st, _ = vsimm_section_sprt(st, out.log_likelihood, net, alpha=0.01, beta=0.01)
+        xc = st.combined()[0]
+        row_dec, row_err = [], []
+        for trk in range(n_tracks):
+            rows = torch.nonzero(st.track == trk).flatten()
+            row_dec.append(int(st.section[rows[0]]) if rows.numel() == 1 else None)
+            best = rows[st.mu_section[rows].argmax()]
+            row_err.append(float(np.linalg.norm(xc[best, [0, 2]].numpy() - xt[[0, 2]])))
+        decided.append(row_dec)
+        errors.append(row_err)
+    kinds = [p["kind"] for p in net.section_properties]
+    return decided, np.array(errors), kinds
+
+
+@pytest.mark.parametrize("branch", ["highway", "byway"])
+@pytest.mark.parametrize("sensor_name", ["video", "gmti"])
+def test_sprt_picks_the_true_branch_at_a_junction(branch, sensor_name):
+    sensor = (
+        VideoSensor(10.0, pd=1.0)
+        if sensor_name == "video"
+        else GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+    )
+    decided, errors, kinds = run_junction(branch, sensor, n_tracks=4)
+    # before the junction (reached at 67 s) every track stays on the first section
+    assert all(d == 0 for scan in decided[:6] for d in scan)
+    # within three scans after it, one hypothesis is accepted: the true branch, and kept
+    for scan in decided[9:]:
+        assert all(d is not None and d != 0 and kinds[d] == branch for d in scan)
+    assert errors[10:].max() < (30.0 if sensor_name == "video" else 80.0)
+
+
+def test_vsimm_follows_a_bend_and_switches_segments():
+    net = RoadNetwork([[[0, 0], [600, 0], [1000, 400], [1000, 1500]]])
+    cfg = VSIMMConfig()
+    sensor = VideoSensor(10.0, pd=1.0)
+    rng = np.random.default_rng(9)
+    path = np.array([[0, 0], [600, 0], [1000, 400], [1000, 1500]], dtype=float)
+    cum = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+
+    def at(s):
+        i = min(np.searchsorted(cum, s, side="right") - 1, 2)
+        u = (path[i + 1] - path[i]) / (cum[i + 1] - cum[i])
+        return path[i] + (s - cum[i]) * u
+
+    st = vsimm_init(
+        net,
+        torch.tensor([[0.0, 12.0, 0.0, 0.0]]),
+        torch.diag(torch.tensor([100.0, 9, 100, 9])),
+        cfg,
+    )
+    segs = []
+    for k in range(1, 15):
+        z = torch.tensor(at(12.0 * 10 * k) + rng.normal(size=2) * 10)[None]
+        st, _ = vsimm_step(st, net, cfg, 10.0 * k, z, sensor)
+        segs.append(int(st.segment[0, 1]))
+        err = float(np.linalg.norm(st.combined()[0][0, [0, 2]].numpy() - at(120.0 * k)))
+        assert err < 60.0
+    assert segs[0] == 0 and segs[-1] == 2 and 1 in segs
+
+
+def test_vsimm_errors_and_empty_batch():
+    net = small_network()
+    cfg = VSIMMConfig()
+    video = VideoSensor(10.0)
+    s = vsimm_init(net, torch.tensor([[100.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg, 5.0)
+    with pytest.raises(ValueError, match=r"`t`: expected a time >= the track time.*vsimm_oosm"):
+        vsimm_predict(s, net, cfg, 4.0)
+    with pytest.raises(ValueError, match="`z`: expected finite measurements"):
+        vsimm_step(s, net, cfg, 10.0, torch.tensor([[float("nan"), 0.0]]), video)
+    with pytest.raises(ValueError, match=r"`z`: expected shape \(1, 2\)"):
+        vsimm_step(s, net, cfg, 10.0, torch.zeros(1, 3), video)
+    s2, out = vsimm_step(
+        s,
+        net,
+        cfg,
+        10.0,
+        torch.tensor([[float("nan"), 0.0]]),
+        video,
+        detected=torch.tensor([False]),
+    )
+    assert torch.isfinite(s2.x).all() and float(out.log_likelihood[0]) <= 0.0
+    with pytest.raises(ValueError, match="`trans`"):
+        VSIMMConfig(trans=[[1.0, 0.0], [0.0, 1.0]])
+    with pytest.raises(ValueError, match="`noise`"):
+        VSIMMConfig(noise="pink")
+    # empty batch
+    e = vsimm_init(net, torch.zeros(0, 4), 100 * torch.eye(4), cfg)
+    assert isinstance(e, VSIMMState) and e.mu.shape == (0, 3)
+    e2, out = vsimm_step(e, net, cfg, 10.0, torch.zeros(0, 2), video)
+    assert e2.x.shape == (0, 3, 4) and out.log_likelihood.shape == (0,)
+    e3, rows = vsimm_section_sprt(e2, out.log_likelihood, net)
+    assert e3.mu.shape == (0, 3) and rows.numel() == 0
+    assert vsimm_expand_sections(e2, net, 10.0).mu.shape == (0, 3)
+
+
+def test_expand_sections_adds_each_reachable_section_once():
+    net = y_junction()
+    cfg = VSIMMConfig()
+    P0 = torch.diag(torch.tensor([100.0, 4, 100, 4]))
+    x0 = torch.tensor([[900.0, 15.0, 0.0, 0.0], [100.0, 15.0, 0.0, 0.0], [950.0, -15.0, 0.0, 0.0]])
+    mu0 = torch.tensor([0.0, 0.5, 0.5])  # moving: the direction of travel is certain
+    st = vsimm_init(net, x0, P0, cfg, track=torch.tensor([0, 1, 2]), mu0=mu0)
+    out = vsimm_expand_sections(st, net, 10.0)
+    # track 0 (100 m before the junction, heading to it) gets the two branches; track 1 (far)
+    # and track 2 (heading away from the junction) get nothing
+    assert out.track.tolist() == [0, 1, 2, 0, 0]
+    assert sorted(out.section[3:].tolist()) == [1, 2]
+    assert out.mu_section.tolist() == [1.0, 1.0, 1.0, 0.0, 0.0]
+    torch.testing.assert_close(out.x[3], st.x[0])
+    again = vsimm_expand_sections(out, net, 10.0)
+    assert again.track.tolist() == out.track.tolist()
+    # with the stop model likely, the direction is uncertain: track 2 looks both ways
+    both = vsimm_expand_sections(
+        st._replace(mu=torch.full((3, 3), 1 / 3, dtype=torch.float64)), net, 10.0
+    )
+    assert both.track.tolist() == [0, 1, 2, 0, 0, 2, 2]
+    # the reachable rule itself: one scan at 15 m/s from 900 m reaches the junction node
+    loc = net.locate(x0[0])
+    reach = net.reachable(loc.segment, loc.abscissa, 150.0 + 3 * math.sqrt(200.0), direction=1)
+    assert set(net.segment_section[reach].tolist()) == {0, 1, 2}
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "gmti"])
+def test_association_likelihoods_equal_the_update(sensor_name):
+    net = small_network()
+    rng = np.random.default_rng(10)
+    cfg = VSIMMConfig(off_road_sigma=1.0)
+    s = random_rows(net, cfg, rng, 5)
+    pred = vsimm_predict(s, net, cfg, 10.0)
+    xc = s.combined()[0]
+    if sensor_name == "video":
+        sensor = VideoSensor(10.0, pd=0.9)
+        Z = xc[:4, [0, 2]] + torch.tensor(rng.normal(size=(4, 2)) * 30)
+    else:
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        Z = sensor.measure(xc[:4]) + torch.tensor(rng.normal(size=(4, 3)) * [30, 30, 1])
+    a = vsimm_association_log_likelihood(pred, Z, sensor, cfg)
+    assert a.log_likelihood.shape == (5, 4) and a.d2.shape == (5, 4, 4)
+    for j in range(4):
+        _, out = vsimm_update(s, pred, Z[j].expand(5, -1), sensor, net, cfg)
+        torch.testing.assert_close(
+            a.log_likelihood[:, j], out.log_likelihood, rtol=1e-10, atol=1e-10
+        )
+    nan = torch.full((5, sensor.dim), float("nan"), dtype=torch.float64)
+    _, out = vsimm_update(s, pred, nan, sensor, net, cfg, detected=torch.zeros(5, dtype=torch.bool))
+    torch.testing.assert_close(a.missed_log_likelihood, out.log_likelihood, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="`z`: expected finite"):
+        vsimm_association_log_likelihood(pred, nan[:1], sensor, cfg)
+
+
+def test_bad_measurement_leaves_state_untouched():
+    net = small_network()
+    cfg = VSIMMConfig()
+    s = random_rows(net, cfg, np.random.default_rng(11), 3)
+    before = [f.clone() for f in s]
+    z = torch.tensor([[1.0, 2.0], [float("inf"), 0.0], [3.0, 4.0]], dtype=torch.float64)
+    with pytest.raises(
+        ValueError, match=r"`z`: expected finite measurements, got NaN/inf at index \[1\]"
+    ):
+        vsimm_step(s, net, cfg, 10.0, z, VideoSensor())
+    for f, g in zip(s, before, strict=True):
+        assert torch.equal(f, g)
+
+
+def ref_oosm(net, cfg, s, tau, z, sensor):
+    """vsimm_oosm per row and mode with loops: A1 retrodiction on the road, update, weights."""
+    out = []
+    for b in range(s.mu.shape[0]):
+        lag = float(s.t[b]) - float(tau[b])
+        xs, Ps, lams = [], [], []
+        for j, kind in enumerate(cfg.kinds):
+            x, P = s.x[b, j].numpy(), s.P[b, j].numpy()
+            Pp, g, G = s.P_pred[b, j].numpy(), s.g[b, j].numpy(), s.G[b, j].numpy()
+            if kind == "stop":
+                Fb, Gm = np.diag([1.0, 0, 1, 0]), np.zeros((4, 2))
+            else:
+                Fb, Gm = ref_cv(-lag)[0], ref_cv(lag)[1]
+            Q = Gm @ s.accel_cov[b, j].numpy() @ Gm.T
+            Pxv = Q - Pp @ G @ Q
+            Pvv = Q - Q @ G @ Q
+            xr = Fb @ (x - Q @ g)
+            Pr = Fb @ (P + Pvv - Pxv - Pxv.T) @ Fb.T
+            C = (P - Pxv) @ Fb.T
+            if kind != "off":
+                seg = ref_nearest(net, xr[[0, 2]], int(s.section[b]))
+                D, L = (t.numpy() for t in net.constraint(seg))
+                K = Pr @ D.T @ np.linalg.pinv(D @ Pr @ D.T, rcond=1e-9, hermitian=True)
+                A = np.eye(4) - K @ D
+                xr, Pr, C = xr - K @ (D @ xr - L), A @ Pr @ A.T, C @ A.T
+            if sensor.name == "gmti":
+                H, R = ref_gmti(sensor, z[b])
+            else:
+                H, R = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0]]), sensor.sigma**2 * np.eye(2)
+            nu = z[b] - H @ xr
+            S = H @ Pr @ H.T + R
+            Pxz = C @ H.T
+            W = Pxz @ np.linalg.inv(S)
+            xn, Pn = x + W @ nu, P - W @ Pxz.T
+            ll = -0.5 * (
+                nu @ np.linalg.solve(S, nu) + np.log(np.linalg.det(S)) + len(nu) * np.log(2 * np.pi)
+            )
+            if kind != "off":
+                D, L = (t.numpy() for t in net.constraint(int(s.segment[b, j])))
+                K = Pn @ D.T @ np.linalg.pinv(D @ Pn @ D.T, rcond=1e-9, hermitian=True)
+                A = np.eye(4) - K @ D
+                xn, Pn = xn - K @ (D @ xn - L), A @ Pn @ A.T
+            lams.append(0.0 if kind == "stop" else sensor.pd * math.exp(ll))
+            xs.append(xn)
+            Ps.append(Pn)
+        w = np.array(lams) * s.mu[b].numpy()
+        out.append((np.stack(xs), np.stack(Ps), w / w.sum(), math.log(w.sum())))
+    return out
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "gmti"])
+def test_vsimm_oosm_matches_loop_reference(sensor_name):
+    net = small_network()
+    rng = np.random.default_rng(12)
+    cfg = VSIMMConfig(off_road_sigma=1.0, use_mdv=False)
+    n = 5
+    s = random_rows(net, cfg, rng, n)
+    xc = s.combined()[0]
+    if sensor_name == "video":
+        sensor = VideoSensor(10.0, pd=0.9)
+        noise = [20, 20]
+        meas = lambda x: x[:, [0, 2]]  # noqa: E731
+    else:
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        noise = [30, 30, 1]
+        meas = sensor.measure
+    z1 = meas(xc) + torch.tensor(rng.normal(size=(n, sensor.dim)) * noise)
+    s, _ = vsimm_step(s, net, cfg, 10.0, z1, sensor)
+    tau = torch.tensor(rng.uniform(0.0, 10.0, size=n))
+    z = meas(s.combined()[0]) + torch.tensor(rng.normal(size=(n, sensor.dim)) * noise)
+    new, out = vsimm_oosm(s, z, tau, sensor, net, cfg)
+    ref = ref_oosm(net, cfg, s, tau, z.numpy(), sensor)
+    for b in range(n):
+        xr, Pr, mur, llr = ref[b]
+        np.testing.assert_allclose(new.x[b].numpy(), xr, rtol=1e-8, atol=1e-7)
+        np.testing.assert_allclose(new.P[b].numpy(), Pr, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(new.mu[b].numpy(), mur, rtol=1e-8, atol=1e-12)
+        assert float(out.log_likelihood[b]) == pytest.approx(llr, rel=1e-9, abs=1e-9)
