@@ -120,7 +120,7 @@ def k_best_assignments(cost: Any, k: int) -> list[Assignment]:
         for r, cc in forced:
             _force(sub, r, cc)
         fixed = list(forced)
-        for i, (r, cc) in enumerate(free):
+        for r, cc in free:
             child = sub.copy()
             child[r, cc] = np.inf
             solved = _solve(child)
