@@ -44,7 +44,7 @@ def simulate(
         z, lab = [], []
         for i, (x, y, vx, vy) in enumerate(starts):
             if rng.random() < pd:
-                z.append([x + vx * k, y + vy * k] + rng.normal(0, sigma, 2))
+                z.append(np.array([x + vx * k, y + vy * k]) + rng.normal(0, sigma, 2))
                 lab.append(i)
         n_c = rng.poisson(clutter)
         z.extend(rng.uniform(0, SIZE, (n_c, 2)))
@@ -151,7 +151,7 @@ class TestSPRT:
 
     @pytest.mark.parametrize(("alpha", "beta"), [(0.0, 0.1), (0.5, 0.5), (0.1, 1.0)])
     def test_bad_thresholds(self, alpha: float, beta: float) -> None:
-        with pytest.raises(ValueError, match="`alpha`|`beta`"):
+        with pytest.raises(ValueError, match=r"`alpha`|`beta`"):
             sprt_thresholds(alpha, beta)
 
     def test_status_follows_the_score(self) -> None:
