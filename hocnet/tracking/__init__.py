@@ -3,9 +3,12 @@
 First increment: batched Kalman / EKF filtering and gating (:mod:`hocnet.tracking.kalman`), the
 IMM with a stop model (:mod:`hocnet.tracking.imm`) and belief functions with PCR5 and the
 pignistic transformation (:mod:`hocnet.tracking.belief`), and the road-segment model with the
-constrained estimate by projection (:mod:`hocnet.tracking.road`).
+constrained estimate by projection (:mod:`hocnet.tracking.road`). Data association: Murty's
+k-best assignment (:mod:`hocnet.tracking.assignment`) and the track-oriented structured-branching
+MHT with LLR track scores and SPRT track status (:mod:`hocnet.tracking.mht`).
 """
 
+from hocnet.tracking.assignment import Assignment, brute_force_assignments, k_best_assignments
 from hocnet.tracking.belief import (
     conjunctive,
     dempster,
@@ -38,6 +41,14 @@ from hocnet.tracking.kalman import (
     mahalanobis2,
     stop_model,
 )
+from hocnet.tracking.mht import (
+    MHT,
+    CVKalmanFilter,
+    IMMFilter,
+    MHTTrack,
+    MotionFilter,
+    sprt_thresholds,
+)
 from hocnet.tracking.road import (
     on_segment_probability,
     project_estimate,
@@ -48,7 +59,14 @@ from hocnet.tracking.road import (
 )
 
 __all__ = [
+    "MHT",
+    "Assignment",
+    "CVKalmanFilter",
+    "IMMFilter",
     "IMMStep",
+    "MHTTrack",
+    "MotionFilter",
+    "brute_force_assignments",
     "conjunctive",
     "constant_velocity",
     "cv_gamma",
@@ -63,6 +81,7 @@ __all__ = [
     "imm_mode_probabilities",
     "imm_step",
     "imm_track_log_likelihood",
+    "k_best_assignments",
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
@@ -77,6 +96,7 @@ __all__ = [
     "road_constant_velocity",
     "road_noise_cov",
     "segment_constraint",
+    "sprt_thresholds",
     "stop_model",
     "to_dict",
     "vacuous",

@@ -465,10 +465,11 @@ class MHT:
 
     Examples:
         >>> mht = MHT(R=0.25 * torch.eye(2), pd=0.9, lambda_fa=1e-3, lambda_nt=1e-4)
-        >>> for k in range(6):
-        ...     _ = mht.step(torch.tensor([[10.0 + k, 20.0], [50.0 - 3 * k, 5.0 + 7 * k]]))
+        >>> for k in range(6):  # two targets (rows 0, 1) and a wandering false alarm (row 2)
+        ...     z = [[10.0 + k, 20.0], [50.0 - k, 5.0 + k], [3.0 * k * k % 40, 7.0 * k % 30]]
+        ...     _ = mht.step(torch.tensor(z))
         >>> [(t.id, t.status, t.measurements) for t in mht.tracks()]
-        [(0, 'confirmed', [0, 0, 0, 0, 0, 0])]
+        [(0, 'confirmed', [0, 0, 0, 0, 0, 0]), (1, 'confirmed', [1, 1, 1, 1, 1, 1])]
     """
 
     def __init__(
