@@ -100,6 +100,14 @@ def k_best_assignments(cost: Any, k: int) -> list[Assignment]:
     if n == 0:
         empty = np.zeros(0, dtype=np.int64)
         return [Assignment(0.0, empty, empty.copy())]
+    if n == 1:  # one row: the k best are the k smallest allowed entries (fast path)
+        row = c[0]
+        cols = np.flatnonzero(np.isfinite(row))
+        cols = cols[np.argsort(row[cols], kind="stable")][:k]
+        zero = np.zeros(1, dtype=np.int64)
+        return [
+            _result(float(row[j]), zero, np.array([j], dtype=np.int64), transposed) for j in cols
+        ]
     first = _solve(c)
     if first is None:
         return []

@@ -453,6 +453,9 @@ class MHT:
         alpha, beta: SPRT error probabilities (:func:`sprt_thresholds`).
         drop: score drop from its maximum that deletes a confirmed track (default ``ln(B/A)``).
         n_hypotheses: global hypotheses kept per cluster (``NHypo`` of the chapter), ``>= 1``.
+        hypothesis_ratio: also drop the hypotheses whose probability is below this fraction of
+            the best one's in their cluster (score below ``best + ln(ratio)``; ratio pruning of
+            Blackman and Popoli 1999, ch. 16; ``None`` keeps the ``n_hypotheses`` best).
         n_scan: depth of the N-scan pruning (``>= 0``; 0 decides every scan).
         merge_scans: leaves with the same measurements over this many last scans are merged
             (``0`` disables merging).
@@ -485,6 +488,7 @@ class MHT:
         beta: float = 0.1,
         drop: float | None = None,
         n_hypotheses: int = 10,
+        hypothesis_ratio: float | None = 1e-6,
         n_scan: int = 3,
         merge_scans: int = 3,
         initial_score: str = "log_odds",
@@ -514,6 +518,15 @@ class MHT:
             else check_number("drop", drop, low=0.0, low_inclusive=False)
         )
         self.n_hypotheses = check_int("n_hypotheses", n_hypotheses, minimum=1)
+        self.log_ratio = (
+            None
+            if hypothesis_ratio is None
+            else math.log(
+                check_number(
+                    "hypothesis_ratio", hypothesis_ratio, low=0.0, high=1.0, low_inclusive=False
+                )
+            )
+        )
         self.n_scan = check_int("n_scan", n_scan, minimum=0)
         self.merge_scans = check_int("merge_scans", merge_scans, minimum=0)
         self.initial_score = check_choice("initial_score", initial_score, ("log_odds", "printed"))
@@ -743,6 +756,9 @@ class MHT:
                     if kids not in cands or cands[kids] < sc:
                         cands[kids] = sc
             best = sorted(cands.items(), key=lambda t: -t[1])[: self.n_hypotheses]
+            if self.log_ratio is not None:
+                floor = best[0][1] + self.log_ratio
+                best = [b for b in best if b[1] >= floor]
             hyp_children.append([(s, kids) for kids, s in best])
             for kids, _ in best:
                 used.update(kids)
@@ -798,15 +814,38 @@ class MHT:
     def _gate(
         self, zp: torch.Tensor, hph: torch.Tensor, z: torch.Tensor, R: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Gated (track, measurement) pairs: a coarse per-axis box first, then the ellipse."""
-        diag = hph.diagonal(dim1=-2, dim2=-1)[:, None, :] + R.diagonal(dim1=-2, dim2=-1)[None]
-        d = z[None, :, :] - zp[:, None, :]
-        box = ((d * d) <= self.gate_threshold * diag).all(-1)
-        l_idx, j_idx = box.nonzero(as_tuple=True)
+        """Gated (track, measurement) pairs, as :func:`~hocnet.tracking.kalman.gate` would give.
+
+        Candidates first: measurements sorted by ``x``; each track looks only at the ``x``
+        interval its gate can reach (``|dx| <= sqrt(gamma S_xx)``, a necessary condition of the
+        ellipse), then the same box test in ``y``; the ellipse test of
+        :func:`~hocnet.tracking.kalman.gate` decides on the candidates.
+        """
+        gamma = self.gate_threshold
+        order = torch.argsort(z[:, 0])
+        zx = z[order, 0].contiguous()
+        r_diag = R.diagonal(dim1=-2, dim2=-1)
+        half = torch.sqrt(gamma * (hph[:, 0, 0] + r_diag[:, 0].max()))
+        lo = torch.searchsorted(zx, zp[:, 0] - half, side="left")
+        hi = torch.searchsorted(zx, zp[:, 0] + half, side="right")
+        counts = hi - lo
+        total = int(counts.sum())
+        if total == 0:
+            empty = torch.zeros(0, dtype=torch.long)
+            return empty, empty
+        l_idx = torch.repeat_interleave(torch.arange(len(zp)), counts)
+        start = torch.cumsum(counts, 0) - counts
+        offset = torch.arange(total) - torch.repeat_interleave(start, counts)
+        j_idx = order[torch.repeat_interleave(lo, counts) + offset]
+        d = z[j_idx] - zp[l_idx]
+        box = ((d * d) <= gamma * (hph[l_idx].diagonal(dim1=-2, dim2=-1) + r_diag[j_idx])).all(-1)
+        l_idx, j_idx, d = l_idx[box], j_idx[box], d[box]
         if len(l_idx) == 0:
             return l_idx, j_idx
-        inside = gate(d[l_idx, j_idx], hph[l_idx] + R[j_idx], self.gate_threshold)
-        return l_idx[inside], j_idx[inside]
+        inside = gate(d, hph[l_idx] + R[j_idx], gamma)
+        l_idx, j_idx = l_idx[inside], j_idx[inside]
+        key = torch.argsort(l_idx * len(z) + j_idx)  # track-major order, as a dense scan gives
+        return l_idx[key], j_idx[key]
 
     def _sprt(self, parent_status: str, score: float, max_score: float) -> tuple[str, float]:
         """Status of a child track by the SPRT (module docstring)."""

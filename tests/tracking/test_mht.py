@@ -310,6 +310,7 @@ class TestAgainstBruteForce:
             beta=1e-12,
             gate_probability=0.99,
             n_hypotheses=100000,
+            hypothesis_ratio=None,
             n_scan=100,
             merge_scans=0,
         )
@@ -398,3 +399,25 @@ def test_leaf_states_are_float64_and_batched() -> None:
     for t in mht.tracks():
         assert t.state.shape == (4,) and t.covariance.shape == (4, 4)
         assert 0.0 < t.probability <= 1.0 + 1e-12
+
+
+class TestGate:
+    @pytest.mark.parametrize("seed", range(5))
+    def test_sorted_gate_equals_dense_gate(self, seed: int) -> None:
+        """The candidate search (sorted x, box) + ellipse equals kalman.gate on every pair."""
+        from hocnet.tracking.kalman import gate
+
+        g = torch.Generator().manual_seed(seed)
+        n, m = 40, 60
+        zp = torch.rand(n, 2, generator=g, dtype=torch.float64) * 50
+        a = torch.randn(n, 2, 2, generator=g, dtype=torch.float64)
+        hph = a @ a.transpose(-1, -2) * 4 + 0.1 * torch.eye(2, dtype=torch.float64)
+        z = torch.rand(m, 2, generator=g, dtype=torch.float64) * 50
+        b = torch.randn(m, 2, 2, generator=g, dtype=torch.float64)
+        R = b @ b.transpose(-1, -2) + 0.5 * torch.eye(2, dtype=torch.float64)
+        mht = MHT(R=torch.eye(2), gate_probability=0.99)
+        l_idx, j_idx = mht._gate(zp, hph, z, R)
+        dense = gate(z[None] - zp[:, None], hph[:, None] + R[None], mht.gate_threshold)
+        ref_l, ref_j = dense.nonzero(as_tuple=True)
+        assert l_idx.tolist() == ref_l.tolist() and j_idx.tolist() == ref_j.tolist()
+        assert len(l_idx) > 0
