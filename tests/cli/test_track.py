@@ -95,6 +95,7 @@ class TestTrack:
         ("array", "detector", "match"),
         [
             (np.full((6, 8, 8), np.nan), "dpa", r"SEQ: .*(finite|NaN)"),
+            (np.where(np.eye(8)[None] > 0, np.inf, 0.0).repeat(6, 0), "hoc", r"SEQ: .*finite"),
             (np.zeros((8, 8)), "dpa", r"SEQ: .*shape"),
             (np.zeros((2, 6, 8, 8)), "hoc", r"SEQ: expected one sequence of shape \(T, H, W\)"),
             (np.full((6, 8, 8), 0.5), "hoc", r"binary"),

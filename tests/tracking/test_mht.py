@@ -421,3 +421,53 @@ class TestGate:
         ref_l, ref_j = dense.nonzero(as_tuple=True)
         assert l_idx.tolist() == ref_l.tolist() and j_idx.tolist() == ref_j.tolist()
         assert len(l_idx) > 0
+
+
+class TestFilters:
+    def _imm(self, stop_mode=None):
+        return IMMFilter(
+            [
+                stop_model,
+                partial(constant_velocity, sigma_a=0.1),
+                partial(constant_velocity, sigma_a=1.0),
+            ],
+            [[0.8, 0.15, 0.05], [0.1, 0.85, 0.05], [0.02, 0.18, 0.8]],
+            initial_mu=[0.2, 0.5, 0.3],
+            stop_mode=stop_mode,
+            velocity_std=2.0,
+        )
+
+    def test_imm_filter_equals_imm_step(self) -> None:
+        """Predict + update of IMMFilter is one plain IMM cycle of hocnet.tracking.imm_step."""
+        from hocnet.tracking.imm import imm_step
+
+        f = self._imm()
+        g = torch.Generator().manual_seed(0)
+        z0 = torch.rand(5, 2, generator=g, dtype=torch.float64) * 10
+        R = torch.eye(2, dtype=torch.float64).repeat(5, 1, 1) * 0.7
+        s = f.initiate(z0, R)
+        s["mu"] = torch.softmax(torch.randn(5, 3, generator=g, dtype=torch.float64), -1)
+        s["x"] = s["x"] + torch.randn(5, 3, 4, generator=g, dtype=torch.float64)
+        z = z0 + torch.randn(5, 2, generator=g, dtype=torch.float64)
+        dt = 2.0
+        upd, ll = f.update(f.predict(s, dt), z, R)
+        F = torch.stack([m(dt)[0] for m in f.models])
+        Q = torch.stack([m(dt)[1] for m in f.models])
+        ref = imm_step(s["mu"], s["x"], s["P"], f.trans, F, Q, z, H, R[0])
+        torch.testing.assert_close(upd["mu"], ref.mu)
+        torch.testing.assert_close(upd["x"], ref.x)
+        torch.testing.assert_close(f.mean_cov(upd)[0], ref.x_comb)
+        torch.testing.assert_close(ll, ref.log_likelihood)
+
+    def test_stop_mode_likelihoods(self) -> None:
+        """24.30-24.31: a miss has likelihood cbar_0 + (1 - cbar_0)(1 - PD); a detection none
+        under the stop model."""
+        f = self._imm(stop_mode=0)
+        s = f.predict(f.initiate(torch.zeros(2, 2), torch.eye(2).repeat(2, 1, 1)), 1.0)
+        cbar = s["mu"]
+        after, log_miss = f.miss(s, 0.9)
+        expected = torch.log(cbar[:, 0] + (1 - cbar[:, 0]) * 0.1)
+        torch.testing.assert_close(log_miss, expected)
+        torch.testing.assert_close(after["mu"][:, 0], cbar[:, 0] / expected.exp())
+        upd, _ = f.update(s, torch.ones(2, 2, dtype=torch.float64), torch.eye(2).repeat(2, 1, 1))
+        assert float(upd["mu"][:, 0].abs().max()) == 0.0
