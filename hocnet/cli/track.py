@@ -402,8 +402,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "track",
         help="detect and track: a detector's plots into the MHT of [PD] (confirmed tracks)",
         description="Run a detector over a sequence and feed its per-frame plots (pixel\n"
-        "coordinates) to the track-oriented MHT of [PD]; print the confirmed tracks and write\n"
-        "them as JSON and a picture.",
+        "coordinates) to the track-oriented MHT of [PD]; print the confirmed tracks\n"
+        "and write them as JSON and a picture.",
         epilog=_EPILOG,
         formatter_class=_Formatter,
     )
