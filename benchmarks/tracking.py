@@ -19,6 +19,10 @@ Run::
     .venv/bin/python benchmarks/tracking.py            # full table (about 2 minutes)
     .venv/bin/python benchmarks/tracking.py --quick    # smoke test: 10 and 100 tracks (seconds)
 
+With ``--mht`` it times the track-oriented MHT instead (:mod:`hocnet.tracking.mht`): scans per
+second versus number of targets (10, 100, 1000) and false-alarm density (0, 1e-9, 1e-8 per m^2),
+written to ``benchmarks/results/tracking_mht.md``.
+
 Options: ``--tracks 10,100``, ``--scans 10``, ``--seed 0``, ``--out STEM``. The table is printed
 and written to ``benchmarks/results/tracking.md`` (``tracking_quick.md`` with ``--quick``).
 """
