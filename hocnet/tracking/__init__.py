@@ -12,8 +12,12 @@ Second increment: the road network (:class:`~hocnet.tracking.road.RoadNetwork`),
 video measurement models (:mod:`hocnet.tracking.sensors`), the variable-structure IMM on roads
 with the junction SPRT (:mod:`hocnet.tracking.vsimm`) and out-of-sequence measurements by
 one-step-lag retrodiction (:mod:`hocnet.tracking.oosm`).
+constrained estimate by projection (:mod:`hocnet.tracking.road`). Data association: Murty's
+k-best assignment (:mod:`hocnet.tracking.assignment`) and the track-oriented structured-branching
+MHT with LLR track scores and SPRT track status (:mod:`hocnet.tracking.mht`).
 """
 
+from hocnet.tracking.assignment import Assignment, brute_force_assignments, k_best_assignments
 from hocnet.tracking.belief import (
     conjunctive,
     dempster,
@@ -54,6 +58,14 @@ from hocnet.tracking.kalman import (
     mahalanobis2,
     stop_model,
 )
+from hocnet.tracking.mht import (
+    MHT,
+    CVKalmanFilter,
+    IMMFilter,
+    MHTTrack,
+    MotionFilter,
+    sprt_thresholds,
+)
 from hocnet.tracking.oosm import (
     Retrodiction,
     check_oosm_time,
@@ -92,12 +104,18 @@ from hocnet.tracking.scenario import (
 
 __all__ = [
     "GMTI_CLASSES",
+    "MHT",
     "SENSOR_NAMES",
     "VIDEO_CLASSES",
+    "Assignment",
+    "CVKalmanFilter",
     "EstimatedTrack",
     "GMTIConfig",
     "GMTISensor",
+    "IMMFilter",
     "IMMStep",
+    "MHTTrack",
+    "MotionFilter",
     "PDScenario",
     "Report",
     "Retrodiction",
@@ -114,6 +132,7 @@ __all__ = [
     "VideoConfig",
     "VideoSensor",
     "assign_tracks",
+    "brute_force_assignments",
     "check_measurements",
     "check_oosm_time",
     "conjunctive",
@@ -139,6 +158,7 @@ __all__ = [
     "imm_step",
     "imm_track_log_likelihood",
     "innovation_memory",
+    "k_best_assignments",
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
