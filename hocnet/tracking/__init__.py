@@ -64,7 +64,6 @@ from hocnet.tracking.mht import (
     IMMFilter,
     MHTTrack,
     MotionFilter,
-    sprt_thresholds,
 )
 from hocnet.tracking.oosm import (
     Retrodiction,
@@ -100,6 +99,37 @@ from hocnet.tracking.scenario import (
     pd_road_network,
     pd_scenario,
     plot_scenario,
+)
+from hocnet.tracking.sensors import (
+    SENSOR_NAMES,
+    GMTISensor,
+    VideoSensor,
+    check_measurements,
+    gmti_aekf_matrix,
+    gmti_jacobian,
+    gmti_measure,
+    gmti_report_to_tcf,
+    gmti_tcf_to_report,
+    make_sensor,
+)
+from hocnet.tracking.sprt import sprt_thresholds
+from hocnet.tracking.vsimm import (
+    VSIMMAssociation,
+    VSIMMConfig,
+    VSIMMPrediction,
+    VSIMMState,
+    VSIMMUpdate,
+    section_probabilities,
+    section_transition,
+    sprt_decide,
+    vsimm_association_log_likelihood,
+    vsimm_expand_sections,
+    vsimm_init,
+    vsimm_oosm,
+    vsimm_predict,
+    vsimm_section_sprt,
+    vsimm_step,
+    vsimm_update,
 )
 
 __all__ = [

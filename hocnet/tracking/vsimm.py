@@ -45,7 +45,7 @@ same). ``Omega[h_bar, h]`` is the probability of moving from the road of ``h_bar
 24.39 accepts ``h`` when ``mu_h / mu_h' >= B`` for all ``h'`` and 24.40 rejects when
 ``<= A``; the acceptance bound must be the large one, so we accept above Wald's
 ``A = (1 - beta) / alpha`` and reject below Wald's ``B = beta / (1 - alpha)``
-(:func:`sprt_thresholds` returns ``(upper, lower)`` = ``(A, B)`` of Wald).
+(:func:`hocnet.tracking.sprt.sprt_thresholds` returns their logarithms, ``(ln lower, ln upper)``).
 """
 
 from __future__ import annotations
@@ -68,6 +68,7 @@ from hocnet.tracking.oosm import (
 )
 from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.sensors import check_measurements
+from hocnet.tracking.sprt import sprt_thresholds
 
 __all__ = [
     "VSIMMAssociation",
@@ -78,7 +79,6 @@ __all__ = [
     "section_probabilities",
     "section_transition",
     "sprt_decide",
-    "sprt_thresholds",
     "vsimm_association_log_likelihood",
     "vsimm_expand_sections",
     "vsimm_init",
@@ -786,27 +786,6 @@ def vsimm_step(
 # ------------------------------------------------------------------------------------------
 
 
-def sprt_thresholds(alpha: float, beta: float) -> tuple[float, float]:
-    """Wald's SPRT thresholds ``(upper, lower) = ((1 - beta) / alpha, beta / (1 - alpha))``.
-
-    ``upper`` is the acceptance bound of 24.39 and ``lower`` the rejection bound of 24.40 (the
-    chapter prints them as ``B`` and ``A``; see the module docstring).
-
-    Args:
-        alpha: probability of accepting a wrong section, in (0, 1).
-        beta: probability of rejecting the true section, in (0, 1).
-
-    Examples:
-        >>> [round(v, 6) for v in sprt_thresholds(0.01, 0.01)]
-        [99.0, 0.010101]
-    """
-    a = check_number("alpha", alpha, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
-    b = check_number("beta", beta, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
-    if a + b >= 1.0:
-        raise ValueError(f"`beta`: expected alpha + beta < 1, got {a:g} + {b:g}")
-    return (1.0 - b) / a, b / (1.0 - a)
-
-
 def section_probabilities(
     mu_prev: Any, log_lambda: Any, omega: Any, valid: Any | None = None
 ) -> torch.Tensor:
@@ -984,7 +963,8 @@ def vsimm_section_sprt(
     ll = torch.as_tensor(log_lambda, dtype=DTYPE)
     if ll.shape != (B,):
         raise ValueError(f"`log_lambda`: expected shape ({B},), got {tuple(ll.shape)}")
-    upper, lower = sprt_thresholds(alpha, beta)
+    ln_lower, ln_upper = sprt_thresholds(alpha, beta)
+    upper, lower = math.exp(ln_upper), math.exp(ln_lower)
     index, valid, _ = _groups(state.track)
     safe = index.clamp(min=0)
     secs = state.section[safe]

@@ -7,13 +7,13 @@ from scipy.stats import norm
 
 from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.sensors import GMTISensor, VideoSensor, gmti_tcf_to_report
+from hocnet.tracking.sprt import sprt_thresholds
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     VSIMMState,
     section_probabilities,
     section_transition,
     sprt_decide,
-    sprt_thresholds,
     vsimm_association_log_likelihood,
     vsimm_expand_sections,
     vsimm_init,
@@ -280,8 +280,10 @@ def test_vsimm_step_matches_loop_reference(sensor_name):
 
 
 def test_sprt_thresholds_are_walds():
-    up, low = sprt_thresholds(0.05, 0.1)
-    assert up == pytest.approx(0.9 / 0.05) and low == pytest.approx(0.1 / 0.95)
+    ln_low, ln_up = sprt_thresholds(0.05, 0.1)
+    assert ln_up == pytest.approx(math.log(0.9 / 0.05)) and ln_low == pytest.approx(
+        math.log(0.1 / 0.95)
+    )
     with pytest.raises(ValueError, match="`alpha`"):
         sprt_thresholds(0.0, 0.1)
     with pytest.raises(ValueError, match="alpha \\+ beta < 1"):
