@@ -593,6 +593,9 @@ def refine(m: Any, mapping: Any, n_fine: int, *, partition: bool = True) -> torc
     the chapter "adapts the frame C_MTI to C_video": a GMTI report is combined with video reports
     and the track's prior on the video frame. Total mass and the empty-set mass are preserved;
     ``m_fine`` is normal when ``m`` is.
+    For a partition ``Omega(A) & Omega(B) = Omega(A & B)``, so the conjunctive rule, :func:`pcr5`
+    and :func:`pcr5_sources` commute with refinement: a track fed only GMTI reports and fused on
+    the video frame carries exactly the refinement of its GMTI-frame bba (tested).
 
     Args:
         m: coarse bbas ``(..., 2**n_coarse)``.

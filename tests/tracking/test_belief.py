@@ -593,3 +593,26 @@ class TestPignisticCoarse:
             torch.testing.assert_close(
                 pignistic_coarse(refine(m, blocks, 6), blocks, 3), pignistic(m), rtol=0, atol=1e-14
             )
+
+
+class TestRefinementCommutesWithPCR5:
+    def test_gmti_only_track_on_the_fine_frame_is_the_refined_coarse_track(self):
+        # Omega(A) & Omega(B) = Omega(A & B) for a partition, so PCR5 commutes with refinement
+        rng = np.random.default_rng(70)
+        for _ in range(10):
+            m1, m2 = random_normal(rng, 3, 4), random_normal(rng, 3, 5)
+            fine = pcr5(refine(m1, VIDEO_TO_GMTI, 8), refine(m2, VIDEO_TO_GMTI, 8))
+            torch.testing.assert_close(
+                fine, refine(pcr5(m1, m2), VIDEO_TO_GMTI, 8), rtol=0, atol=1e-14
+            )
+            torch.testing.assert_close(
+                coarsen(fine, VIDEO_TO_GMTI, 3), pcr5(m1, m2), rtol=0, atol=1e-14
+            )
+            ms = [random_normal(rng, 2, int(rng.integers(1, 4))) for _ in range(3)]
+            blocks = [[0, 2], [1]]
+            torch.testing.assert_close(
+                pcr5_sources(*(refine(m, blocks, 3) for m in ms)),
+                refine(pcr5_sources(*ms), blocks, 3),
+                rtol=0,
+                atol=1e-14,
+            )
