@@ -15,28 +15,44 @@ Fusion*, vol. 2, 2006, ch. 1) in its focal-element form (Dezert, Dezert and Smar
 the formula with the paper's text): every conflicting product ``m_1(X_1) ... m_s(X_s)``
 (``X_1 & ... & X_s`` empty) is shared among the *distinct* sets among ``X_1, ..., X_s``
 proportionally to the product of the masses the sources put on each distinct set.
+
+Several frames ([PD] 24.5.3): the GMTI frame (3 classes, eq. 24.21) is refined to the video
+frame (8 classes, eq. 24.25) by a "human refinement" ``Omega`` (each coarse class to a set of
+fine classes, :func:`frame_mapping`); a coarse bba is carried to the fine frame by sending each
+focal set to the union of its elements' images (:func:`refine`), and back by Shafer's outer or
+inner reduction (:func:`coarsen`). Reports of several sensors are fused on the fine frame by
+PCR5 (:func:`fuse_sensors`); the type factor of eq. 24.48 on that frame is
+:func:`type_likelihood`.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Hashable, Mapping, Sequence
-from typing import Any
+from collections.abc import Hashable, Iterable, Mapping, Sequence
+from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 
-from hocnet._check import check_int, check_number
+from hocnet._check import _describe, check_choice, check_int, check_number
 from hocnet.tracking.kalman import DTYPE, as_float64
 
 __all__ = [
+    "TypeFusion",
+    "coarsen",
     "conjunctive",
     "dempster",
+    "frame_mapping",
     "from_dict",
+    "fuse_sensors",
     "observed_bba",
     "pcr5",
     "pcr5_sources",
     "pignistic",
+    "pignistic_coarse",
+    "refine",
     "to_dict",
+    "type_likelihood",
     "vacuous",
 ]
 
@@ -417,3 +433,461 @@ def observed_bba(confusion: Any, declared: Any) -> torch.Tensor:
     m.scatter_(-1, (1 << c).unsqueeze(-1), p.unsqueeze(-1))
     m[..., -1] += 1.0 - p
     return m
+
+
+# --------------------------------------------------------------------------------------------
+# frames of discernment: refinement, coarsening, multi-sensor fusion ([PD] 24.5.3)
+# --------------------------------------------------------------------------------------------
+
+
+class TypeFusion(NamedTuple):
+    """Result of :func:`fuse_sensors`: the fused bba and its pignistic probabilities.
+
+    Attributes:
+        m: ``(..., 2**n_fine)`` float64 fused bba on the common (fine) frame.
+        betp: ``(..., n_fine)`` float64 pignistic probabilities of the fine classes (eq. 24.47).
+    """
+
+    m: torch.Tensor
+    betp: torch.Tensor
+
+
+def _is_index(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | np.integer)
+
+
+def frame_mapping(
+    mapping: Any, n_coarse: int, n_fine: int, *, partition: bool = True
+) -> torch.Tensor:
+    """Validate a refinement ``Omega`` of a coarse frame into a fine one ([PD] 24.5.3).
+
+    Two forms are accepted:
+
+    - *blocks*: a sequence of ``n_coarse`` iterables, ``mapping[i]`` the fine-class indices of
+      coarse class ``i`` (``Omega({omega_i})``);
+    - *labels*: a sequence (or 1-D integer tensor / array) of ``n_fine`` coarse-class indices,
+      ``mapping[j]`` the coarse class of fine class ``j`` (e.g.
+      :data:`~hocnet.tracking.scenario.VIDEO_TO_GMTI`); always a partition.
+
+    The chapter asks that "each element of C_MTI can be associated at least to one element of
+    C_video": every image must be non-empty. With ``partition=True`` (Shafer's refining, 1976
+    ch. 6) the images must also be disjoint and cover the fine frame; ``partition=False`` accepts
+    any non-empty images (a multi-valued mapping, our addition; coarsening does not invert it).
+
+    Args:
+        mapping: blocks or labels, see above.
+        n_coarse: number of coarse classes, ``1 <= n_coarse <= 20``.
+        n_fine: number of fine classes, ``1 <= n_fine <= 20``.
+        partition: require disjoint images covering the fine frame.
+
+    Returns:
+        ``(n_coarse,)`` int64 tensor: the fine bitmask of each coarse class's image.
+
+    Raises:
+        TypeError: mixed or non-integer entries.
+        ValueError: wrong length, index out of range, empty image, not a partition.
+
+    Examples:
+        >>> frame_mapping([(0, 1), (2,)], 2, 3).tolist()
+        [3, 4]
+        >>> frame_mapping([0, 0, 1], 2, 3).tolist()  # the same refinement as labels
+        [3, 4]
+    """
+    n_coarse = check_int("n_coarse", n_coarse, minimum=1, maximum=20)
+    n_fine = check_int("n_fine", n_fine, minimum=1, maximum=20)
+    if isinstance(mapping, torch.Tensor | np.ndarray):
+        arr = torch.as_tensor(mapping)
+        if arr.dim() != 1 or arr.is_floating_point() or arr.is_complex() or arr.dtype == torch.bool:
+            raise TypeError(
+                f"`mapping`: expected a 1-D integer tensor of coarse labels, got "
+                f"{_describe(mapping)}"
+            )
+        mapping = arr.tolist()
+    if isinstance(mapping, str | bytes) or not isinstance(mapping, Sequence):
+        raise TypeError(
+            f"`mapping`: expected a sequence of fine-index sets or coarse labels, got "
+            f"{_describe(mapping)}"
+        )
+    items = list(mapping)
+    if items and all(_is_index(v) for v in items):  # labels: fine -> coarse
+        if len(items) != n_fine:
+            raise ValueError(
+                f"`mapping`: expected {n_fine} coarse labels (one per fine class), got {len(items)}"
+            )
+        bad = [int(v) for v in items if not 0 <= int(v) < n_coarse]
+        if bad:
+            raise ValueError(f"`mapping`: expected coarse labels in [0, {n_coarse}), got {bad[0]}")
+        blocks = [[j for j, v in enumerate(items) if int(v) == i] for i in range(n_coarse)]
+    else:
+        if len(items) != n_coarse:
+            raise ValueError(
+                f"`mapping`: expected {n_coarse} fine-index sets (one per coarse class), got "
+                f"{len(items)}"
+            )
+        blocks = []
+        for i, block in enumerate(items):
+            if isinstance(block, str | bytes) or not isinstance(block, Iterable):
+                raise TypeError(
+                    f"`mapping[{i}]`: expected an iterable of fine-class indices, got "
+                    f"{_describe(block)}"
+                )
+            block = list(block.tolist() if isinstance(block, torch.Tensor) else block)
+            if not all(_is_index(v) for v in block):
+                raise TypeError(
+                    f"`mapping[{i}]`: expected integer fine-class indices, got {_describe(block)}"
+                )
+            bad = [int(v) for v in block if not 0 <= int(v) < n_fine]
+            if bad:
+                raise ValueError(f"`mapping[{i}]`: expected indices in [0, {n_fine}), got {bad[0]}")
+            blocks.append([int(v) for v in block])
+    masks = []
+    for i, block in enumerate(blocks):
+        if not block:
+            raise ValueError(
+                f"`mapping`: expected every coarse class to map to at least one fine class, got "
+                f"an empty image for coarse class {i}"
+            )
+        masks.append(sum(1 << j for j in set(block)))
+    if partition:
+        seen = 0
+        for i, mask in enumerate(masks):
+            if seen & mask:
+                j = (seen & mask).bit_length() - 1
+                raise ValueError(
+                    f"`mapping`: expected a partition of the fine frame, got fine class {j} in "
+                    f"two coarse classes (the second is {i})"
+                )
+            seen |= mask
+        if seen != (1 << n_fine) - 1:
+            j = next(j for j in range(n_fine) if not seen >> j & 1)
+            raise ValueError(
+                f"`mapping`: expected a partition of the fine frame, got fine class {j} in no "
+                f"coarse class"
+            )
+    return torch.tensor(masks, dtype=torch.long)
+
+
+def _subset_bits(n: int) -> torch.Tensor:
+    return ((torch.arange(1 << n).unsqueeze(-1) >> torch.arange(n)) & 1).bool()  # (2**n, n)
+
+
+def _refine_table(images: torch.Tensor, n_coarse: int) -> torch.Tensor:
+    bits = _subset_bits(n_coarse)  # (2**nc, nc)
+    table = torch.zeros(1 << n_coarse, dtype=torch.long)
+    for i in range(n_coarse):
+        table |= torch.where(bits[:, i], images[i], 0)
+    return table
+
+
+def _scatter(m: torch.Tensor, table: torch.Tensor, size: int) -> torch.Tensor:
+    out = torch.zeros(*m.shape[:-1], size, dtype=DTYPE)
+    return out.scatter_add_(-1, table.expand(*m.shape[:-1], table.shape[0]), m)
+
+
+def refine(m: Any, mapping: Any, n_fine: int, *, partition: bool = True) -> torch.Tensor:
+    """Refine bbas from a coarse frame to a fine one ([PD] 24.5.3, "human refinement").
+
+    ``m_fine(B) = sum_{A : Omega(A) = B} m(A)`` with ``Omega(A) = U_{omega in A} Omega({omega})``
+    (Shafer 1976 ch. 6: the refined bba is the *vacuous extension* of ``m``; every focal set
+    ``A`` goes to the union of the images of its elements; ``Omega(empty) = empty``). This is how
+    the chapter "adapts the frame C_MTI to C_video": a GMTI report is combined with video reports
+    and the track's prior on the video frame. Total mass and the empty-set mass are preserved;
+    ``m_fine`` is normal when ``m`` is.
+    For a partition ``Omega(A) & Omega(B) = Omega(A & B)``, so the conjunctive rule, :func:`pcr5`
+    and :func:`pcr5_sources` commute with refinement: a track fed only GMTI reports and fused on
+    the video frame carries exactly the refinement of its GMTI-frame bba (tested).
+
+    Args:
+        m: coarse bbas ``(..., 2**n_coarse)``.
+        mapping: the refinement, ``n_coarse`` fine-index sets or ``n_fine`` coarse labels (see
+            :func:`frame_mapping`).
+        n_fine: number of fine classes.
+        partition: require a partition (Shafer's refining); see :func:`frame_mapping`.
+
+    Returns:
+        ``(..., 2**n_fine)`` float64.
+
+    Raises:
+        TypeError, ValueError: ``m`` not a bba, bad ``mapping`` or ``n_fine``.
+
+    Examples:
+        >>> m = torch.tensor([0, 0.7, 0, 0.3], dtype=torch.float64)  # m({w0}) = .7, m(Theta) = .3
+        >>> out = refine(m, [(0, 1), (2,)], 3)  # w0 -> {t0, t1}, w1 -> {t2}
+        >>> [(i, round(v, 6)) for i, v in enumerate(out.tolist()) if v]
+        [(3, 0.7), (7, 0.3)]
+    """
+    m = _masses("m", m)
+    n_coarse = _n_atoms("m", m.shape[-1])
+    n_fine = check_int("n_fine", n_fine, minimum=1, maximum=20)
+    images = frame_mapping(mapping, n_coarse, n_fine, partition=partition)
+    return _scatter(m, _refine_table(images, n_coarse), 1 << n_fine)
+
+
+def coarsen(m: Any, mapping: Any, n_coarse: int, *, kind: str = "outer") -> torch.Tensor:
+    """Coarsen bbas from a fine frame to a coarse one by the outer or inner reduction.
+
+    With ``Omega`` a refinement (a partition of the fine frame into ``n_coarse`` blocks),
+    Shafer (1976, ch. 6) defines for a fine set ``B``:
+
+    - outer reduction ``B_bar = {omega : Omega({omega}) & B != empty}``;
+    - inner reduction ``B_under = {omega : Omega({omega}) <= B}``;
+
+    and ``m_coarse(A) = sum_{B : reduction(B) = A} m(B)``. Both are left inverses of
+    :func:`refine` (``coarsen(refine(m)) = m``). The outer reduction keeps a normal bba normal
+    (the coarse bba is the least committed one whose refinement contains the fine evidence);
+    the inner one sends a set containing no whole block to the empty set (and a normal bba may
+    get mass on it).
+
+    Our reading: the chapter (24.5.3) only refines, "C_MTI to C_video", and fuses on the fine
+    frame; it never coarsens. ``kind="outer"`` is our default because it is the reduction that
+    preserves normality (Shafer's model, needed by :func:`pcr5`); ``"inner"`` is given for
+    completeness.
+
+    Args:
+        m: fine bbas ``(..., 2**n_fine)``.
+        mapping: the refinement, a partition (see :func:`frame_mapping`).
+        n_coarse: number of coarse classes.
+        kind: ``"outer"`` or ``"inner"``.
+
+    Returns:
+        ``(..., 2**n_coarse)`` float64.
+
+    Raises:
+        TypeError, ValueError: ``m`` not a bba, ``mapping`` not a partition, bad ``kind``.
+
+    Examples:
+        >>> m = torch.zeros(8, dtype=torch.float64)
+        >>> m[1], m[7] = 0.6, 0.4  # m({t0}) = .6, m(Theta) = .4
+        >>> coarsen(m, [(0, 1), (2,)], 2).tolist()  # {t0} -> {w0}
+        [0.0, 0.6, 0.0, 0.4]
+        >>> coarsen(m, [(0, 1), (2,)], 2, kind="inner").tolist()  # {t0} holds no whole block
+        [0.6, 0.0, 0.0, 0.4]
+    """
+    m = _masses("m", m)
+    n_fine = _n_atoms("m", m.shape[-1])
+    n_coarse = check_int("n_coarse", n_coarse, minimum=1, maximum=20)
+    kind = check_choice("kind", kind, ("outer", "inner"))
+    images = frame_mapping(mapping, n_coarse, n_fine, partition=True)
+    sets = torch.arange(1 << n_fine).unsqueeze(-1)  # (2**nf, 1)
+    inter = sets & images  # (2**nf, nc)
+    hit = inter != 0 if kind == "outer" else inter == images
+    table = (hit.long() << torch.arange(n_coarse)).sum(-1)
+    return _scatter(m, table, 1 << n_coarse)
+
+
+def _to_common(
+    name: str, m: Any, mapping: Any, n_fine: int, partition: bool
+) -> torch.Tensor | None:
+    if m is None:
+        return None
+    m = _masses(name, m, normal=True)
+    if mapping is None:
+        if m.shape[-1] != 1 << n_fine:
+            raise ValueError(
+                f"`{name}`: expected a bba on the common frame (last axis {1 << n_fine}) when its "
+                f"mapping is None, got {m.shape[-1]}"
+            )
+        return m
+    try:
+        return refine(m, mapping, n_fine, partition=partition)
+    except (TypeError, ValueError) as err:
+        raise type(err)(f"{name}: {err}") from None
+
+
+def fuse_sensors(
+    observations: Sequence[Any],
+    mappings: Sequence[Any],
+    n_fine: int,
+    *,
+    prior: Any = None,
+    rule: str = "sequential",
+    partition: bool = True,
+) -> TypeFusion:
+    """Fuse type bbas of sensors with different frames on a common (fine) frame ([PD] 24.5.3).
+
+    Each observed bba is refined to the common frame (:func:`refine`), then combined with the
+    track's prior ``m-`` by PCR5 and the pignistic probabilities (24.47) are taken:
+
+    - ``rule="sequential"`` (default): ``m = (((m- (+) m_1) (+) m_2) ...)`` with the two-source
+      PCR5 of eq. 24.44, the observations in the given order. Our reading of "we extend the
+      principle of TTT to combine multiple bba's ... with prior target ID bba m-": the TTT
+      (24.5.2) fuses two sources at a time, and 24.44 is printed as "useful for sequential
+      fusion". PCR5 is not associative, so the order matters (prior first, then sensors).
+    - ``rule="joint"``: the s-source PCR5 (:func:`pcr5_sources`) of ``m-`` and all
+      observations at once ("the PCR5 formula for s >= 2 sources is given in [16]"). Cost
+      ``(2**n_fine)**s`` tuples: with the 8 video classes only ``s = 2`` is practical.
+
+    Vacuous sources. The chapter takes a sensor without information as the vacuous bba "because
+    this doesn't change the result of the fusion rule". That holds for the two-source PCR5
+    (``pcr5(m, vacuous) = m``) and hence for ``"sequential"``, but **not** for the s-source
+    PCR5, which gives ``Theta`` a share of every conflict involving a vacuous source (we measured
+    ``pcr5_sources(m1, vacuous, m3) != pcr5(m1, m3)``). So ``None`` observations, and sources
+    that are vacuous for the whole batch (including the default vacuous prior), are *dropped*
+    rather than combined (our reading: the property the chapter asks for, for both rules).
+
+    Args:
+        observations: ``s`` bbas, ``observations[i]`` of shape ``(..., 2**n_i)`` on sensor
+            ``i``'s frame (no mass on the empty set), or ``None`` (no report). Batch axes
+            broadcast.
+        mappings: ``s`` refinements of the sensors' frames into the common frame (see
+            :func:`frame_mapping`), ``None`` for a sensor already on the common frame.
+        n_fine: number of classes of the common frame.
+        prior: the track's prior ``m-`` ``(..., 2**n_fine)``; ``None`` is the vacuous prior of
+            step a) of 24.5.2.
+        rule: ``"sequential"`` or ``"joint"``.
+        partition: require every mapping to be a partition (:func:`frame_mapping`).
+
+    Returns:
+        :class:`TypeFusion` ``(m, betp)``: ``(..., 2**n_fine)`` and ``(..., n_fine)`` float64.
+
+    Raises:
+        TypeError, ValueError: lengths differ, bad bba or mapping (named by index), bad ``rule``.
+
+    Examples:
+        >>> gmti = torch.tensor([0, 0, 0.7, 0.3])  # 2 coarse classes, "wheeled" (1) with P = .7
+        >>> video = torch.zeros(8)
+        >>> video[2], video[7] = 0.75, 0.25  # video class 1 of 3 with P = .75
+        >>> out = fuse_sensors([gmti, video], [[0, 1, 1], None], 3)  # fine 1, 2 are "wheeled"
+        >>> [round(v, 4) for v in out.betp.tolist()]
+        [0.025, 0.8625, 0.1125]
+    """
+    n_fine = check_int("n_fine", n_fine, minimum=1, maximum=20)
+    rule = check_choice("rule", rule, ("sequential", "joint"))
+    if isinstance(observations, str | bytes) or not isinstance(observations, Sequence):
+        raise TypeError(
+            f"`observations`: expected a sequence of bbas, got {_describe(observations)}"
+        )
+    if isinstance(mappings, str | bytes) or not isinstance(mappings, Sequence):
+        raise TypeError(f"`mappings`: expected a sequence of mappings, got {_describe(mappings)}")
+    if len(mappings) != len(observations):
+        raise ValueError(
+            f"`mappings`: expected one mapping per observation ({len(observations)}), got "
+            f"{len(mappings)}"
+        )
+    sources = []
+    if prior is not None:
+        sources.append(_to_common("prior", prior, None, n_fine, partition))
+    for i, (obs, mp) in enumerate(zip(observations, mappings, strict=True)):
+        m = _to_common(f"observations[{i}]", obs, mp, n_fine, partition)
+        if m is not None:
+            sources.append(m)
+    size = 1 << n_fine
+    present = [m for m in sources if not bool((m[..., -1] == 1.0).all())]
+    shape = torch.broadcast_shapes(*(m.shape[:-1] for m in sources)) if sources else ()
+    if not present:
+        fused = vacuous(n_fine, shape)
+    elif len(present) == 1:
+        fused = present[0]
+    elif rule == "joint":
+        fused = pcr5_sources(*present)
+    else:
+        fused = present[0]
+        for m in present[1:]:
+            fused = pcr5(fused, m)
+    fused = fused.expand(*shape, size).clone()
+    return TypeFusion(fused, pignistic(fused))
+
+
+def pignistic_coarse(m: Any, mapping: Any, n_coarse: int) -> torch.Tensor:
+    """Pignistic probabilities of the coarse classes' images, ``BetP{Omega({omega_i})}``.
+
+    Eq. 24.47 with ``A = Omega({omega_i})`` on the fine frame, i.e. the sum of the fine
+    ``BetP`` over each block. Our addition for the decision on the coarse frame: the chapter
+    notes (24.6.3) that a track with GMTI reports only has equal fine ``BetP`` over the six
+    video classes of its GMTI class, so the fine argmax is arbitrary; the coarse one is not.
+    Note that ``BetP`` is not invariant to refinement: this is in general **not**
+    ``pignistic(coarsen(m, mapping, n_coarse))`` (blocks of different sizes weigh differently).
+
+    Args:
+        m: fine bbas ``(..., 2**n_fine)``.
+        mapping: the refinement (a partition, see :func:`frame_mapping`).
+        n_coarse: number of coarse classes.
+
+    Returns:
+        ``(..., n_coarse)`` float64, summing to 1.
+
+    Examples:
+        >>> m = torch.tensor([0, 0, 0, 0, 0, 0, 0, 1.0])  # vacuous on 3 fine classes
+        >>> [round(v, 4) for v in pignistic_coarse(m, [0, 0, 1], 2).tolist()]
+        [0.6667, 0.3333]
+    """
+    m = _masses("m", m)
+    n_fine = _n_atoms("m", m.shape[-1])
+    n_coarse = check_int("n_coarse", n_coarse, minimum=1, maximum=20)
+    images = frame_mapping(mapping, n_coarse, n_fine, partition=True)
+    member = ((images.unsqueeze(-1) >> torch.arange(n_fine)) & 1).to(DTYPE)  # (nc, nf)
+    return pignistic(m) @ member.T
+
+
+def type_likelihood(m: Any, declared: Any = None, mapping: Any = None) -> torch.Tensor:
+    """The type factor ``P{dtype(k) | dtype(k-1)}`` of eq. 24.48 on the common frame.
+
+    ``Lambda_N(k) = Lambda(k) P{dtype(k) | dtype(k-1)}`` with ``P`` "the pignistic probability
+    value on the declared target type dtype(k) derived from the updated mass of belief m".
+
+    - ``declared=None``: ``max_i BetP{theta_i}`` on the frame of ``m``, ``dtype(k)`` being the
+      TTT's estimate of 24.45 (the chapter's text; :class:`~hocnet.tracking.mht.MHT`'s
+      ``type_term="estimate"``). This **depends on the frame**: on the 8-class video frame a
+      track seen by the GMTI only spreads its wheeled-vehicle mass over six classes, so the
+      factor is about six times smaller than on the GMTI frame (the chapter's 24.6.3 remark).
+    - ``declared`` given: ``BetP{Omega(c)}`` (24.47 for the set ``A = Omega(c)``), ``c`` the
+      class the report declares on its sensor's frame and ``Omega(c)`` its image in the frame
+      of ``m`` (our addition; a singleton for a report already on the common frame, the block
+      of the GMTI class for a GMTI report). This is the probability the fused belief gives to
+      what the report says, whatever frame the report was made in.
+
+    Args:
+        m: updated bbas ``(..., 2**n)`` on the common frame.
+        declared: ``None`` or integer class indices ``(...)`` on the sensor's frame (broadcast
+            against the batch of ``m``).
+        mapping: the sensor's refinement into the common frame (blocks or labels, see
+            :func:`frame_mapping`, partition or not); ``None`` when the sensor reports on the
+            common frame. Needs ``declared``.
+
+    Returns:
+        ``(...)`` float64 in ``[0, 1]``.
+
+    Raises:
+        TypeError, ValueError: bad bba, non-integer or out-of-range ``declared``, bad mapping.
+
+    Examples:
+        >>> m = torch.tensor([0, 0, 0, 0.7, 0, 0, 0, 0.3])  # GMTI "wheeled" = {t0, t1}, refined
+        >>> round(float(type_likelihood(m)), 4)  # max fine BetP
+        0.45
+        >>> round(float(type_likelihood(m, torch.tensor(0), [0, 0, 1])), 4)  # BetP{t0, t1}
+        0.9
+    """
+    m = _masses("m", m)
+    n = _n_atoms("m", m.shape[-1])
+    betp = pignistic(m)
+    if declared is None:
+        if mapping is not None:
+            raise ValueError("`mapping`: expected None when `declared` is None, got a mapping")
+        return betp.max(-1).values
+    c = torch.as_tensor(declared)
+    if c.is_floating_point() or c.is_complex() or c.dtype == torch.bool:
+        raise TypeError(f"`declared`: expected integer class indices, got dtype {c.dtype}")
+    c = c.long()
+    if mapping is None:
+        images = 1 << torch.arange(n)
+    else:
+        n_sensor = _n_sensor_classes(mapping, n)
+        images = frame_mapping(mapping, n_sensor, n, partition=False)
+    if c.numel() and bool(((c < 0) | (c >= images.shape[0])).any()):
+        raise ValueError(
+            f"`declared`: expected class indices in [0, {images.shape[0]}), got "
+            f"{int(c.min())}..{int(c.max())}"
+        )
+    member = ((images[c].unsqueeze(-1) >> torch.arange(n)) & 1).to(DTYPE)  # (..., n)
+    return (betp * member).sum(-1)
+
+
+def _n_sensor_classes(mapping: Any, n_fine: int) -> int:
+    """Number of coarse classes implied by blocks (their count) or labels (max + 1)."""
+    if isinstance(mapping, torch.Tensor | np.ndarray):
+        arr = torch.as_tensor(mapping)
+        return int(arr.max()) + 1 if arr.numel() else 0
+    items = list(mapping) if isinstance(mapping, Sequence) else []
+    if items and all(_is_index(v) for v in items):
+        return max(int(v) for v in items) + 1
+    return len(items)

@@ -4,16 +4,24 @@ import torch
 from evidencelib import Frame
 
 from hocnet.tracking.belief import (
+    TypeFusion,
+    coarsen,
     conjunctive,
     dempster,
+    frame_mapping,
     from_dict,
+    fuse_sensors,
     observed_bba,
     pcr5,
     pcr5_sources,
     pignistic,
+    pignistic_coarse,
+    refine,
     to_dict,
+    type_likelihood,
     vacuous,
 )
+from hocnet.tracking.scenario import GMTI_CLASSES, VIDEO_CLASSES, VIDEO_TO_GMTI
 
 ATOMS = ["a", "b", "c"]
 
@@ -186,3 +194,425 @@ class TestErrors:
             observed_bba(torch.eye(3), torch.tensor([1.0]))
         with pytest.raises(ValueError, match="`m`"):
             pignistic(torch.tensor([-0.5, 1.5]))
+
+
+# --------------------------------------------------------------------------------------------
+# frames of discernment ([PD] 24.5.3): slow references on {frozenset: mass} dicts
+# --------------------------------------------------------------------------------------------
+
+#: coarse GMTI class -> set of video classes, written from VIDEO_TO_GMTI by hand-free lookup
+BLOCKS = {
+    g: frozenset(v for v, gi in zip(VIDEO_CLASSES, VIDEO_TO_GMTI, strict=True) if gi == i)
+    for i, g in enumerate(GMTI_CLASSES)
+}
+
+
+def ref_refine(d: dict, blocks: dict) -> dict:
+    """Omega(A) = union of the images of A's elements; masses of sets with one image add."""
+    out: dict = {}
+    for a, v in d.items():
+        b = frozenset().union(*(blocks[w] for w in a))
+        out[b] = out.get(b, 0.0) + v
+    return out
+
+
+def ref_coarsen(d: dict, blocks: dict, kind: str) -> dict:
+    """Shafer's outer / inner reduction of every focal set, straight from the definition."""
+    out: dict = {}
+    for b, v in d.items():
+        if kind == "outer":
+            a = frozenset(w for w, img in blocks.items() if img & b)
+        else:
+            a = frozenset(w for w, img in blocks.items() if img <= b)
+        out[a] = out.get(a, 0.0) + v
+    return out
+
+
+def ref_pcr5(d1: dict, d2: dict) -> dict:
+    """Eq. 24.44 on dicts: conjunctive consensus plus proportional redistribution of conflicts."""
+    out: dict = {}
+    for x, a in d1.items():
+        for y, b in d2.items():
+            inter = x & y
+            if inter:
+                out[inter] = out.get(inter, 0.0) + a * b
+            elif a + b > 0:  # the conflict a b goes to x and y in proportion to a and b
+                out[x] = out.get(x, 0.0) + a * a * b / (a + b)
+                out[y] = out.get(y, 0.0) + b * b * a / (a + b)
+    return out
+
+
+def ref_betp(d: dict, atoms) -> list[float]:
+    return [sum(v / len(x) for x, v in d.items() if a in x) for a in atoms]
+
+
+def dict_close(got: dict, expected: dict, atol: float = 1e-12) -> None:
+    keys = {k for k, v in got.items() if v > atol} | {k for k, v in expected.items() if v > atol}
+    for k in keys:
+        assert got.get(k, 0.0) == pytest.approx(expected.get(k, 0.0), abs=atol), sorted(k)
+
+
+def random_normal(rng, n: int, n_focal: int) -> torch.Tensor:
+    return random_bba(rng, n, min(n_focal, 2**n - 1))
+
+
+class TestFrameMapping:
+    def test_blocks_and_labels_agree(self):
+        labels = frame_mapping(VIDEO_TO_GMTI, 3, 8)
+        blocks = frame_mapping([[6], [0, 1, 2, 3, 4, 5], [7]], 3, 8)
+        assert labels.tolist() == blocks.tolist() == [0b01000000, 0b00111111, 0b10000000]
+        as_tensor = frame_mapping(torch.tensor(VIDEO_TO_GMTI), 3, 8)
+        assert as_tensor.tolist() == labels.tolist()
+        assert frame_mapping(np.array([1, 0]), 2, 2).tolist() == [2, 1]
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`mapping`: expected every coarse class to map"):
+            frame_mapping([0, 0, 0], 2, 3)  # coarse class 1 has no fine class
+        with pytest.raises(ValueError, match="`mapping`: expected every coarse class"):
+            frame_mapping([[0, 1, 2], []], 2, 3)
+        with pytest.raises(ValueError, match="fine class 1 in two coarse classes"):
+            frame_mapping([[0, 1], [1, 2]], 2, 3)
+        with pytest.raises(ValueError, match="fine class 2 in no coarse class"):
+            frame_mapping([[0], [1]], 2, 3)
+        with pytest.raises(ValueError, match="`mapping\\[1\\]`: expected indices in \\[0, 3\\)"):
+            frame_mapping([[0], [3]], 2, 3)
+        with pytest.raises(ValueError, match="`mapping`: expected coarse labels in \\[0, 2\\)"):
+            frame_mapping([0, 1, 2], 2, 3)
+        with pytest.raises(ValueError, match="expected 3 coarse labels"):
+            frame_mapping([0, 1], 2, 3)
+        with pytest.raises(ValueError, match="expected 2 fine-index sets"):
+            frame_mapping([[0], [1], [2]], 2, 3)
+        with pytest.raises(TypeError, match="`mapping\\[1\\]`: expected an iterable"):
+            frame_mapping([[0, 1], 2], 2, 3)
+        with pytest.raises(TypeError, match="`mapping\\[0\\]`: expected integer"):
+            frame_mapping([[0.0], [1, 2]], 2, 3)
+        with pytest.raises(TypeError, match="`mapping`"):
+            frame_mapping(torch.tensor([0.0, 1.0]), 2, 2)
+        with pytest.raises(TypeError, match="`mapping`"):
+            frame_mapping("ab", 2, 2)
+        with pytest.raises(ValueError, match="`n_fine`"):
+            frame_mapping([[0]], 1, 0)
+
+    def test_non_partition_allowed_on_request(self):
+        # overlapping images, fine class 3 unused: a multi-valued mapping
+        assert frame_mapping([[0, 1], [1, 2]], 2, 4, partition=False).tolist() == [3, 6]
+
+
+class TestRefine:
+    def test_against_dict_reference_random(self):
+        rng = np.random.default_rng(20)
+        for _ in range(20):
+            m = random_normal(rng, 3, int(rng.integers(1, 8)))
+            got = to_dict(refine(m, VIDEO_TO_GMTI, 8), VIDEO_CLASSES)
+            dict_close(got, ref_refine(to_dict(m, GMTI_CLASSES), BLOCKS))
+
+    def test_total_mass_and_singletons(self):
+        rng = np.random.default_rng(21)
+        m = torch.stack([random_normal(rng, 3, 5) for _ in range(6)])
+        out = refine(m, VIDEO_TO_GMTI, 8)
+        assert out.shape == (6, 256)
+        torch.testing.assert_close(out.sum(-1), m.sum(-1), rtol=0, atol=1e-14)
+        assert bool((out[:, 0] == 0).all())
+        # each coarse singleton {omega_i} goes to the set of its video classes
+        for i, g in enumerate(GMTI_CLASSES):
+            e = torch.zeros(8, dtype=torch.float64)
+            e[1 << i] = 1.0
+            assert to_dict(refine(e, VIDEO_TO_GMTI, 8), VIDEO_CLASSES) == {BLOCKS[g]: 1.0}
+        torch.testing.assert_close(refine(vacuous(3), VIDEO_TO_GMTI, 8), vacuous(8))
+
+    def test_hand_computed(self):
+        # w0 -> {t0, t2}, w1 -> {t1}; m({w0}) = .5, m({w1}) = .2, m({w0, w1}) = .3
+        m = torch.tensor([0.0, 0.5, 0.2, 0.3], dtype=torch.float64)
+        out = refine(m, [[0, 2], [1]], 3)
+        expected = torch.zeros(8, dtype=torch.float64)
+        expected[0b101], expected[0b010], expected[0b111] = 0.5, 0.2, 0.3
+        torch.testing.assert_close(out, expected, rtol=0, atol=0)
+        # a multi-valued (overlapping) mapping: w0 -> {t0, t1}, w1 -> {t1, t2}
+        out = refine(m, [[0, 1], [1, 2]], 3, partition=False)
+        expected = torch.zeros(8, dtype=torch.float64)
+        expected[0b011], expected[0b110], expected[0b111] = 0.5, 0.2, 0.3
+        torch.testing.assert_close(out, expected, rtol=0, atol=0)
+
+    def test_batched_equals_loop_and_empty(self):
+        rng = np.random.default_rng(22)
+        m = torch.stack([random_normal(rng, 3, 4) for _ in range(6)]).reshape(2, 3, 8)
+        out = refine(m, VIDEO_TO_GMTI, 8)
+        for i in range(2):
+            for j in range(3):
+                assert torch.equal(out[i, j], refine(m[i, j], VIDEO_TO_GMTI, 8))
+        assert refine(torch.zeros(0, 8), VIDEO_TO_GMTI, 8).shape == (0, 256)
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`m`: expected masses summing to 1"):
+            refine(torch.full((8,), 0.5), VIDEO_TO_GMTI, 8)
+        with pytest.raises(ValueError, match="`m`: expected a last axis of size 2\\*\\*n"):
+            refine(torch.ones(3) / 3, VIDEO_TO_GMTI, 8)
+        with pytest.raises(ValueError, match="`mapping`"):
+            refine(vacuous(3), VIDEO_TO_GMTI, 9)  # 8 labels for 9 fine classes
+        with pytest.raises(ValueError, match="`mapping`: expected a partition"):
+            refine(vacuous(2), [[0, 1], [1, 2]], 3)
+
+
+class TestCoarsen:
+    @pytest.mark.parametrize("kind", ["outer", "inner"])
+    def test_refine_then_coarsen_is_identity(self, kind):
+        rng = np.random.default_rng(30)
+        m = torch.stack([random_normal(rng, 3, int(rng.integers(1, 8))) for _ in range(25)])
+        back = coarsen(refine(m, VIDEO_TO_GMTI, 8), VIDEO_TO_GMTI, 3, kind=kind)
+        torch.testing.assert_close(back, m, rtol=0, atol=1e-15)
+
+    @pytest.mark.parametrize("kind", ["outer", "inner"])
+    def test_against_dict_reference_random(self, kind):
+        rng = np.random.default_rng(31)
+        blocks5 = [[0, 2], [1], [3, 4]]
+        atoms5 = ["f0", "f1", "f2", "f3", "f4"]
+        named5 = {w: frozenset(atoms5[j] for j in b) for w, b in zip("xyz", blocks5, strict=True)}
+        for _ in range(15):
+            m = random_normal(rng, 5, int(rng.integers(1, 20)))
+            got = to_dict(coarsen(m, blocks5, 3, kind=kind), "xyz")
+            dict_close(got, ref_coarsen(to_dict(m, atoms5), named5, kind))
+            m8 = random_normal(rng, 8, int(rng.integers(1, 40)))
+            got = to_dict(coarsen(m8, VIDEO_TO_GMTI, 3, kind=kind), GMTI_CLASSES)
+            dict_close(got, ref_coarsen(to_dict(m8, VIDEO_CLASSES), BLOCKS, kind))
+
+    def test_hand_computed(self):
+        # fine {t0, t1 | t2}: m({t0}) = .4, m({t0, t2}) = .35, m({t0, t1}) = .25
+        m = torch.zeros(8, dtype=torch.float64)
+        m[0b001], m[0b101], m[0b011] = 0.4, 0.35, 0.25
+        outer = coarsen(m, [[0, 1], [2]], 2)
+        inner = coarsen(m, [[0, 1], [2]], 2, kind="inner")
+        # outer: {t0} -> {w0}, {t0, t2} -> {w0, w1}, {t0, t1} -> {w0}
+        torch.testing.assert_close(outer, torch.tensor([0.0, 0.65, 0.0, 0.35]).double())
+        # inner: {t0} -> empty, {t0, t2} -> {w1}, {t0, t1} -> {w0}
+        torch.testing.assert_close(inner, torch.tensor([0.4, 0.25, 0.35, 0.0]).double())
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`kind`"):
+            coarsen(vacuous(3), [[0, 1], [2]], 2, kind="middle")
+        with pytest.raises(ValueError, match="`mapping`: expected a partition"):
+            coarsen(vacuous(3), [[0, 1], [1, 2]], 2)
+        with pytest.raises(ValueError, match="`mapping`: expected a partition"):
+            coarsen(vacuous(3), [[0], [1]], 2)
+        assert coarsen(torch.zeros(0, 4, 8), [[0, 1], [2]], 2).shape == (0, 4, 4)
+
+
+def gmti_obs(declared: int) -> torch.Tensor:
+    """GMTI observed bba (step b of 24.5.2) with the chapter's confusion diagonal (24.49)."""
+    return observed_bba(torch.diag(torch.tensor([0.8, 0.7, 0.9])), torch.tensor(declared))
+
+
+def video_obs(declared: int, p: float = 0.75) -> torch.Tensor:
+    return observed_bba(torch.eye(8) * p, torch.tensor(declared))
+
+
+class TestFuseSensors:
+    def test_agreeing_gmti_and_video_concentrate_on_the_true_class(self):
+        bus = VIDEO_CLASSES.index("civilian bus")
+        wheeled = GMTI_CLASSES.index("wheeled vehicle")
+        out = fuse_sensors([gmti_obs(wheeled), video_obs(bus)], [VIDEO_TO_GMTI, None], 8)
+        assert isinstance(out, TypeFusion)
+        assert out.m.shape == (256,) and out.betp.shape == (8,)
+        # slow reference: refine by hand, 24.44 on dicts, 24.47 on dicts
+        g = ref_refine(to_dict(gmti_obs(wheeled), GMTI_CLASSES), BLOCKS)
+        v = to_dict(video_obs(bus), VIDEO_CLASSES)
+        expected = ref_pcr5(g, v)
+        dict_close(to_dict(out.m, VIDEO_CLASSES), expected)
+        np.testing.assert_allclose(out.betp.numpy(), ref_betp(expected, VIDEO_CLASSES), atol=1e-12)
+        assert int(out.betp.argmax()) == bus
+        assert float(out.betp[bus]) > 0.75  # measured 0.7885
+        assert float(out.betp[torch.arange(8) != bus].max()) < 0.05
+        # the GMTI alone cannot tell the six wheeled classes apart (24.6.3); the video can
+        alone = fuse_sensors([gmti_obs(wheeled)], [VIDEO_TO_GMTI], 8).betp
+        wheeled_fine = [i for i, c in enumerate(VIDEO_TO_GMTI) if c == wheeled]
+        assert torch.allclose(alone[wheeled_fine], alone[wheeled_fine[0]].expand(6))
+        assert float(out.betp[bus]) > 4 * float(alone[bus])
+
+    def test_conflicting_reports_against_reference(self):
+        tracked = GMTI_CLASSES.index("tracked vehicle")
+        car = VIDEO_CLASSES.index("civilian car")
+        rng = np.random.default_rng(40)
+        prior = random_normal(rng, 8, 12)
+        out = fuse_sensors(
+            [gmti_obs(tracked), video_obs(car)], [VIDEO_TO_GMTI, None], 8, prior=prior
+        )
+        p = to_dict(prior, VIDEO_CLASSES)
+        g = ref_refine(to_dict(gmti_obs(tracked), GMTI_CLASSES), BLOCKS)
+        v = to_dict(video_obs(car), VIDEO_CLASSES)
+        expected = ref_pcr5(ref_pcr5(p, g), v)  # sequential: prior, then the sensors in order
+        dict_close(to_dict(out.m, VIDEO_CLASSES), expected)
+        np.testing.assert_allclose(out.betp.numpy(), ref_betp(expected, VIDEO_CLASSES), atol=1e-12)
+
+    def test_scans_of_agreeing_reports(self):
+        truck = VIDEO_CLASSES.index("civilian truck")
+        m = vacuous(8)
+        for _ in range(4):  # steps b-e of the TTT with both sensors each scan
+            m = fuse_sensors(
+                [gmti_obs(1), video_obs(truck, 0.5)], [VIDEO_TO_GMTI, None], 8, prior=m
+            ).m
+        betp = pignistic(m)
+        assert int(betp.argmax()) == truck and float(betp[truck]) > 0.9
+
+    def test_vacuous_and_missing_sensors_are_neutral(self):
+        rng = np.random.default_rng(41)
+        g = random_normal(rng, 3, 4)
+        v = random_normal(rng, 8, 10)
+        prior = random_normal(rng, 8, 6)
+        ref = fuse_sensors([g, v], [VIDEO_TO_GMTI, None], 8, prior=prior)
+        a = fuse_sensors([g, None, v], [VIDEO_TO_GMTI, None, None], 8, prior=prior)
+        b = fuse_sensors([g, vacuous(3), v], [VIDEO_TO_GMTI, VIDEO_TO_GMTI, None], 8, prior=prior)
+        torch.testing.assert_close(a.m, ref.m, rtol=0, atol=1e-14)
+        torch.testing.assert_close(b.m, ref.m, rtol=0, atol=1e-14)
+        # "joint" (small frame: the s-source PCR5 costs (2**n)**s) drops None and vacuous sources
+        g2, v2, p2 = random_normal(rng, 2, 2), random_normal(rng, 3, 4), random_normal(rng, 3, 4)
+        ref2 = fuse_sensors([g2, v2], [[0, 0, 1], None], 3, prior=p2, rule="joint")
+        for obs in ([g2, None, v2], [g2, vacuous(2), v2]):
+            out = fuse_sensors(obs, [[0, 0, 1], [0, 1, 1], None], 3, prior=p2, rule="joint")
+            torch.testing.assert_close(out.m, ref2.m, rtol=0, atol=1e-15)
+        # why "joint" drops vacuous sources: the s-source PCR5 is not neutral to them
+        m1, m3 = random_normal(rng, 3, 4), random_normal(rng, 3, 4)
+        assert not torch.allclose(pcr5_sources(m1, vacuous(3), m3), pcr5(m1, m3))
+        out = fuse_sensors([m1, vacuous(3), m3], [None] * 3, 3, rule="joint")
+        torch.testing.assert_close(out.m, pcr5(m1, m3), rtol=0, atol=1e-15)
+        # nothing to fuse: the vacuous prior
+        out = fuse_sensors([None], [None], 3)
+        assert torch.equal(out.m, vacuous(3))
+
+    def test_joint_rule_on_a_small_frame(self):
+        rng = np.random.default_rng(42)
+        for _ in range(5):
+            prior = random_normal(rng, 3, 4)
+            g, v = random_normal(rng, 2, 2), random_normal(rng, 3, 4)
+            out = fuse_sensors([g, v], [[0, 0, 1], None], 3, prior=prior, rule="joint")
+            expected = pcr5_sources(prior, refine(g, [0, 0, 1], 3), v)
+            torch.testing.assert_close(out.m, expected, rtol=0, atol=1e-15)
+            seq = fuse_sensors([g, v], [[0, 0, 1], None], 3, prior=prior)
+            assert seq.m.shape == out.m.shape
+
+    def test_batched_equals_loop(self):
+        rng = np.random.default_rng(43)
+        g = torch.stack([random_normal(rng, 3, 3) for _ in range(4)])  # (4, 8)
+        v = random_normal(rng, 8, 5)  # broadcast
+        out = fuse_sensors([g, v], [VIDEO_TO_GMTI, None], 8)
+        assert out.m.shape == (4, 256) and out.betp.shape == (4, 8)
+        for i in range(4):
+            one = fuse_sensors([g[i], v], [VIDEO_TO_GMTI, None], 8)
+            torch.testing.assert_close(out.m[i], one.m, rtol=0, atol=1e-15)
+        empty = fuse_sensors([torch.zeros(0, 8)], [VIDEO_TO_GMTI], 8)
+        assert empty.m.shape == (0, 256) and empty.betp.shape == (0, 8)
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`mappings`: expected one mapping per observation"):
+            fuse_sensors([vacuous(3)], [], 8)
+        with pytest.raises(ValueError, match="`observations\\[0\\]`: expected a bba on the common"):
+            fuse_sensors([vacuous(3)], [None], 8)
+        with pytest.raises(ValueError, match="observations\\[1\\]: `mapping`"):
+            fuse_sensors([vacuous(8), vacuous(3)], [None, [0, 1, 2]], 8)
+        with pytest.raises(
+            ValueError, match="`observations\\[0\\]`: expected no mass on the empty"
+        ):
+            fuse_sensors([torch.tensor([0.5, 0.5, 0, 0])], [None], 2)
+        with pytest.raises(ValueError, match="`rule`"):
+            fuse_sensors([vacuous(8)], [None], 8, rule="dempster")
+        with pytest.raises(ValueError, match="`prior`"):
+            fuse_sensors([vacuous(8)], [None], 8, prior=vacuous(3))
+        with pytest.raises(TypeError, match="`observations`"):
+            fuse_sensors(vacuous(8), [None], 8)
+
+
+class TestTypeLikelihood:
+    def test_frame_dependence_of_the_estimate_reading(self):
+        # a track seen by the GMTI only: "wheeled" three times
+        coarse = vacuous(3)
+        for _ in range(3):
+            coarse = pcr5(coarse, gmti_obs(1))
+        fine = refine(coarse, VIDEO_TO_GMTI, 8)
+        on_coarse = float(type_likelihood(coarse))
+        on_fine = float(type_likelihood(fine))
+        betp_c, betp_f = pignistic(coarse), pignistic(fine)
+        assert on_coarse == pytest.approx(float(betp_c.max()))
+        assert on_fine == pytest.approx(float(betp_f.max()))
+        assert on_fine < on_coarse / 5  # about 1/6: six video classes share "wheeled"
+        # declared reading: BetP of the image of the declared GMTI class
+        declared = float(type_likelihood(fine, torch.tensor(1), VIDEO_TO_GMTI))
+        assert declared == pytest.approx(
+            float(betp_f[[i for i in range(8) if VIDEO_TO_GMTI[i] == 1]].sum())
+        )
+        assert declared == pytest.approx(float(pignistic_coarse(fine, VIDEO_TO_GMTI, 3)[1]))
+
+    def test_declared_against_dict_reference(self):
+        rng = np.random.default_rng(50)
+        m = torch.stack([random_normal(rng, 8, 9) for _ in range(5)])
+        c = torch.tensor([0, 1, 2, 1, 0])
+        got = type_likelihood(m, c, VIDEO_TO_GMTI)
+        for i in range(5):
+            d = to_dict(m[i], VIDEO_CLASSES)
+            a = BLOCKS[GMTI_CLASSES[int(c[i])]]
+            expected = sum(len(x & a) / len(x) * v for x, v in d.items())  # 24.47
+            assert float(got[i]) == pytest.approx(expected, abs=1e-12)
+        fine_c = torch.tensor([3, 7, 0, 0, 5])
+        torch.testing.assert_close(
+            type_likelihood(m, fine_c), pignistic(m)[torch.arange(5), fine_c]
+        )
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`declared`"):
+            type_likelihood(vacuous(8), torch.tensor(3), VIDEO_TO_GMTI)
+        with pytest.raises(TypeError, match="`declared`"):
+            type_likelihood(vacuous(8), torch.tensor(1.0))
+        with pytest.raises(ValueError, match="`mapping`"):
+            type_likelihood(vacuous(8), None, VIDEO_TO_GMTI)
+
+
+class TestPignisticCoarse:
+    def test_against_reference_and_not_invariant(self):
+        rng = np.random.default_rng(60)
+        for _ in range(5):
+            m = random_normal(rng, 8, 12)
+            got = pignistic_coarse(m, VIDEO_TO_GMTI, 3)
+            d = to_dict(m, VIDEO_CLASSES)
+            expected = [
+                sum(len(x & BLOCKS[g]) / len(x) * v for x, v in d.items()) for g in GMTI_CLASSES
+            ]
+            np.testing.assert_allclose(got.numpy(), expected, atol=1e-12)
+        # BetP depends on the frame: the refined vacuous bba gives 6/8 to "wheeled", not 1/3
+        refined = refine(vacuous(3), VIDEO_TO_GMTI, 8)
+        torch.testing.assert_close(
+            pignistic_coarse(refined, VIDEO_TO_GMTI, 3),
+            torch.tensor([1 / 8, 6 / 8, 1 / 8], dtype=torch.float64),
+        )
+        assert not torch.allclose(
+            pignistic_coarse(refined, VIDEO_TO_GMTI, 3),
+            pignistic(coarsen(refined, VIDEO_TO_GMTI, 3)),
+        )
+
+    def test_equal_blocks_commute_with_refinement(self):
+        rng = np.random.default_rng(61)
+        blocks = [[0, 3], [1, 4], [2, 5]]
+        for _ in range(5):
+            m = random_normal(rng, 3, 5)
+            torch.testing.assert_close(
+                pignistic_coarse(refine(m, blocks, 6), blocks, 3), pignistic(m), rtol=0, atol=1e-14
+            )
+
+
+class TestRefinementCommutesWithPCR5:
+    def test_gmti_only_track_on_the_fine_frame_is_the_refined_coarse_track(self):
+        # Omega(A) & Omega(B) = Omega(A & B) for a partition, so PCR5 commutes with refinement
+        rng = np.random.default_rng(70)
+        for _ in range(10):
+            m1, m2 = random_normal(rng, 3, 4), random_normal(rng, 3, 5)
+            fine = pcr5(refine(m1, VIDEO_TO_GMTI, 8), refine(m2, VIDEO_TO_GMTI, 8))
+            torch.testing.assert_close(
+                fine, refine(pcr5(m1, m2), VIDEO_TO_GMTI, 8), rtol=0, atol=1e-14
+            )
+            torch.testing.assert_close(
+                coarsen(fine, VIDEO_TO_GMTI, 3), pcr5(m1, m2), rtol=0, atol=1e-14
+            )
+            ms = [random_normal(rng, 2, int(rng.integers(1, 4))) for _ in range(3)]
+            blocks = [[0, 2], [1]]
+            torch.testing.assert_close(
+                pcr5_sources(*(refine(m, blocks, 3) for m in ms)),
+                refine(pcr5_sources(*ms), blocks, 3),
+                rtol=0,
+                atol=1e-14,
+            )
