@@ -22,7 +22,7 @@ around its true pixel, exceeds the threshold. Metrics: Pd versus peak SNR, the l
 Pd >= 0.9 (linear interpolation, :func:`hocnet.dpa.frames_to_reach` on the SNR axis), the AUC
 (target scores against every pixel of the test scenes' target-free last ASFs), ``A_S`` of eq.
 (16)-(17) (:func:`hocnet.dpa.algorithm_score`, 10 x 10 blocks re-centred on the target in every
-frame: the frames are 32 x 32), and the track back-tracked from the highest last-frame ASF
+frame: the frames are 28 x 28), and the track back-tracked from the highest last-frame ASF
 (:func:`hocnet.dpa.backtrack`): success (:func:`hocnet.dpa.tracking_success`) and median mean
 distance to the truth. Cross-domain: every grid best and every learned DPA is also tested on the
 other three settings.
@@ -34,8 +34,9 @@ LearnedHOCSystem`) from the fixed masks and from random kernels, trained on clut
 0.8-5 %, and a cross-domain variant trained on 0.8-2 % only. Each network runs with the hard
 limiter at ``c > theta`` in every layer: ``theta = 0`` is the paper's eq. (3) (and the
 systems' test-time limiter), ``theta*`` is the largest value of ``THETAS`` that loses no target
-point on the validation scenes (our operating point; for the fixed network's integer counts
-every ``theta`` in ``[0, 1)`` is the paper's). Metrics per test density: clutter rejection (mean
+point on the validation scenes (0.1-2 px/scan, 0.8-5 %), or if none does the one that loses
+fewest (our operating point; for the fixed network's integer counts every ``theta`` in
+``[0, 1)`` is the paper's). Metrics per test density: clutter rejection (mean
 over scenes) and target points lost (total).
 
 Run: ``python experiments/fixed_vs_learned.py [--quick] [--out DIR] [--no-progress]``; a full run
@@ -69,7 +70,7 @@ from hocnet.learn.systems import dpa_loss
 
 NAME = "fixed-vs-learned"
 PFAS = (1e-3, 1e-4)
-SNRS = (2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 15.0)
+SNRS = (3.0, 6.0, 9.0, 12.0, 15.0)
 VAL_SNRS = (4.0, 7.0, 10.0)
 TRAIN_SNR = (4.0, 12.0)
 REF_SNR = 6.0
@@ -81,18 +82,18 @@ NPA_SPEC = dataclasses.replace(NPA_CLOUDS, amplitude=0.75 * 10 ** (NPA_REF_DB / 
 CLOUDS = {"clear": "clear", "npa": NPA_SPEC}
 SPEEDS = {"slow": (0.1, 0.5), "fast": (1.0, 2.0)}
 SETTINGS = [f"{c}-{s}" for c in CLOUDS for s in SPEEDS]
-GRID = {"g": (0.0, 0.5, 1.0), "x": (0.0, 1.5, 3.0), "memory": (0.6, 0.8, 0.9, 0.95)}
+GRID = {"g": (0.0, 0.5, 1.0), "x": (0.0, 3.0), "memory": (0.7, 0.8, 0.9)}
 THETAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
 DENSITIES = (0.008, 0.02, 0.035, 0.05)
 WINDOW = 7
 
 FULL: dict[str, Any] = {
-    "shape": (12, 32, 32),
-    "n_train": 128,
+    "shape": (10, 28, 28),
+    "n_train": 96,
     "n_val": 100,
-    "n_val_grid": 64,
+    "n_val_grid": 40,
     "n_test": 200,
-    "epochs": 12,
+    "epochs": 8,
     "grid": GRID,
     "hoc_shape": (8, 24, 24),
     "hoc_train": 128,
@@ -482,6 +483,28 @@ def run_hoc(cfg: dict[str, Any], seed: int, show: bool) -> tuple[list[dict[str, 
     return rows, models
 
 
+def wedge_stats(model: MHOCImage, fixed: MHOCImage) -> dict[str, float]:
+    """How much of the curvature wedge of [LA98] a network's mask kernels hold (all layers).
+
+    ``inside`` / ``outside``: mean kernel weight where the fixed masks are 1 / 0 (allowed /
+    forbidden second moves); ``cosine``: cosine similarity of all mask kernels to the fixed ones.
+    """
+    ks, fs = [], []
+    for net, ref in (
+        (model.forward_net, fixed.forward_net),
+        (model.backward_net, fixed.backward_net),
+    ):
+        for layer, ref_layer in zip(net.layers, ref.layers, strict=True):
+            ks.append(layer.mask_kernels.detach().flatten())
+            fs.append(ref_layer.mask_kernels.detach().flatten())
+    k, f = torch.cat(ks).double(), torch.cat(fs).double()
+    return {
+        "inside": float(k[f > 0].mean()),
+        "outside": float(k[f == 0].mean()),
+        "cosine": float(torch.nn.functional.cosine_similarity(k, f, dim=0)),
+    }
+
+
 # ----------------------------------------------------------------------------- plots
 
 
@@ -581,14 +604,17 @@ def plot_kernels(dpas: dict[str, DPA], hocs: dict[str, MHOCImage], path: pathlib
         axes[r][0].set_ylabel(label, fontsize=6, rotation=0, ha="right", va="center")
     for r, (label, model) in enumerate(hoc_rows, start=len(dpas)):
         kernels = model.forward_net.layers[0].mask_kernels.detach()
+        lo, hi = min(0.0, float(kernels.min())), max(1.0, float(kernels.max()))
         for c, (i, j) in enumerate(moves):
             ax = axes[r][c]
             ax.set_visible(True)
             m1 = (v + j) * side + (v + i)
-            ax.imshow(kernels[m1, 0].numpy(), cmap="magma")
+            ax.imshow(kernels[m1, 0].numpy(), cmap="magma", vmin=lo, vmax=hi)
             if r == len(dpas):
                 ax.set_title(f"HOC mask, move ({i},{j})", fontsize=6)
-        axes[r][0].set_ylabel(label, fontsize=6, rotation=0, ha="right", va="center")
+        axes[r][0].set_ylabel(
+            f"{label} [{lo:.2g}, {hi:.2g}]", fontsize=6, rotation=0, ha="right", va="center"
+        )
     fig.suptitle(
         "top: DPA probability matrices (9 directions; learned rows: difference to the paper's); "
         "bottom: HOC layer-1 forward direction-masked kernels (per first move)",
@@ -602,9 +628,16 @@ def plot_kernels(dpas: dict[str, DPA], hocs: dict[str, MHOCImage], path: pathlib
 # ----------------------------------------------------------------------------- report
 
 
+def _snr(x: float) -> str:
+    """An SNR90 value: ``<= lowest`` when the curve starts above 0.9, ``> highest`` if never."""
+    if math.isfinite(x) and x <= SNRS[0]:
+        return f"<= {SNRS[0]:g}"
+    return _f(x, 1)
+
+
 def _f(x: float, d: int = 2) -> str:
     if isinstance(x, float) and math.isinf(x):
-        return "> 15 (never)"
+        return f"> {SNRS[-1]:g} (never)"
     if isinstance(x, float) and math.isnan(x):
         return "n/a"
     return f"{x:.{d}f}"
@@ -617,7 +650,7 @@ def report(
     extra: dict[str, Any],
     cfg: dict[str, Any],
     quick: bool,
-    seconds: float,
+    seconds: dict[str, float],
 ) -> str:
     """The results markdown (every number measured in this run)."""
     lines = [
@@ -625,8 +658,9 @@ def report(
         "",
         (__doc__ or "").split("\n\n")[0],
         "",
-        f"- Mode: {'quick (smoke)' if quick else 'full'} run; wall clock {seconds:.0f} s on the "
-        "shared 2-core CPU (one torch thread).",
+        f"- Mode: {'quick (smoke)' if quick else 'full'} run; wall clock "
+        + ", ".join(f"{k} {v:.0f} s" for k, v in seconds.items())
+        + " on the shared 2-core CPU (one torch thread per part).",
         f"- DPA: frames {cfg['shape']} (T, H, W); per setting {cfg['n_train']} training scenes "
         f"(peak SNR uniform {TRAIN_SNR} dB), {cfg['n_val']} validation scenes (thresholds; the "
         f"grid is ranked on the first {cfg['n_val_grid']} at {VAL_SNRS} dB), {cfg['n_test']} "
@@ -669,8 +703,8 @@ def report(
                 s["setting"],
                 s["method"],
                 s["params"],
-                _f(s["snr90@0.001"], 1),
-                _f(s["snr90@0.0001"], 1),
+                _snr(s["snr90@0.001"]),
+                _snr(s["snr90@0.0001"]),
                 _f(s["auc_mean"], 4),
                 _f(s["auc@ref"], 4),
                 _f(s["a_s@ref"], 2),
@@ -706,7 +740,7 @@ def report(
             for dst in SETTINGS:
                 method = f"{kind} (in-domain)" if src == dst else f"{kind} from {src}"
                 hit = [x for x in summary if x["setting"] == dst and x["method"] == method]
-                cells.append(_f(hit[0]["snr90@0.001"], 1) if hit else "")
+                cells.append(_snr(hit[0]["snr90@0.001"]) if hit else "")
             body.append([src, kind, *cells])
     lines += [C.md_table(head, body), ""]
     lines += [
@@ -734,6 +768,8 @@ def report(
                 if r["method"] == method and r["rule"] == rule and r["speed"] == sp
             }
             first = next(iter(mine.values()))
+            if rule != "theta=0 (eq. 3)" and first["theta"] == 0.0:
+                continue  # theta* = 0: the same rows as eq. (3)
             body.append(
                 [method, rule, f"{first['theta']:g}"]
                 + [
@@ -743,6 +779,32 @@ def report(
                 ]
             )
         lines += [C.md_table(head, body), ""]
+    stars = {
+        r["method"]: (r["theta"], r["val_lost"]) for r in hoc_rows if r["rule"] != "theta=0 (eq. 3)"
+    }
+    lines += [
+        "theta* per network (validation target points lost at theta*): "
+        + "; ".join(f"{m}: {t:g} ({lost})" for m, (t, lost) in stars.items())
+        + ". Rows with theta* = 0 are the eq. (3) rows and are not repeated. No theta of "
+        f"{THETAS} loses zero target points where theta* = 0 and its count is > 0: raising theta "
+        "only removes points, so such a network has no zero-loss operating point in this family.",
+        "",
+    ]
+    if extra.get("wedge"):
+        lines += [
+            "Mask kernels against the curvature wedge of [LA98] (all layers, both stacks): mean "
+            "weight on the allowed (inside) and forbidden (outside) second moves, and cosine "
+            "similarity to the fixed masks.",
+            "",
+            C.md_table(
+                ["network", "inside", "outside", "cosine to fixed"],
+                [
+                    [m, f"{w['inside']:.3f}", f"{w['outside']:.3f}", f"{w['cosine']:.3f}"]
+                    for m, w in extra["wedge"].items()
+                ],
+            ),
+            "",
+        ]
     lines += ["## Where learning wins and where it loses (generated from the numbers above)", ""]
     lines += extra["verdict"]
     lines += [
@@ -774,8 +836,8 @@ def verdict(summary: list[dict[str, Any]], hoc_rows: list[dict[str, Any]]) -> li
             if math.isinf(lr[key]) and math.isinf(gb[key]):
                 word, d = "like", math.nan
             out.append(
-                f"- DPA {setting}, Pfa {p:g}: learned reaches Pd 0.9 at {_f(lr[key], 1)} dB, "
-                f"grid best {_f(gb[key], 1)} dB, paper g=0 {_f(p0[key], 1)} dB: learned {word} "
+                f"- DPA {setting}, Pfa {p:g}: learned reaches Pd 0.9 at {_snr(lr[key])} dB, "
+                f"grid best {_snr(gb[key])} dB, paper g=0 {_snr(p0[key])} dB: learned {word} "
                 f"the grid best ({'n/a' if math.isnan(d) else f'{d:+.1f} dB'}); the issue's goal "
                 "(2 dB below the grid best on NPA-like scenes) is "
                 + (
@@ -799,11 +861,11 @@ def verdict(summary: list[dict[str, Any]], hoc_rows: list[dict[str, Any]]) -> li
                 continue
             x = by.get((dst, f"learned from {src}"))
             if x and x["snr90@0.001"] > by[(dst, "learned (in-domain)")]["snr90@0.001"] + 0.05:
-                worse.append(f"{src} ({_f(x['snr90@0.001'], 1)} dB)")
+                worse.append(f"{src} ({_snr(x['snr90@0.001'])} dB)")
         if worse:
             out.append(
                 f"- Cross-domain, tested on {dst} (in-domain learned "
-                f"{_f(by[(dst, 'learned (in-domain)')]['snr90@0.001'], 1)} dB): tuned on "
+                f"{_snr(by[(dst, 'learned (in-domain)')]['snr90@0.001'])} dB): tuned on "
                 + ", ".join(worse)
                 + " is worse."
             )
@@ -819,6 +881,9 @@ def verdict(summary: list[dict[str, Any]], hoc_rows: list[dict[str, Any]]) -> li
             if method == "fixed [LA98]":
                 continue
             for rule in ("theta=0 (eq. 3)", "theta* (val)"):
+                star = [r for r in hoc_rows if r["method"] == method and r["rule"] == rule]
+                if rule != "theta=0 (eq. 3)" and star and star[0]["theta"] == 0.0:
+                    continue
                 mine = {
                     r["density"]: r
                     for r in hoc_rows
@@ -843,39 +908,58 @@ def verdict(summary: list[dict[str, Any]], hoc_rows: list[dict[str, Any]]) -> li
 # ----------------------------------------------------------------------------- driver
 
 
-def compute(quick: bool = False, seed: int = 0, show: bool = True) -> dict[str, Any]:
-    """Train, select and measure everything; the results as a dict (see :func:`render`)."""
+def compute(
+    quick: bool = False, seed: int = 0, show: bool = True, part: str = "all"
+) -> dict[str, Any]:
+    """Train, select and measure ``part`` (``"dpa"``, ``"hoc"`` or ``"all"``); a results dict."""
     cfg = QUICK if quick else FULL
-    with C.Timer() as timer, C.single_thread(), warnings.catch_warnings():
+    res: dict[str, Any] = {"quick": quick, "seconds": {}}
+    with C.single_thread(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        learned, grid_best, gaps, grid_info = {}, {}, {}, {}
-        for setting in C.progress(SETTINGS, enabled=show, desc="train/select"):
-            learned[setting], gaps[setting] = train_dpa(setting, cfg, seed)
-            grid_best[setting], grid_info[setting] = select_grid(setting, cfg, seed, show)
-        rows, roc = [], {}
-        for setting in SETTINGS:
-            models = dict(paper_models())
-            models["grid best (in-domain)"] = grid_best[setting]
-            models["learned (in-domain)"] = learned[setting]
-            for src in SETTINGS:
-                if src != setting:
-                    models[f"grid best from {src}"] = grid_best[src]
-                    models[f"learned from {src}"] = learned[src]
-            r, curves = evaluate_dpa(models, setting, cfg, seed, show)
-            rows += r
-            roc[setting] = {k: v for k, v in curves.items() if " from " not in k}
-        hoc_rows, hoc_models = run_hoc(cfg, seed, show)
+        if part in ("all", "dpa"):
+            with C.Timer() as timer:
+                res.update(_compute_dpa(cfg, seed, show))
+            res["seconds"]["dpa"] = timer.seconds
+        if part in ("all", "hoc"):
+            with C.Timer() as timer:
+                res["hoc_rows"], res["hoc_models"] = run_hoc(cfg, seed, show)
+            res["seconds"]["hoc"] = timer.seconds
+    return res
+
+
+def _compute_dpa(cfg: dict[str, Any], seed: int, show: bool) -> dict[str, Any]:
+    learned, grid_best, gaps, grid_info = {}, {}, {}, {}
+    for setting in C.progress(SETTINGS, enabled=show, desc="train/select"):
+        learned[setting], gaps[setting] = train_dpa(setting, cfg, seed)
+        grid_best[setting], grid_info[setting] = select_grid(setting, cfg, seed, show)
+    rows, roc = [], {}
+    for setting in SETTINGS:
+        models = dict(paper_models())
+        models["grid best (in-domain)"] = grid_best[setting]
+        models["learned (in-domain)"] = learned[setting]
+        for src in SETTINGS:
+            if src != setting:
+                models[f"grid best from {src}"] = grid_best[src]
+                models[f"learned from {src}"] = learned[src]
+        r, curves = evaluate_dpa(models, setting, cfg, seed, show)
+        rows += r
+        roc[setting] = {k: v for k, v in curves.items() if " from " not in k}
     return {
-        "quick": quick,
         "rows": rows,
         "roc": roc,
-        "hoc_rows": hoc_rows,
         "gaps": gaps,
         "grid_info": grid_info,
         "learned": learned,
-        "hoc_models": hoc_models,
-        "seconds": timer.seconds,
     }
+
+
+def merge(*parts: dict[str, Any]) -> dict[str, Any]:
+    """One results dict from the ``--part dpa`` and ``--part hoc`` caches."""
+    res: dict[str, Any] = {"seconds": {}}
+    for part in parts:
+        res.update({k: v for k, v in part.items() if k != "seconds"})
+        res["seconds"].update(part["seconds"])
+    return res
 
 
 def render(res: dict[str, Any], out_dir: str | pathlib.Path | None = None) -> pathlib.Path:
@@ -885,7 +969,13 @@ def render(res: dict[str, Any], out_dir: str | pathlib.Path | None = None) -> pa
     out = C.out_dir_of(out_dir, quick=quick)
     rows, hoc_rows, grid_info = res["rows"], res["hoc_rows"], res["grid_info"]
     summary = summarise(rows)
-    extra = {"gap": res["gaps"], "verdict": verdict(summary, hoc_rows), "grid": grid_info}
+    fixed_hoc = res["hoc_models"]["fixed [LA98]"]
+    extra = {
+        "gap": res["gaps"],
+        "verdict": verdict(summary, hoc_rows),
+        "grid": grid_info,
+        "wedge": {m: wedge_stats(h, fixed_hoc) for m, h in res["hoc_models"].items()},
+    }
     C.write_csv(out / f"{NAME}.csv", rows)
     C.write_csv(out / f"{NAME}-summary.csv", summary)
     C.write_csv(out / f"{NAME}-hoc.csv", hoc_rows)
@@ -897,7 +987,8 @@ def render(res: dict[str, Any], out_dir: str | pathlib.Path | None = None) -> pa
     dpas.update({f"learned {s}": res["learned"][s] for s in SETTINGS})
     plot_kernels(dpas, res["hoc_models"], out / f"{NAME}-kernels.png")
     md = out / f"{NAME}.md"
-    C.write_text(md, report(summary, rows, hoc_rows, extra, cfg, quick, res["seconds"]))
+    seconds = res["seconds"]
+    C.write_text(md, report(summary, rows, hoc_rows, extra, cfg, quick, seconds))
     return md
 
 
@@ -907,19 +998,22 @@ def run(
     out_dir: str | pathlib.Path | None = None,
     show: bool = True,
     cache: str | pathlib.Path | None = None,
-) -> pathlib.Path:
+    part: str = "all",
+) -> pathlib.Path | None:
     """Run both comparisons, write md/csv/png to ``out_dir``; returns the md path.
 
     ``cache``: also keep the raw results there (``torch.save``; a pickle of our own objects,
     re-read by ``--render-from``), so the report can be re-rendered without re-running.
+    ``part="dpa"`` or ``"hoc"`` only computes (and caches) that half and returns ``None``; render
+    both caches with ``--render-from DPA_CACHE HOC_CACHE``.
     """
-    res = compute(quick=quick, seed=seed, show=show)
+    res = compute(quick=quick, seed=seed, show=show, part=part)
     if cache is not None:
         torch.save(res, cache)
-    return render(res, out_dir)
+    return render(res, out_dir) if part == "all" else None
 
 
-def main(argv: Sequence[str] | None = None) -> pathlib.Path:
+def main(argv: Sequence[str] | None = None) -> pathlib.Path | None:
     """Command line: ``--quick``, ``--seed``, ``--out``, ``--no-progress``, cache options."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny smoke-test sizes (temp dir)")
@@ -928,19 +1022,26 @@ def main(argv: Sequence[str] | None = None) -> pathlib.Path:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--cache", default=None, help="also save the raw results to this file")
     parser.add_argument(
-        "--render-from", default=None, help="re-render the files from a --cache file (no run)"
+        "--render-from", nargs="+", default=None, help="re-render from --cache file(s), no run"
+    )
+    parser.add_argument(
+        "--part", choices=("all", "dpa", "hoc"), default="all", help="compute only one half"
     )
     args = parser.parse_args(argv)
     out = args.out
     if args.render_from:
-        res = torch.load(args.render_from, weights_only=False)  # our own file, see --cache
+        # our own files (see --cache): pickled results, hence weights_only=False
+        res = merge(*(torch.load(f, weights_only=False) for f in args.render_from))
         if out is None and res["quick"]:
             out = C.quick_dir(NAME)
         md = render(res, out)
     else:
         if out is None and args.quick:
             out = C.quick_dir(NAME)
-        md = run(args.quick, args.seed, out, not args.no_progress, args.cache)
+        md = run(args.quick, args.seed, out, not args.no_progress, args.cache, args.part)
+        if md is None:
+            print(f"part {args.part} done, cached in {args.cache}")
+            return None
     print(md.read_text())
     print(f"written: {md}")
     return md

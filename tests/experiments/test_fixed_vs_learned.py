@@ -119,3 +119,10 @@ def test_npa_scenes_are_paired_across_snr(script):
     assert torch.equal(low["positions"], high["positions"])
     assert not torch.equal(low["frames"], high["frames"])
     assert not torch.equal(low["target_free"], clear["target_free"])  # the clouds are there
+
+
+def test_merge_joins_the_two_parts(script):
+    dpa = {"quick": True, "rows": [1], "seconds": {"dpa": 2.0}}
+    hoc = {"quick": True, "hoc_rows": [2], "seconds": {"hoc": 3.0}}
+    res = script.merge(dpa, hoc)
+    assert res == {"quick": True, "rows": [1], "hoc_rows": [2], "seconds": {"dpa": 2.0, "hoc": 3.0}}
