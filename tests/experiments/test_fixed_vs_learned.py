@@ -125,4 +125,5 @@ def test_merge_joins_the_two_parts(script):
     dpa = {"quick": True, "rows": [1], "seconds": {"dpa": 2.0}}
     hoc = {"quick": True, "hoc_rows": [2], "seconds": {"hoc": 3.0}}
     res = script.merge(dpa, hoc)
-    assert res == {"quick": True, "rows": [1], "hoc_rows": [2], "seconds": {"dpa": 2.0, "hoc": 3.0}}
+    assert res["seconds"] == {"dpa": 2.0, "hoc": 3.0} and res["merged"]
+    assert (res["quick"], res["rows"], res["hoc_rows"]) == (True, [1], [2])
