@@ -4,8 +4,9 @@ The paper keeps every ``s_n``-th frame (s_n = 1 .. 5) of its slow sequences so t
 moves faster, finds where tracking occurs (Table 2: NA23 s_n = 1-5, NPA 3-5) and where the
 algorithm score A_S peaks (effective velocity 0.6 ± 0.15 px/frame for NA23, 0.8 ± 0.1 for NPA),
 and picks the number of highest pixels taken as "target" in the Block SNR of eq. (16),
-``Max_Numbers``, by maximising A_S (Table 2: 3 for g = 0, 1 for g = 1; measured at s_n = 4 with
-b = 4.8 for g = 0).
+``Max_Numbers``, by maximising A_S (Table 2: 3 for g = 0, 1 for g = 1; NA23 measured at s_n = 4
+with b = 4.8 for g = 0, section 3.2.1(3); NPA's Max_Numbers are those of its s_n = 3 study,
+section 3.2.2(1)). The Max_Numbers peak is therefore read at s_n = 4 for NA23A and s_n = 3 for NPA.
 
 Here every scene (``na23a_like`` / ``npa_like``, the presets after section 3) is simulated with
 ``1 + 24 s_n`` frames and every ``s_n``-th frame is kept, so the DPA (5 x 5 matrices, as in
@@ -34,6 +35,7 @@ import _nr08 as P
 import matplotlib.pyplot as plt
 import torch
 
+from hocnet.data.infrared import NPA_CLOUDS
 from hocnet.dpa import accumulate, algorithm_score, backtrack
 
 NAME = "dpa-sampling"
@@ -53,13 +55,23 @@ LAST = 6
 EMC = 0.8
 SPEED = {"NA23A": 0.3, "NPA": 0.2}
 FAST = 4
+SCENES = (*P.SCENES, P.FLUCT)
+"""The presets after section 3 of [NR08] and the fluctuating NA23A-like variant."""
+
+
+def scene_label(scene: str) -> str:
+    """Display name of a scene key."""
+    return "NA23A-like, fluctuating peak" if scene == P.FLUCT else f"{scene}-like"
+
+
 """s_n from which the long blocks are used (the paper's s_n = 4)."""
 
 
 def geometry(scene: str, step: int, quick: bool) -> tuple[tuple[int, int], tuple[int, int]]:
     """``(frame (H, W), block (rows, columns))`` of a scene at sampling ``step``."""
     if quick:
-        return ((45, 90) if scene == "NA23A" else (45, 60)), (15, 15)
+        return ((45, 90) if P.paper_name(scene) == "NA23A" else (45, 60)), (15, 15)
+    scene = P.paper_name(scene)
     if step < FAST:
         return ((90, 90) if scene == "NA23A" else (90, 120)), (30, 30)
     if scene == "NA23A":
@@ -108,7 +120,7 @@ def evaluate(scenes, bvalues, weights, sampling, seeds, frames, quick, progress)
                     "table": "sampling",
                     "scene": scene,
                     "s_n": step,
-                    "v_eff": round(step * SPEED[scene], 4),
+                    "v_eff": round(step * SPEED[P.paper_name(scene)], 4),
                     "block": f"{block[0]}x{block[1]}",
                     "g": g,
                     "b_choice": choice,
@@ -145,20 +157,26 @@ def _argmax(values: Sequence[float]) -> int:
     return max(range(len(values)), key=lambda i: values[i])
 
 
+def _ref_sn(scene: str, sampling: Sequence[int]) -> int:
+    """The s_n of the paper's Max_Numbers / Table 2 study of a scene (NA23A 4, NPA 3)."""
+    ref = P.PAPER_SN_TABLE2[P.paper_name(scene)]
+    return ref if ref in sampling else sampling[-1]
+
+
 def _mn_table(rows, scenes, bvalues, sampling) -> str:
-    ref = FAST if FAST in sampling else sampling[-1]
-    i_ref = list(sampling).index(ref)
     headers = [
         "sequence",
         "g",
         "b",
-        f"A_S peak: Max_Numbers at s_n = {ref} (paper reading)",
+        "A_S peak: Max_Numbers at the paper's s_n (NA23A 4, NPA 3; paper reading)",
         "same, per s_n " + ", ".join(str(s) for s in sampling),
         "centred reading: peak Max_Numbers",
         "paper Table 2",
     ]
     body = []
     for scene in scenes:
+        ref = _ref_sn(scene, sampling)
+        i_ref = list(sampling).index(ref)
         for (g, choice), b in bvalues.items():
             paper = means(rows, scene, g, choice, sampling)
             centred = means(rows, scene, g, choice, sampling, "a_s_centred_mn")
@@ -167,7 +185,7 @@ def _mn_table(rows, scenes, bvalues, sampling) -> str:
                     scene,
                     f"{g:g}",
                     f"{b:.3g} ({choice})",
-                    str(MAX_NUMBERS[_argmax(paper[i_ref])]),
+                    f"{MAX_NUMBERS[_argmax(paper[i_ref])]} (s_n = {ref})",
                     ", ".join(str(MAX_NUMBERS[_argmax(p)]) for p in paper),
                     str(MAX_NUMBERS[_argmax(centred[i_ref])]),
                     str(P.PAPER_MAX_NUMBERS[g]),
@@ -205,9 +223,9 @@ def _sn_table(rows, scenes, bvalues, sampling) -> str:
                     f"{b:.3g} ({choice})",
                     ", ".join(C.pct(r, 0) for r in rates),
                     C.b_ranges(list(sampling), rates, 0.5),
-                    P.fmt_range(P.PAPER_SN_RANGE[scene]),
-                    f"{best} ({best * SPEED[scene]:.2g})",
-                    P.PAPER_VELOCITY[scene],
+                    P.fmt_range(P.PAPER_SN_RANGE[P.paper_name(scene)]),
+                    f"{best} ({best * SPEED[P.paper_name(scene)]:.2g})",
+                    P.PAPER_VELOCITY[P.paper_name(scene)],
                 ]
             )
     return C.md_table(headers, body)
@@ -220,7 +238,7 @@ def _grid_table(rows, scene, g, choice, sampling) -> str:
     for i, step in enumerate(sampling):
         sel = _sel(rows, scene, g, choice, step)
         best = max(values[i])
-        cells = [str(step), f"{step * SPEED[scene]:.2g}", sel[0]["block"]]
+        cells = [str(step), f"{step * SPEED[P.paper_name(scene)]:.2g}", sel[0]["block"]]
         cells += [f"**{v:.2f}**" if v == best else f"{v:.2f}" for v in values[i]]
         cells.append(C.pct(C.mean(r["tracked"] for r in sel), 0))
         body.append(cells)
@@ -235,7 +253,7 @@ def _plot(rows, scenes, bvalues, sampling, path: pathlib.Path) -> None:
         for i, step in enumerate(sampling):
             ax.plot(MAX_NUMBERS, values[i], "-o", ms=3, label=f"s_n = {step}")
         ax.axvline(P.PAPER_MAX_NUMBERS[g], color="0.5", ls=":", label="paper Max_Numbers")
-        ax.set_title(f"{scene}-like, g = {g:g}, b = {bvalues[g, 'paper']:g}")
+        ax.set_title(f"{scene_label(scene)}, g = {g:g}, b = {bvalues[g, 'paper']:g}", fontsize=9)
         ax.set_xlabel("Max_Numbers")
         ax.set_ylabel("mean A_S (eq. 16-17)")
         ax.grid(alpha=0.3)
@@ -267,7 +285,7 @@ def run(
     out = C.out_dir_of(out_dir)
     frames = QUICK_FRAMES if quick else FRAMES
     sampling = QUICK_SAMPLING if quick else SAMPLING
-    scenes = P.SCENES
+    scenes = SCENES
     seed_values = C.seed_list(SEED_BASE, n)
     weights = P.weights()
     bvalues = b_values(weights)
@@ -282,7 +300,10 @@ def run(
             seconds=timer.seconds,
         ),
         f"- Scenes: `na23a_like` (0.3 px/frame, clear sky) / `npa_like` (0.2 px/frame, studied "
-        f"target in clouds), presets' peak SNRs (Table 2's peaks 60 / 30 x the noise), simulated "
+        f"target in clouds, cloud plateau {NPA_CLOUDS.amplitude:g} x the noise), presets' peak "
+        "SNRs (Table 2's peaks 60 / 30 x the noise), and *NA23A-like, fluctuating peak* "
+        f"(`na23a_like(fluctuation={P.FLUCTUATION:g})`, our addition: per-frame peak exponential "
+        f"with mean {P.FLUCTUATION:g} x the peak, clipped at it; see `dpa-b-sweep`), simulated "
         f"with 1 + {frames - 1} s_n frames of which every s_n-th is kept; seeds "
         f"{seed_values[0]} .. {seed_values[-1]}. Frames and blocks per s_n: "
         + "; ".join(
@@ -315,8 +336,8 @@ def run(
     for scene in scenes:
         for (g, choice), b in bvalues.items():
             parts += [
-                f"## {scene}-like, g = {g:g}, b = {b:.3g} ({choice}): mean A_S (paper reading) "
-                "per s_n x Max_Numbers",
+                f"## {scene_label(scene)}, g = {g:g}, b = {b:.3g} ({choice}): mean A_S "
+                "(paper reading) per s_n x Max_Numbers",
                 "",
                 _grid_table(rows, scene, g, choice, sampling),
                 "",
