@@ -14,9 +14,10 @@ section 3) always sees 25 frames. It runs with g = 0 and g = 1, each at the b th
 (4.8 and 0.8) and at the effective-memory b of direction 9 (eq. 12-14, EMC 0.8). A_S (eq. 16-17
 as printed: tiled blocks anchored on the target's first-frame pixel, mean over the last six
 frames) is computed for Max_Numbers = 1 .. 7 under the paper's reading and under our earlier
-centred reading. Blocks are 30 x 30, and 30 x 80 (NA23A, moving along x) for s_n >= 4 as in the
-paper; NPA's target moves along y, so its long blocks are 80 x 30 (our reading: the paper does
-not say which blocks it used for NPA).
+centred reading. Blocks are 30 x 30, and 30 x 80 (NA23A, moving along x) once the target would
+leave a 30 x 30 target block (``fast``: NA23A s_n >= 3, NPA s_n >= 4; the paper names s_n = 4).
+NPA's target moves along y, so its long blocks are 80 x 30 (our reading: the paper does not say
+which blocks it used for NPA).
 
 Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR]`` or
 ``hocnet reproduce dpa-sampling``.
@@ -54,9 +55,9 @@ GS = (0.0, 1.0)
 LAST = 6
 EMC = 0.8
 SPEED = {"NA23A": 0.3, "NPA": 0.2}
-FAST = 4
 SCENES = (*P.SCENES, P.FLUCT)
 """The presets after section 3 of [NR08] and the fluctuating NA23A-like variant."""
+JITTER = 0.5
 
 
 def scene_label(scene: str) -> str:
@@ -64,19 +65,28 @@ def scene_label(scene: str) -> str:
     return "NA23A-like, fluctuating peak" if scene == P.FLUCT else f"{scene}-like"
 
 
-"""s_n from which the long blocks are used (the paper's s_n = 4)."""
+def fast(scene: str, step: int, frames: int = FRAMES) -> bool:
+    """Whether the long blocks are needed: the target leaves a 30 x 30 target block.
+
+    [NR08] section 3.2: "To keep the target in the 'target block', a larger block size of
+    30 x 80 was used for fast targets instead of 30 x 30" (named for s_n = 4). The target starts
+    at the block centre and travels ``speed s_n (frames - 1)`` px plus the jitter: the long
+    blocks are used once that exceeds half a 30-pixel block (NA23A: s_n >= 3, 21.6 px at s_n =
+    3; NPA: s_n >= 4, 14.4 px at s_n = 3), our reading of "fast".
+    """
+    travel = SPEED[P.paper_name(scene)] * step * (frames - 1) + JITTER
+    return travel > 15.0
 
 
 def geometry(scene: str, step: int, quick: bool) -> tuple[tuple[int, int], tuple[int, int]]:
     """``(frame (H, W), block (rows, columns))`` of a scene at sampling ``step``."""
     if quick:
         return ((45, 90) if P.paper_name(scene) == "NA23A" else (45, 60)), (15, 15)
-    scene = P.paper_name(scene)
-    if step < FAST:
-        return ((90, 90) if scene == "NA23A" else (90, 120)), (30, 30)
-    if scene == "NA23A":
-        return (90, 240), (30, 80)  # [NR08] section 3.2.1(2): 30 x 80 blocks for s_n = 4
-    return (90, 120), (80, 30)  # clipped by the frame at the top and the bottom
+    if not fast(scene, step):
+        return ((90, 90) if P.paper_name(scene) == "NA23A" else (90, 120)), (30, 30)
+    if P.paper_name(scene) == "NA23A":
+        return (90, 240), (30, 80)  # [NR08] section 3.2.1(2): 30 x 80 blocks, moving along x
+    return (90, 120), (80, 30)  # moving along y; clipped by the frame at the top and the bottom
 
 
 def sampled_scene(scene: str, seeds: Sequence[int], frames: int, shape, step: int) -> tuple:

@@ -291,6 +291,10 @@ class TestSampling:
         assert module.geometry("NA23A", 4, False) == ((90, 240), (30, 80))
         assert module.geometry("NPA", 5, False)[1] == (80, 30)
         assert module.geometry(paper().FLUCT, 4, False) == ((90, 240), (30, 80))
+        # the long blocks as soon as the target would leave a 30 x 30 target block
+        assert module.geometry("NA23A", 3, False) == ((90, 240), (30, 80))  # 21.6 px of travel
+        assert module.geometry("NPA", 3, False)[1] == (30, 30)  # 14.4 px
+        assert module.geometry("NPA", 4, False)[1] == (80, 30)  # 19.2 px
 
     def test_sampled_scene_keeps_every_step(self):
         module = load("dpa-sampling")
