@@ -391,38 +391,9 @@ def plot_scene_xy(
 DPA_SCENES = ("NA23A-like", "NPA-like")
 """The two simulated scene families of the DPA experiments (``hocnet.data.infrared``)."""
 
-DPA_SNR_DB = {"NA23A-like": 31.0, "NPA-like": 12.0}
-"""Peak SNR (dB) of the DPA parameter experiments, per scene.
-
-Fixed once from an exploratory scan before the sweeps were run (20 anti-mean whitened scenes of
-seed 100, not an evaluation seed; b on a coarse grid including 0, 7 x 7 matrices): the lowest
-SNR on a 1 dB grid at which the back-tracked track followed a target in at least half of the
-scenes for some b. At the simulator's default of 6 dB no b tracks in either family (see the
-SNR context table of ``dpa-b-sweep``); the bright, sharp-edged clouds of the NA23A-like scene
-leave whitened residuals of several tens of noise sigmas, hence its much higher SNR.
-"""
-
-DPA_MATRICES = {"7x7, v <= 2.5": (7, 2.5), "5x5, v <= 1": (5, 1.0)}
-"""Probability matrices of the DPA experiments: label -> (window, v_max) of
-``hocnet.dpa.probability_matrices`` (other arguments at their defaults)."""
-
-PAPER_EQ15 = {"directions 1-8": (1.118, 0.131), "direction 9": (1.035, 0.214)}
-"""Eq. (15) of [NR08], ``1/b = slope g + intercept``: one line for the moving directions 1-8 and
-one for direction 9 (the target standing in place), both for the same (7 x 7) matrices."""
-
-PAPER_B_RANGE = {
-    ("NA23A-like", 0.0): "4.4-6",
-    ("NPA-like", 0.0): "2-4.8",
-    ("NA23A-like", 1.0): "0.2-0.8",
-    ("NPA-like", 1.0): "0-0.8",
-}
-"""Table 2 of [NR08]: the ranges of b where tracking occurred, per (sequence, g)."""
-
-PAPER_VELOCITY = "0.6 ± 0.15 px/frame"
-"""[NR08]: the preferred effective target velocity."""
-
-PAPER_MAX_NUMBERS = {0.0: 3, 1.0: 1}
-"""[NR08]: the preferred Max_Numbers of the Block SNR, per g."""
+# The paper's printed values (Table 2, eq. 15, ...) and the set-up of the [NR08] experiments live in
+# ``_nr08.py`` (an earlier copy here, with a stale ``DPA_MATRICES`` of (7, 2.5) matrices, was
+# removed: ``_nr08.MATRIX`` / ``_nr08.weights`` give the matrices of section 3).
 
 
 def dpa_scene(
@@ -442,7 +413,8 @@ def dpa_scene(
         scene: ``"NA23A-like"`` or ``"NPA-like"``.
         seeds: one seed per scene.
         shape: ``(T, H, W)``.
-        snr_db: peak SNR in dB (default :data:`DPA_SNR_DB` of the scene).
+        snr_db: peak SNR in dB (default: the preset's, Table 2's peak of [NR08] read as a
+            peak-to-noise ratio; see ``hocnet.data.infrared``).
         speed: target speed in px/frame (default: the simulator's, 0.3 / 0.2).
 
     Returns:
@@ -452,7 +424,8 @@ def dpa_scene(
 
     make = {"NA23A-like": na23a_like, "NPA-like": npa_like}[scene]
     kwargs: dict[str, Any] = {"shape": shape}
-    kwargs["snr_db"] = DPA_SNR_DB[scene] if snr_db is None else snr_db
+    if snr_db is not None:
+        kwargs["snr_db"] = snr_db
     if speed is not None:
         kwargs["speed"] = speed
     return stack_sequences([make(seed=int(s), **kwargs) for s in seeds])

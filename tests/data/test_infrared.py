@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -109,12 +110,34 @@ class TestCloudSpec:
             ({"edge": 0.0}, "edge"),
             ({"drift": (0.1, float("inf"))}, "drift"),
             ({"anchors": ((1.0, 2.0, -3.0),)}, r"anchors\[0\]"),
+            ({"holes": ((1.0, 2.0, 0.0),)}, r"holes\[0\]"),
         ],
     )
     def test_exceptions(self, kwargs, name):
         args = {"amplitude": 1.0, "coverage": 0.3, "rho": 0.9, "edge": 1.0} | kwargs
         with pytest.raises(ValueError, match=f"`{name}`"):
             CloudSpec(**args)
+
+    def test_holes_clear_the_sky(self):
+        # bright, wide clouds with a clear disc of radius 8 at (30, 20): nothing inside it in any
+        # frame (the disc drifts with the clouds: 0.1 px/frame here), clouds elsewhere
+        spec = CloudSpec(20.0, 0.7, 0.95, 0.25, drift=(0.1, 0.0), holes=((30.0, 20.0, 8.0),))
+        seq = simulate_ir((5, 40, 60), clouds=spec, jitter=0.0, batch=3, seed=1)
+        ys = torch.arange(40.0)[:, None]
+        xs = torch.arange(60.0)[None, :]
+        for t in range(5):
+            inside = (xs - 30.0 - 0.1 * t) ** 2 + (ys - 20.0) ** 2 < 7.0**2
+            assert float(seq.clouds[:, t][:, inside].abs().max()) == 0.0
+        assert float(seq.clouds.amax()) == pytest.approx(20.0)
+        # without the hole the same seed has clouds in that disc
+        plain = simulate_ir(
+            (5, 40, 60), clouds=replace(spec, holes=()), jitter=0.0, batch=3, seed=1
+        )
+        inside = (xs - 30.0) ** 2 + (ys - 20.0) ** 2 < 7.0**2
+        assert float(plain.clouds[:, 0][:, inside].max()) > 0.0
+        assert torch.allclose(
+            plain.target_free - plain.clouds, seq.target_free - seq.clouds, atol=1e-4
+        )
 
 
 class TestMarkovField:
@@ -151,6 +174,28 @@ class TestMarkovField:
 
 
 class TestSimulateIR:
+    def test_fluctuation(self):
+        # a point target (tiny PSF) on a pixel centre: its pixel holds noise + A min(1, m E)
+        target = IRTarget(5.0, 6.0, 0.0, 0.0, snr_db=20.0, sigma=0.05)
+        args = ((400, 12, 12), [target])
+        kw = {"clouds": "clear", "jitter": 0.0, "batch": 2, "seed": 4}
+        flat = simulate_ir(*args, **kw)
+        seq = simulate_ir(*args, fluctuation=0.4, **kw)
+        # drawn last: the scene without the target is the same, the positions too
+        assert torch.equal(seq.target_free, flat.target_free)
+        assert torch.equal(seq.positions, flat.positions)
+        peak = (seq.frames - seq.target_free)[:, :, 6, 5] / target.amplitude()  # (B, T)
+        assert float(peak.max()) == pytest.approx(1.0)  # clipped at the (maximal) peak
+        assert float(peak.min()) >= 0.0
+        # E[min(1, m E)] = m (1 - exp(-1 / m)) for E ~ Exp(1)
+        assert float(peak.mean()) == pytest.approx(0.4 * (1 - math.exp(-2.5)), abs=0.03)
+        assert float((peak == 1.0).double().mean()) == pytest.approx(math.exp(-2.5), abs=0.02)
+        # the two sequences of the batch fluctuate independently
+        assert not torch.equal(peak[0], peak[1])
+        for bad in (0.0, 1.5, -1.0):
+            with pytest.raises(ValueError, match="`fluctuation`"):
+                simulate_ir((2, 8, 8), [target], fluctuation=bad)
+
     def test_smoke(self):
         seq = simulate_ir((4, 12, 10), [IRTarget(3.0, 4.0, 0.5, 0.5, 10.0)], seed=0)
         assert isinstance(seq, IRSequence)
@@ -399,6 +444,18 @@ class TestNa23aLike:
             na23a_like(shape=(64, 64))
         with pytest.raises(ValueError, match="`clouds`"):
             na23a_like(clouds="dark")
+
+
+class TestPresetFluctuation:
+    def test_passed_through(self):
+        for make in (na23a_like, npa_like):
+            plain = make(seed=2, shape=(6, 40, 60))
+            seq = make(seed=2, shape=(6, 40, 60), fluctuation=0.3)
+            assert torch.equal(seq.target_free, plain.target_free)
+            assert not torch.equal(seq.frames, plain.frames)
+            # the target signal only shrinks (factor <= 1)
+            signal, full = seq.frames - seq.target_free, plain.frames - plain.target_free
+            assert bool((signal <= full + 1e-4).all())
 
 
 class TestNpaLike:

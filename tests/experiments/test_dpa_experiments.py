@@ -133,6 +133,18 @@ class TestPaperValues:
         assert p.PAPER_EQ15 == {"directions 1-8": (1.118, 0.131), "direction 9": (1.035, 0.214)}
         assert p.PAPER_PEAK == {"NA23A": 60.0, "NPA": 30.0}
 
+    def test_variant_scene(self):
+        from hocnet.data.infrared import na23a_like
+
+        p = paper()
+        assert p.paper_name(p.FLUCT) == "NA23A" and p.paper_name("NPA") == "NPA"
+        got = p.scene(p.FLUCT, [3], shape=(4, 30, 40))
+        want = na23a_like(seed=3, shape=(4, 30, 40), fluctuation=p.FLUCTUATION)
+        assert torch.equal(got.frames[0], want.frames)
+        plain = p.scene("NA23A", [3], shape=(4, 30, 40))
+        assert torch.equal(got.target_free, plain.target_free)  # same scene, fluctuating target
+        assert not torch.equal(got.frames, plain.frames)
+
     def test_helpers(self):
         p = paper()
         assert p.ends_of("0.2-0.4, 0.8") == (0.2, 0.8)
@@ -170,12 +182,18 @@ class TestBSweep:
         variants = {r["variant"] for r in rows}
         assert {"paper DPA", "equal gain"} <= variants
         # per scene and seed: every variant at the b values of the quick grid within the memory
-        # range of eq. (12)-(14): b = 8 (g = 0, b_max 7.99) and b = 1.2 (g = 1, b_max 1) skipped
-        assert len(rows) == 2 * len(variants) * 4 * 2
+        # range of eq. (12)-(14): b = 8 (g = 0, b_max 7.99) and b = 1.2 (g = 1, b_max 1) skipped;
+        # the fluctuating NA23A variant is run with the paper DPA only; at g = 1 every paper DPA
+        # row is also written as the equal-gain row it equals (copied_from)
+        assert len(rows) == (2 * len(variants) * 4 + 4 + 2) * 2
+        assert {r["scene"] for r in rows} == {"NA23A", "NPA", "NA23A fluct."}
+        fluct = [r for r in rows if r["scene"] == "NA23A fluct."]
+        assert {r["variant"] for r in fluct if not r.get("copied_from")} == {"paper DPA"}
         assert {float(r["b"]) for r in rows} == {0.0, 4.8, 0.8}
         text = md.read_text()
         assert "b = 8 at g = 0, b = 1.2 at g = 1: outside the memory range of eq. (12)-(14)" in text
-        assert text.count("| outside the memory range of eq. (12)-(14) |") == 2 * 2 * 2
+        assert text.count("| outside the memory range of eq. (12)-(14) |") == 2 * 2 * 2 + 2
+        assert "same, on the paper's 0.2 grid" in text and "Why the ranges differ" in text
         assert {r["tracked"] for r in rows} <= {"0", "1"}
         assert all(math.isfinite(float(r["a_s"])) for r in rows)
         # b = 0 switches the accumulation off: A_S is the single frame's for every variant
@@ -210,7 +228,34 @@ class TestBSweep:
         module = load("dpa-b-sweep")
         rows = check_outputs("dpa-b-sweep", module.run(out_dir=tmp_path), tmp_path)
         variants = {r["variant"] for r in rows}
-        assert len(rows) == 2 * len(variants) * (40 + 21) * module.SEEDS  # b = 8 is skipped
+        # b = 8 is skipped; the fluctuating variant with the paper DPA only (+ its g = 1 copies)
+        assert len(rows) == (2 * len(variants) * (40 + 21) + 40 + 2 * 21) * module.SEEDS
+
+    def test_b_zero_is_the_same_dpa_for_every_g(self):
+        # eq. (2) at b = 0 is ASF = WF whatever g, and eq. (7)-(8) involve neither g nor b: the
+        # ASF and the back-tracked track are the same for g = 0 and g = 1, so tracking at b = 0
+        # cannot differ between them (Table 2's NPA: g = 1 from 0, g = 0 from 2).
+        from hocnet.dpa import accumulate, backtrack
+
+        module = load("dpa-b-sweep")
+        frames, truth = module.sampled("NPA", [6000, 6001], (6, 45, 60))
+        w = paper().weights()
+        states = [accumulate(frames, w, 0.0, g) for g in (0.0, 1.0)]
+        torch.testing.assert_close(states[0].asf, states[1].asf, rtol=0, atol=0)
+        starts = [paper().nine_block_start(st.asf, truth, 15) for st in states]
+        torch.testing.assert_close(starts[0], starts[1])
+        tracks = [backtrack(st, s) for st, s in zip(states, starts, strict=True)]
+        torch.testing.assert_close(tracks[0], tracks[1])
+        # and with memory they differ
+        other = [accumulate(frames, w, 0.5, g).asf for g in (0.0, 1.0)]
+        assert not torch.equal(other[0], other[1])
+
+    def test_scene_variants(self):
+        module = load("dpa-b-sweep")
+        table = module.variants()
+        assert module.scene_variants("NA23A", table) == list(table)
+        assert module.scene_variants(paper().FLUCT, table) == ["paper DPA"]
+        assert module.scene_label(paper().FLUCT) == "NA23A-like, fluctuating peak"
 
 
 class TestSampling:
@@ -218,12 +263,12 @@ class TestSampling:
         module = load("dpa-sampling")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
         rows = check_outputs("dpa-sampling", md, tmp_path)
-        # 2 scenes x s_n 1, 4 x g 0, 1 x b paper / EMC x 2 seeds
-        assert len(rows) == 2 * 2 * 2 * 2 * 2
+        # 3 scenes (NA23A, NPA, fluctuating NA23A) x s_n 1, 4 x g 0, 1 x b paper / EMC x 2 seeds
+        assert len(rows) == 3 * 2 * 2 * 2 * 2
         assert {r["s_n"] for r in rows} == {"1", "4"}
         assert {r["b_choice"] for r in rows} == {"paper", "EMC"}
         for r in rows:
-            speed = 0.3 if r["scene"] == "NA23A" else 0.2
+            speed = 0.2 if r["scene"] == "NPA" else 0.3
             assert float(r["v_eff"]) == pytest.approx(int(r["s_n"]) * speed)
             # the centred reading cannot grow with Max_Numbers
             values = [float(r[f"a_s_centred_mn{m}"]) for m in range(1, 8)]
@@ -234,12 +279,22 @@ class TestSampling:
         text = md.read_text()
         for value in ("0.6 ± 0.15", "0.8 ± 0.1", "1-5", "3-5", "Max_Numbers"):
             assert value in text
+        # the Max_Numbers peak is read at the paper's s_n per sequence (quick grid: 1, 4)
+        assert module._ref_sn("NA23A", (1, 2, 3, 4, 5)) == 4
+        assert module._ref_sn("NPA", (1, 2, 3, 4, 5)) == 3
+        assert module._ref_sn(paper().FLUCT, (1, 2, 3, 4, 5)) == 4
+        assert module._ref_sn("NPA", (1, 4)) == 4
 
     def test_geometry_follows_the_paper(self):
         module = load("dpa-sampling")
         assert module.geometry("NA23A", 1, False) == ((90, 90), (30, 30))
         assert module.geometry("NA23A", 4, False) == ((90, 240), (30, 80))
         assert module.geometry("NPA", 5, False)[1] == (80, 30)
+        assert module.geometry(paper().FLUCT, 4, False) == ((90, 240), (30, 80))
+        # the long blocks as soon as the target would leave a 30 x 30 target block
+        assert module.geometry("NA23A", 3, False) == ((90, 240), (30, 80))  # 21.6 px of travel
+        assert module.geometry("NPA", 3, False)[1] == (30, 30)  # 14.4 px
+        assert module.geometry("NPA", 4, False)[1] == (80, 30)  # 19.2 px
 
     def test_sampled_scene_keeps_every_step(self):
         module = load("dpa-sampling")
@@ -253,7 +308,7 @@ class TestSampling:
     def test_full(self, tmp_path):
         module = load("dpa-sampling")
         rows = check_outputs("dpa-sampling", module.run(out_dir=tmp_path), tmp_path)
-        assert len(rows) == 2 * 5 * 2 * 2 * 20
+        assert len(rows) == 3 * 5 * 2 * 2 * 20
 
 
 class TestPdSnr:
@@ -282,6 +337,23 @@ class TestPdSnr:
         assert len(speed) == len(module.QUICK_SPEEDS) * (len(methods) - 1) * 2
         assert all(0.0 <= float(r["on_truth"]) <= 1.0 for r in speed)
         assert "n/a: [NR08] reports no Pd" in md.read_text()
+
+    def test_frames_snr_discriminates(self):
+        module = load("dpa-pd-snr")
+        kind, n = module.SCENE, 5
+        ones, late, never = torch.ones(n), torch.tensor([0, 0, 0.95, 1, 1.0]), torch.zeros(n)
+        curves = {  # SNR -> (method a, method b)
+            4.0: (never, never),  # nobody reaches 0.9: says nothing
+            8.0: (late, never),  # a reaches it at frame 3, b never: discriminates
+            12.0: (ones, late),
+            30.0: (ones, ones),  # both from the first frame: says nothing
+        }
+        results = {
+            (kind, m, snr): {"curve": c[i]} for snr, c in curves.items() for i, m in enumerate("ab")
+        }
+        assert module.frames_snr(results, kind, ["a", "b"], [4.0, 8.0, 12.0, 30.0], n) == 8.0
+        assert module.frames_snr(results, kind, ["a", "b"], [12.0, 30.0], n) == 12.0
+        assert module.frames_snr(results, kind, ["a", "b"], [4.0, 30.0], n) == 30.0  # none: top
 
     def test_scaled_scenes_equal_simulation(self):
         module = load("dpa-pd-snr")
