@@ -103,6 +103,7 @@ try:
     from stonesoup.types.array import CovarianceMatrix, StateVector, StateVectors
     from stonesoup.types.detection import Detection, MissedDetection
     from stonesoup.types.hypothesis import SingleHypothesis, SingleProbabilityHypothesis
+    from stonesoup.types.mixture import GaussianMixture
     from stonesoup.types.multihypothesis import MultipleHypothesis
     from stonesoup.types.numeric import Probability
     from stonesoup.types.prediction import GaussianMeasurementPrediction, Prediction
@@ -413,7 +414,6 @@ class IMMState(GaussianState):
 
     def to_mixture(self) -> Any:
         """The modes as a Stone Soup ``GaussianMixture`` (weights = mode probabilities)."""
-        from stonesoup.types.mixture import GaussianMixture
         from stonesoup.types.state import WeightedGaussianState
 
         return GaussianMixture(
@@ -450,6 +450,16 @@ def _as_imm(state: Any, mu0: np.ndarray | None) -> IMMState:
         state = state.state
     if isinstance(state, IMMState) and state.mode_probabilities is not None:
         return state
+    if isinstance(state, GaussianMixture):
+        # one component per mode, weights = mode probabilities (the form of to_mixture)
+        if len(state) == 0:
+            raise ValueError("`prior`: expected a GaussianMixture with one component per mode")
+        w = np.array([float(c.weight) for c in state.components])
+        if not np.all(np.isfinite(w)) or w.sum() <= 0 or (w < 0).any():
+            raise ValueError(f"`prior`: expected non-negative mixture weights, got {w.tolist()}")
+        x = np.stack([np.asarray(c.state_vector, float).ravel() for c in state.components])
+        P = np.stack([np.asarray(c.covar, float) for c in state.components])
+        return IMMState.from_modes(w / w.sum(), x, P, timestamp=state.timestamp)
     if not isinstance(state, GaussianState):
         raise TypeError(
             f"`prior`: expected an IMMState or a GaussianState, got {type(state).__name__}"
@@ -473,8 +483,9 @@ def _as_imm(state: Any, mu0: np.ndarray | None) -> IMMState:
 class IMMPredictor(Predictor):
     """IMM prediction (mixing 24.33-24.35, mode-matched Kalman prediction), a Stone Soup predictor.
 
-    ``predict(prior, timestamp)`` takes an :class:`IMMState` (or a plain ``GaussianState`` /
-    ``Track``; a Gaussian prior starts every mode at it with ``initial_mode_probabilities``) and
+    ``predict(prior, timestamp)`` takes an :class:`IMMState` (or a ``Track`` of them; a
+    ``GaussianMixture`` with one component per mode, weights = mode probabilities; or a plain
+    ``GaussianState``, which starts every mode with ``initial_mode_probabilities``) and
     returns an :class:`IMMStatePrediction`. Mode ``j`` is predicted with
     ``transition_models[j]``: ``F = matrix(time_interval=dt, prior=mixed_j)`` (a linear model;
     otherwise its ``jacobian`` and ``function``), ``Q = covar(time_interval=dt, prior=mixed_j)``.

@@ -231,6 +231,20 @@ class TestIMMAgainstImmStep:
         mix = ours.to_mixture()
         assert len(mix) == 1 and float(mix[0].weight) == pytest.approx(1.0)
 
+    def test_gaussian_mixture_prior_round_trip(self):
+        models = [StopModel(), ConstantVelocity2D(sigma_a=0.5)]
+        predictor = IMMPredictor(transition_models=models, mode_transition=[[0.9, 0.1], [0.2, 0.8]])
+        x = np.array([[0.0, 0.0, 1.0, 0.0], [2.0, 1.0, 0.0, -1.0]])
+        P = np.stack([np.eye(4), 2 * np.eye(4)])
+        st = IMMState.from_modes([0.3, 0.7], x, P, timestamp=T0)
+        mix = st.to_mixture()
+        assert [float(c.weight) for c in mix] == pytest.approx([0.3, 0.7])
+        t1 = T0 + timedelta(seconds=2)
+        a, b = predictor.predict(st, timestamp=t1), predictor.predict(mix, timestamp=t1)
+        _assert_close(a.mode_probabilities, b.mode_probabilities, 1e-14)
+        _assert_close(a.mode_state_vectors, b.mode_state_vectors, 1e-14)
+        _assert_close(a.covar, b.covar, 1e-14)
+
     def test_bad_input(self):
         with pytest.raises(ValueError, match="`mode_transition`"):
             IMMPredictor(transition_models=[StopModel()], mode_transition=[[0.5, 0.5]])
@@ -361,7 +375,11 @@ def _scene(seed, n_scans=30, clutter_rate=3.0):
             paths[i].append(truths[i].copy())
             if rng.random() < 0.9:
                 z = truths[i][[0, 2]] + rng.normal(size=2) * 5.0
-                dets.add(Detection(z.reshape(-1, 1), timestamp=t, measurement_model=model))
+                dets.add(
+                    Detection(
+                        z.reshape(-1, 1), timestamp=t, measurement_model=model, metadata={"id": i}
+                    )
+                )
         for _ in range(rng.poisson(clutter_rate)):
             c = np.array([rng.uniform(-100, 450), rng.uniform(-200, 300)])
             dets.add(Clutter(c.reshape(-1, 1), timestamp=t, measurement_model=model))
@@ -411,9 +429,63 @@ class TestMultiTargetTracker:
             assert min(err) < 15.0, (seed, err)
         # one track per target, no confirmed false track alive at the end
         assert len(tracks) == 2, (seed, len(tracks))
+        ids = []
         for tr in tracks:
             assert all(isinstance(s, IMMState) for s in tr.states)
             assert track_score(tr, fa, fa / 10) > initiator.upper
+            # track purity: the detections of a track come from one target (clutter has no id)
+            src = [
+                s.hypothesis.measurement.metadata.get("id")
+                for s in tr.states
+                if hasattr(s, "hypothesis")
+            ]
+            best = max(set(src), key=src.count)
+            assert best is not None and src.count(best) >= 0.9 * len(src), (seed, src)
+            assert len(src) >= 20  # confirmed early and kept updated
+            ids.append(best)
+        assert sorted(ids) == [0, 1]
+
+
+def test_stonesoup_hypothesiser_initiator_deleter_with_our_imm():
+    """Only our predictor and updater; everything else is Stone Soup's own."""
+    from stonesoup.deleter.error import CovarianceBasedDeleter
+    from stonesoup.hypothesiser.distance import DistanceHypothesiser
+    from stonesoup.initiator.simple import MultiMeasurementInitiator
+    from stonesoup.measures import Mahalanobis
+
+    scans, paths, model = _scene(4, clutter_rate=1.0)
+    predictor = IMMPredictor(
+        transition_models=[ConstantVelocity2D(sigma_a=0.1), ConstantVelocity2D(sigma_a=2.0)],
+        mode_transition=[[0.9, 0.1], [0.1, 0.9]],
+        initial_mode_probabilities=[0.5, 0.5],
+    )
+    updater = IMMUpdater(measurement_model=model)
+    hyp = DistanceHypothesiser(predictor, updater, Mahalanobis(), missed_distance=4.0)
+    assoc = GNNWith2DAssignment(hyp)
+    deleter = CovarianceBasedDeleter(covar_trace_thresh=2000.0)
+    prior = GaussianState([[0.0], [0.0], [0.0], [0.0]], np.diag([0.0, 100.0, 0.0, 100.0]))
+    initiator = MultiMeasurementInitiator(
+        prior_state=prior,
+        measurement_model=model,
+        deleter=deleter,
+        data_associator=assoc,
+        updater=updater,
+        min_points=3,
+    )
+    tracker = MultiTargetTracker(
+        initiator=initiator,
+        deleter=deleter,
+        detector=scans,
+        data_associator=assoc,
+        updater=updater,
+    )
+    tracks = set()
+    for _, current in tracker:
+        tracks = current
+    est = [np.asarray(tr.state_vector, float).ravel() for tr in tracks]
+    for truth in paths[:, -1]:
+        assert min(np.hypot(*(e[[0, 2]] - truth[[0, 2]])) for e in est) < 15.0
+    assert any(isinstance(s, IMMStateUpdate) for tr in tracks for s in tr.states)
 
 
 class TestTrackScore:
