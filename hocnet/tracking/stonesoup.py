@@ -597,6 +597,11 @@ class IMMUpdater(Updater):
         stop_mode: index of M0 among the modes (with ``pd``), or ``None``.
         project: project road modes on their segments.
         use_joseph_cov: Joseph-form covariance update (the default, as ``imm_step``).
+        detection_probability: optional per-mode ``PD_i`` from the predicted modes, a callable
+            ``(x (r, n), P (r, n, n)) -> (r,)``, e.g.
+            :meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability` (the MDV
+            clutter notch; our reading, as ``use_mdv`` of :mod:`hocnet.tracking.vsimm`), floored
+            at 1e-12; it replaces ``pd`` in 24.30.
     """
 
     measurement_model: MeasurementModel = Property(default=None, doc="Measurement model.")
@@ -604,11 +609,42 @@ class IMMUpdater(Updater):
     stop_mode: int = Property(default=None, doc="Index of the stop model M0, or None.")
     project: bool = Property(default=False, doc="Project road modes on their segments.")
     use_joseph_cov: bool = Property(default=True, doc="Joseph-form covariance update.")
+    detection_probability: Any = Property(
+        default=None,
+        doc="Per-mode PD: callable (x (r, n), P (r, n, n)) -> (r,); overrides pd.",
+    )
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if self.pd is not None:
             check_number("pd", self.pd, low=0.0, high=1.0, low_inclusive=False)
+
+    @property
+    def has_pd(self) -> bool:
+        """Whether missed detections can be scored (``pd`` or ``detection_probability`` set)."""
+        return self.pd is not None or self.detection_probability is not None
+
+    def _mode_log_likelihoods(
+        self, ll: torch.Tensor, detected: bool, x: torch.Tensor, P: torch.Tensor
+    ) -> torch.Tensor:
+        """``log Lambda_i`` ``(1, r)``: 24.29 (no PD), or 24.30-24.31 (scalar or per-mode PD)."""
+        det = torch.full((1,), detected, dtype=torch.bool)
+        if self.detection_probability is None:
+            if self.pd is None:
+                return ll
+            return pd_mode_log_likelihoods(ll, det, self.pd, stop_mode=self.stop_mode)
+        pd = torch.as_tensor(self.detection_probability(x, P), dtype=DTYPE).reshape(1, -1)
+        if pd.shape != ll.shape:
+            raise ValueError(
+                f"`detection_probability`: expected {ll.shape[-1]} mode values, got {pd.shape[-1]}"
+            )
+        pd = pd.clamp(1e-12, 1.0)
+        moving = torch.log(pd) + ll if detected else torch.log1p(-pd)
+        if self.stop_mode is None:
+            return moving
+        stop = torch.full_like(ll, -torch.inf if detected else 0.0)
+        is_stop = torch.arange(ll.shape[-1]) == self.stop_mode
+        return torch.where(is_stop, stop, moving)
 
     def _linearise(
         self, pred: IMMState, model: Any, measurement: Any | None
@@ -692,15 +728,12 @@ class IMMUpdater(Updater):
         P_pred = _torch(pred.mode_covars)[None]
         r = pred.num_modes
         if not hypothesis:
-            if self.pd is None:
+            if self.pd is None and self.detection_probability is None:
                 raise ValueError(
                     "`pd`: expected a detection probability to process a missed detection, got None"
                 )
-            mode_ll = pd_mode_log_likelihoods(
-                torch.zeros(1, r, dtype=DTYPE),
-                torch.zeros(1, dtype=torch.bool),
-                self.pd,
-                stop_mode=self.stop_mode,
+            mode_ll = self._mode_log_likelihoods(
+                torch.zeros(1, r, dtype=DTYPE), False, x_pred[0], P_pred[0]
             )
             return self._result(pred, cbar, mode_ll, x_pred, P_pred, None, hypothesis)
         measurement = hypothesis.measurement
@@ -709,12 +742,7 @@ class IMMUpdater(Updater):
         x_upd, P_upd, ll = ekf_update(
             x_pred, P_pred, nu[None], torch.zeros_like(nu)[None], H, R, joseph=self.use_joseph_cov
         )
-        if self.pd is None:
-            mode_ll = ll
-        else:
-            mode_ll = pd_mode_log_likelihoods(
-                ll, torch.ones(1, dtype=torch.bool), self.pd, stop_mode=self.stop_mode
-            )
+        mode_ll = self._mode_log_likelihoods(ll, True, x_pred[0], P_pred[0])
         return self._result(pred, cbar, mode_ll, x_upd, P_upd, measurement, hypothesis)
 
     def _result(
@@ -935,7 +963,7 @@ class IMMHypothesiser(Hypothesiser):
         super().__init__(*args, **kwargs)
         check_number("false_alarm_density", self.false_alarm_density, low=0.0, low_inclusive=False)
         check_number("gate_threshold", self.gate_threshold, low=0.0, low_inclusive=False)
-        if self.updater.pd is None:
+        if not self.updater.has_pd:
             raise ValueError("`updater`: expected an IMMUpdater with a detection probability pd")
 
     def hypothesise(

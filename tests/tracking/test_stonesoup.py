@@ -206,6 +206,68 @@ class TestIMMAgainstImmStep:
         for j in range(2):  # on the road: y = 0 and vy = 0 for both modes (stop: pinv)
             _assert_close(D.numpy() @ b.mode_state_vectors[j], L, 1e-9)
 
+    @pytest.mark.parametrize("sensor_name", ["gmti", "video"])
+    def test_equals_vsimm_on_one_road_section(self, sensor_name):
+        """Road models on a network + projection + MDV-aware PD == vsimm_predict / vsimm_update."""
+        from hocnet.tracking.sensors import VideoSensor
+        from hocnet.tracking.vsimm import VSIMMConfig, vsimm_init, vsimm_predict, vsimm_update
+
+        net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], [1000.0, 800.0]]])
+        cfg = VSIMMConfig()  # stop, M1 (0.05, 0.05), M2 (0.8, 0.4), relaxed, MDV-aware PD
+        if sensor_name == "gmti":
+            sensor = GMTISensor((-5000.0, -6000.0, 4000.0), 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        else:
+            sensor = VideoSensor(10.0, pd=0.9)
+        models = [
+            StopModel(network=net),
+            RoadConstrainedCV(network=net, sigma_along=0.05, sigma_across=0.05),
+            RoadConstrainedCV(network=net, sigma_along=0.8, sigma_across=0.4),
+        ]
+        predictor = IMMPredictor(transition_models=models, mode_transition=cfg.trans)
+        pd_fn = getattr(sensor, "expected_detection_probability", None)
+        updater = IMMUpdater(
+            pd=0.9,
+            stop_mode=0,
+            project=True,
+            detection_probability=pd_fn if sensor_name == "gmti" else None,
+        )
+        ref = vsimm_init(net, torch.tensor([[700.0, 9.0, 5.0, 0.0]]), 100 * torch.eye(4), cfg)
+        state = IMMState.from_modes(ref.mu[0], ref.x[0], ref.P[0], timestamp=T0)
+        rng = np.random.default_rng(7)
+        truth = np.array([700.0, 10.0, 0.0, 0.0])
+        for k, det in enumerate([True, True, False, True, True, False, True], start=1):
+            truth = truth + 10.0 * np.array([truth[1], 0, truth[3], 0])
+            if truth[0] > 1000.0:  # round the bend onto the second segment
+                truth = np.array([1000.0, 0.0, truth[0] - 1000.0, 10.0])
+            z = sensor.measure(torch.tensor(truth)) + torch.tensor(
+                rng.normal(size=sensor.dim) * [5.0, 5.0, 0.5][: sensor.dim]
+            )
+            pred_ref = vsimm_predict(ref, net, cfg, 10.0 * k)
+            ref, _ = vsimm_update(
+                ref, pred_ref, z[None], sensor, net, cfg, detected=torch.tensor([det])
+            )
+            t = T0 + timedelta(seconds=10 * k)
+            pred = predictor.predict(state, timestamp=t)
+            _assert_close(pred.mode_state_vectors, pred_ref.x[0], 1e-9)
+            _assert_close(pred.mode_covars, pred_ref.P[0], 1e-9)
+            if det:
+                if sensor_name == "gmti":
+                    mm = GMTIMeasurementModel(
+                        sensor_position=sensor.position,
+                        noise_covar=sensor.covariance(z).numpy(),
+                        reference=z[:2].tolist(),
+                    )
+                else:
+                    mm = LinearGaussian(4, (0, 2), sensor.covariance(z).numpy())
+                meas = Detection(z.numpy().reshape(-1, 1), timestamp=t, measurement_model=mm)
+            else:
+                meas = MissedDetection(timestamp=t)
+            state = updater.update(SingleHypothesis(pred, meas))
+            _assert_close(state.mode_probabilities, ref.mu[0], 1e-9)
+            _assert_close(state.mode_state_vectors, ref.x[0], 1e-9)
+            _assert_close(state.mode_covars, ref.P[0], 1e-9)
+        assert truth[2] > 0  # the scene did go round the bend
+
     def test_network_segment_follows_the_prediction(self):
         net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
         m = RoadConstrainedCV(network=net, relax=False)
