@@ -1003,8 +1003,11 @@ class IMMHypothesiser(Hypothesiser):
         return MultipleHypothesis(hyps)
 
 
-def _score_increments(track: Any, false_alarm_density: float) -> list[float]:
+def _score_increments(
+    track: Any, false_alarm_density: float, missed_pd: float | None
+) -> list[float]:
     log_fa = math.log(false_alarm_density)
+    log_miss = None if missed_pd is None else math.log1p(-missed_pd)
     out = []
     for state in list(track.states)[1:]:
         ll = getattr(state, "log_likelihood", None)
@@ -1013,7 +1016,7 @@ def _score_increments(track: Any, false_alarm_density: float) -> list[float]:
         elif isinstance(state, Update):
             out.append(ll - log_fa)
         else:
-            out.append(ll)
+            out.append(ll if log_miss is None else log_miss)
     return out
 
 
@@ -1030,6 +1033,7 @@ def track_score(
     new_target_density: float,
     *,
     initial_score: str = "log_odds",
+    missed_pd: float | None = None,
     history: bool = False,
 ) -> float | list[float]:
     """LLR track score of a Stone Soup track of IMM states, [PD] eq. 24.41-24.43 (our reading).
@@ -1037,13 +1041,18 @@ def track_score(
     ``L(0)`` (24.43; ``"log_odds"``: ``ln(lambda_nt / lambda_fa)``, ``"printed"``:
     ``ln(lambda_fa / (lambda_fa + lambda_nt))``) for the first state, then per later state
     ``Delta L = ln Lambda - ln lambda_fa`` for an update (24.42) and ``ln Lambda_miss`` for a
-    missed-detection state (24.30-24.32); states without ``log_likelihood`` add 0.
+    missed-detection state (24.30-24.32); states without ``log_likelihood`` add 0. With the stop
+    model, ``Lambda_miss -> 1`` as the stop mode takes over, so misses stop lowering the score
+    (a track born on a false alarm then lingers just above the deletion bound; measured in the
+    tests); ``missed_pd`` scores every miss ``ln(1 - PD)`` instead (Blackman and Popoli's
+    single-model increment; our option).
 
     Args:
         track: Stone Soup ``Track`` (states from :class:`IMMUpdater` / :class:`IMMHypothesiser`).
         false_alarm_density: ``lambda_fa > 0``.
         new_target_density: ``lambda_nt > 0``.
         initial_score: ``"log_odds"`` (default) or ``"printed"``.
+        missed_pd: ``PD`` for the ``ln(1 - PD)`` miss increment, or ``None`` (``ln Lambda_miss``).
         history: return the score after every state instead of the last one.
 
     Examples:
@@ -1054,8 +1063,10 @@ def track_score(
     """
     fa = check_number("false_alarm_density", false_alarm_density, low=0.0, low_inclusive=False)
     nt = check_number("new_target_density", new_target_density, low=0.0, low_inclusive=False)
+    if missed_pd is not None:
+        check_number("missed_pd", missed_pd, low=0.0, high=1.0, high_inclusive=False)
     scores = [_initial_score(fa, nt, initial_score)]
-    for d in _score_increments(track, fa):
+    for d in _score_increments(track, fa, missed_pd):
         scores.append(scores[-1] + d)
     return scores if history else scores[-1]
 
@@ -1125,7 +1136,7 @@ class SPRTInitiator(Initiator):
         updater: :class:`IMMUpdater`.
         false_alarm_density, new_target_density: ``lambda_fa``, ``lambda_nt``.
         alpha: probability of confirming a false track; beta: of dropping a true one.
-        initial_score: see :func:`track_score`.
+        initial_score, missed_pd: see :func:`track_score`.
     """
 
     initiator: Initiator = Property(doc="One-point initiator (e.g. IMMInitiator).")
@@ -1136,6 +1147,7 @@ class SPRTInitiator(Initiator):
     alpha: float = Property(default=0.01, doc="P(confirm a false track).")
     beta: float = Property(default=0.01, doc="P(drop a true track).")
     initial_score: str = Property(default="log_odds", doc="'log_odds' or 'printed'.")
+    missed_pd: float = Property(default=None, doc="Score misses ln(1 - PD) (see track_score).")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -1149,6 +1161,7 @@ class SPRTInitiator(Initiator):
             self.false_alarm_density,
             self.new_target_density,
             initial_score=self.initial_score,
+            missed_pd=self.missed_pd,
         )
 
     def initiate(self, detections: Iterable[Any], timestamp: Any, **kwargs: Any) -> set:
@@ -1180,7 +1193,7 @@ class SPRTDeleter(Deleter):
     Blackman and Popoli 1999 section 6.4).
 
     Args (Stone Soup properties, pass by keyword):
-        false_alarm_density, new_target_density, alpha, beta, initial_score: as
+        false_alarm_density, new_target_density, alpha, beta, initial_score, missed_pd: as
             :class:`SPRTInitiator`.
         drop: allowed fall of the score below its running maximum, or ``None``.
 
@@ -1197,6 +1210,7 @@ class SPRTDeleter(Deleter):
     beta: float = Property(default=0.01, doc="P(drop a true track).")
     drop: float = Property(default=None, doc="Allowed fall below the maximum score.")
     initial_score: str = Property(default="log_odds", doc="'log_odds' or 'printed'.")
+    missed_pd: float = Property(default=None, doc="Score misses ln(1 - PD) (see track_score).")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -1212,6 +1226,7 @@ class SPRTDeleter(Deleter):
             self.false_alarm_density,
             self.new_target_density,
             initial_score=self.initial_score,
+            missed_pd=self.missed_pd,
             history=True,
         )
         if len(scores) == 1:
