@@ -184,11 +184,6 @@ def _seconds(time_interval: Any) -> float:
     return check_number("time_interval", time_interval)
 
 
-def _check_state4(name: str, model: Any) -> None:
-    if getattr(model, "ndim_state", 4) != 4:
-        raise ValueError(f"`{name}`: expected a model of state [x, vx, y, vy] (4 dimensions)")
-
-
 # ------------------------------------------------------------------------------------------
 # Transition models
 # ------------------------------------------------------------------------------------------

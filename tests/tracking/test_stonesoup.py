@@ -610,6 +610,16 @@ class TestTrackScore:
 
 
 def test_hocnet_tracking_does_not_import_stonesoup():
-    code = "import sys, hocnet.tracking; print('stonesoup' in sys.modules)"
+    code = (
+        "import sys, hocnet.tracking\n"
+        "print('stonesoup' in sys.modules)\n"
+        "sys.modules['stonesoup'] = None  # as if it were not installed\n"
+        "try:\n"
+        "    import hocnet.tracking.stonesoup\n"
+        "except ImportError as e:\n"
+        "    print(e)\n"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    lines = out.stdout.strip().splitlines()
+    assert lines[0] == "False"
+    assert "pip install stonesoup" in lines[1]
