@@ -22,8 +22,8 @@ demo: $(STAMP)
 	$(BIN)/hocnet demo --out demo-output
 
 lint: $(STAMP)
-	$(BIN)/ruff check hocnet tests experiments benchmarks
-	$(BIN)/ruff format --check hocnet tests experiments benchmarks
+	$(BIN)/ruff check hocnet tests experiments benchmarks conftest.py
+	$(BIN)/ruff format --check hocnet tests experiments benchmarks conftest.py
 
 test: $(STAMP) lint
 	$(BIN)/python -m pytest -q
