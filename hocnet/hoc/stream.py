@@ -58,7 +58,15 @@ import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
 from hocnet.hoc.functional import density_bound, hoc_layer, support_from_levels
-from hocnet.hoc.identify import MAX_CANDIDATES, HOCResult, Identify, Track, _identify
+from hocnet.hoc.identify import (
+    DEFAULT_DEDUPE,
+    MAX_CANDIDATES,
+    HOCResult,
+    Identify,
+    Track,
+    _dedupe_scans,
+    _identify,
+)
 from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
 from hocnet.hoc.scoring import COMBINE, DEFAULT_COMBINE, DEFAULT_SCORE_SPAN, DEFAULT_THRESHOLD
 
@@ -327,7 +335,7 @@ class StreamingDetector:
         identify: Identify = "paper",
         combine: str = DEFAULT_COMBINE,
         max_candidates: int = MAX_CANDIDATES,
-        dedupe: bool = True,
+        dedupe: bool | int = DEFAULT_DEDUPE,
         score_span: int = DEFAULT_SCORE_SPAN,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
@@ -359,7 +367,7 @@ class StreamingDetector:
             "method": check_choice("identify", identify, ("paper", "greedy", "assignment")),
             "combine": check_choice("combine", combine, COMBINE),
             "max_candidates": check_int("max_candidates", max_candidates, minimum=1),
-            "dedupe": bool(dedupe),
+            "dedupe": _dedupe_scans(dedupe),
             "score_span": check_int("score_span", score_span, minimum=1),
         }
         self._bound = density_bound("modified", self.v, self.delta)
