@@ -45,7 +45,12 @@ CONFIGS = {
     "mhoc + greedy": {"identify": "greedy"},
     "chain + paper": {"support": "chain"},
     "chain + greedy (old default)": {"support": "chain", "identify": "greedy"},
-    "combine=mean, span 1 (earlier default)": {"combine": "mean", "score_span": 1},
+    "combine=mean, span 1, dedupe=1 (earlier default)": {
+        "combine": "mean",
+        "score_span": 1,
+        "dedupe": 1,
+    },
+    "combine=min, span 2, dedupe=1": {"dedupe": 1},
     "combine=min, span 1 (eq. 8-9 as printed)": {"combine": "min", "score_span": 1},
     "combine=min, span 3": {"combine": "min", "score_span": 3},
     "combine=mean, span 2": {"combine": "mean", "score_span": 2},
@@ -298,7 +303,9 @@ def run(
         "section III-B identification, point score `combine='min'` on moves averaged over "
         "`score_span=2` scans (each point scored on the two halves of its five-point sequence, "
         "our reading of 'compared as whole sequences'); `span 1` = eq. (8)-(9) on one-scan moves "
-        "as printed. See `hocnet.hoc.identify`, 'Point score'.",
+        "as printed; near-duplicate tracks differing at up to two scans dropped (`dedupe=2`, "
+        "our addition; every configuration row uses it unless it says `dedupe=1`). See "
+        "`hocnet.hoc.identify`, 'Point score'.",
         "",
         C.config_table(
             CONFIGS, densities, lambda d, c: _select(rows, d, 2, c), PAPER_HOC, PAPER_ID

@@ -57,7 +57,12 @@ CONFIGS = {
     "mhoc + greedy": {"identify": "greedy"},
     "chain + paper": {"support": "chain"},
     "chain + greedy (old default)": {"support": "chain", "identify": "greedy"},
-    "combine=mean, span 1 (earlier default)": {"combine": "mean", "score_span": 1},
+    "combine=mean, span 1, dedupe=1 (earlier default)": {
+        "combine": "mean",
+        "score_span": 1,
+        "dedupe": 1,
+    },
+    "combine=min, span 2, dedupe=1": {"dedupe": 1},
     "combine=min, span 1 (eq. 8-9 as printed)": {"combine": "min", "score_span": 1},
     "combine=min, span 3": {"combine": "min", "score_span": 3},
     "combine=mean, span 2": {"combine": "mean", "score_span": 2},
@@ -376,7 +381,9 @@ def run(
         "two halves of its five-point sequence, our reading of 'compared as whole sequences'); "
         "`span 1` = eq. (8)-(9) on one-scan moves as printed. With one-scan moves, `min` loses "
         "the target points of tracks whose moves alternate (`table3-paper`) but none on "
-        "`table3-int`; see `hocnet.hoc.identify`, 'Point score'.",
+        "`table3-int`. Near-duplicate tracks differing at up to two scans are dropped "
+        "(`dedupe=2`, our addition; every row uses it unless it says `dedupe=1`). See "
+        "`hocnet.hoc.identify`, 'Point score'.",
         "",
         PAPER_NOTES,
         "",
