@@ -56,6 +56,7 @@ __all__ = [
     "paper_shape",
     "simulate_binary",
     "table2_targets",
+    "table3_integer_targets",
     "table3_paper_targets",
     "table3_targets",
 ]
@@ -475,6 +476,7 @@ _SHAPES: dict[str, tuple[int, int, int]] = {
     "fig5": (16, 60, 60),
     "table3-paper": (10, 60, 60),
     "fig5-paper": (16, 520, 520),
+    "table3-int": (10, 60, 60),
 }
 
 
@@ -660,6 +662,100 @@ def table3_paper_targets(
     raise RuntimeError("table3_paper_targets: no placement inside the frame")  # pragma: no cover
 
 
+TABLE3_INTEGER_MOVES = tuple(
+    (a, b)
+    for a in range(-3, 4)
+    for b in range(-3, 4)
+    if 2.0 <= math.hypot(a, b) <= math.sqrt(10) + 1e-9
+)
+"""Velocities of :func:`table3_integer_targets`: integer, 2 - 3.16 px/scan, ``|dx|, |dy| <= 3``."""
+
+
+def table3_integer_targets(
+    generator: torch.Generator | None = None, configuration: str | None = None
+) -> tuple[TargetSpec, ...]:
+    """The Table III configurations of :func:`table3_paper_targets` with integer velocities.
+
+    Our addition: the same three configurations (close, crossing, splitting) but every velocity
+    is one of :data:`TABLE3_INTEGER_MOVES` (``(2, 0), (2, 1), (2, 2), (3, 0), (3, 1)`` and their
+    images under the grid's rotations by multiples of 90 degrees and reflections: directions in
+    steps of 45 degrees plus the knight-like ``(2, 1)`` / ``(3, 1)`` families), so every move of
+    a track is exactly its velocity and no move alternates (the rotations of
+    :func:`table3_paper_targets` are arbitrary, so their integer moves alternate between
+    neighbouring moves). Angles as there where the integer directions allow: crossing tracks at
+    45-90 degrees, splitting tracks 18-40 degrees apart, the third splitting-scene track
+    crossing at 60-120 degrees; a close track runs 3 pixels beside track 1 (starts rounded
+    alike, so the gap is 2-3 pixels); translation by up to +-4 pixels.
+
+    Args:
+        generator: CPU ``torch.Generator`` to draw from (``None``: a fresh unseeded one).
+        configuration: one of :data:`TABLE3_CONFIGURATIONS`, or ``None`` to draw one.
+
+    Returns:
+        Three :class:`TargetSpec` for the ``(10, 60, 60)`` cube, integer velocities, inside the
+        frame.
+
+    Examples:
+        >>> specs = table3_integer_targets(torch.Generator().manual_seed(0), "crossing")
+        >>> all(float(v).is_integer() for s in specs for v in s.velocity)
+        True
+    """
+    gen = _make_generator(None, generator) if generator is not None else torch.Generator()
+    if generator is None:
+        gen.seed()
+
+    def u(a: float, b: float) -> float:
+        return a + (b - a) * float(torch.rand((), generator=gen))
+
+    def pick(ref: tuple[int, int] | None = None, lo: float = 0.0, hi: float = 180.0):
+        ok = [
+            m
+            for m in TABLE3_INTEGER_MOVES
+            if ref is None or lo - 1e-9 <= _angle(ref, m) <= hi + 1e-9
+        ]
+        return ok[int(torch.randint(0, len(ok), (), generator=gen))]
+
+    if configuration is None:
+        configuration = TABLE3_CONFIGURATIONS[int(torch.randint(0, 3, (), generator=gen))]
+    configuration = check_choice("configuration", configuration, TABLE3_CONFIGURATIONS)
+    for _ in range(1000):
+        v1 = pick()
+        n1 = math.hypot(*v1)
+        side = (-v1[1] / n1, v1[0] / n1)  # unit normal of track 1
+        if configuration == "close":
+            local = [((-4.5 * v1[0], -4.5 * v1[1]), v1)]
+            for off in (3.0, -3.0):
+                local.append(((-4.5 * v1[0] + off * side[0], -4.5 * v1[1] + off * side[1]), v1))
+        elif configuration == "crossing":
+            v2 = pick(v1, 45, 90)
+            local = [((-5 * v1[0], -5 * v1[1]), v1), ((-5 * v2[0], -5 * v2[1]), v2)]
+            local.append(((-5 * v1[0] + 3 * side[0], -5 * v1[1] + 3 * side[1]), v1))
+        else:
+            v2 = pick(v1, 18, 40)
+            v3 = pick(v1, 60, 120)
+            x0, y0 = -4.5 * v1[0], -4.5 * v1[1]
+            local = [((x0, y0), v1), ((x0 + side[0], y0 + side[1]), v2)]
+            local.append(((-4.5 * v3[0] + 5 * side[0], -4.5 * v3[1] + 5 * side[1]), v3))
+        dx, dy = u(-4, 4), u(-4, 4)
+        specs = []
+        inside = True
+        for (x, y), (vx, vy) in local:
+            sx, sy = 30 + x + dx, 30 + y + dy
+            for k in (0, 9):
+                px, py = _round(sx + k * vx), _round(sy + k * vy)
+                inside &= 0 <= px < 60 and 0 <= py < 60
+            specs.append(TargetSpec(start=(sx, sy), velocity=(vx, vy)))
+        if inside:
+            return tuple(specs)
+    raise RuntimeError("table3_integer_targets: no placement inside the frame")  # pragma: no cover
+
+
+def _angle(a: tuple[int, int], b: tuple[int, int]) -> float:
+    """Angle between two vectors in degrees, ``[0, 180]``."""
+    d = math.degrees(abs(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])))
+    return d
+
+
 def fig5_paper_targets() -> tuple[TargetSpec, ...]:
     """Targets of the Fig. 5 experiment of [LA98]: six tracks in a large image over 16 scans.
 
@@ -722,14 +818,14 @@ def _stationary_patch(scene: BinaryScene, gen: torch.Generator, density: float) 
     )
 
 
-def _table3_paper_scene(density: float, batch: int | None, gen: torch.Generator) -> BinaryScene:
+def _table3_paper_scene(
+    density: float, batch: int | None, gen: torch.Generator, name: str = "table3-paper"
+) -> BinaryScene:
     """Each batch element gets its own random placement (drawn before its clutter)."""
     scenes = []
     for _ in range(1 if batch is None else check_int("batch", batch, minimum=1)):
-        specs = table3_paper_targets(gen)
-        scenes.append(
-            simulate_binary(_SHAPES["table3-paper"], specs, clutter_density=density, generator=gen)
-        )
+        specs = _PRESETS[name](gen)
+        scenes.append(simulate_binary(_SHAPES[name], specs, clutter_density=density, generator=gen))
     if batch is None:
         return scenes[0]
     return BinaryScene(
@@ -748,6 +844,7 @@ _PRESETS = {
     "fig5": fig5_targets,
     "table3-paper": table3_paper_targets,
     "fig5-paper": fig5_paper_targets,
+    "table3-int": table3_integer_targets,
 }
 
 
@@ -782,7 +879,9 @@ def paper_scene(
             ``"table3-paper"`` (three randomly placed 10-scan tracks,
             :func:`table3_paper_targets`, in ``(10, 60, 60)``; every batch element draws its own
             placement) and ``"fig5-paper"`` (:func:`fig5_paper_targets` in ``(16, 520, 520)``
-            plus stationary clutter in the lower-left quarter), or our harder scenes
+            plus stationary clutter in the lower-left quarter), ``"table3-int"`` (our addition:
+            the same configurations with integer velocities, :func:`table3_integer_targets`),
+            or our harder scenes
             ``"table3"`` (:func:`table3_targets`: four tracks and a split branch in
             ``(10, 60, 60)``) and ``"fig5"`` (:func:`fig5_targets` in ``(16, 60, 60)``).
         density: clutter density in ``[0, 1]`` (fraction of pixels per scan).
@@ -799,8 +898,8 @@ def paper_scene(
         (torch.Size([10, 60, 60]), (1, 2, 3, 4, 5))
     """
     name = check_choice("name", name, tuple(_PRESETS))
-    if name == "table3-paper":
-        return _table3_paper_scene(density, batch, _make_generator(seed, generator))
+    if name in ("table3-paper", "table3-int"):
+        return _table3_paper_scene(density, batch, _make_generator(seed, generator), name)
     if name == "fig5-paper":
         gen = _make_generator(seed, generator)
         scene = simulate_binary(

@@ -58,9 +58,17 @@ import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
 from hocnet.hoc.functional import density_bound, hoc_layer, support_from_levels
-from hocnet.hoc.identify import MAX_CANDIDATES, HOCResult, Identify, Track, _identify
+from hocnet.hoc.identify import (
+    DEFAULT_DEDUPE,
+    MAX_CANDIDATES,
+    HOCResult,
+    Identify,
+    Track,
+    _dedupe_scans,
+    _identify,
+)
 from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
-from hocnet.hoc.scoring import COMBINE, DEFAULT_THRESHOLD
+from hocnet.hoc.scoring import COMBINE, DEFAULT_COMBINE, DEFAULT_SCORE_SPAN, DEFAULT_THRESHOLD
 
 __all__ = ["StreamResult", "StreamingDetector"]
 
@@ -287,6 +295,9 @@ class StreamingDetector:
         max_candidates: cap on candidate tracks per window.
         dedupe: drop near-duplicate tracks (our addition,
             :func:`~hocnet.hoc.identify.identify_tracks`).
+        score_span: scans a track's moves are averaged over when it is scored
+            (:func:`~hocnet.hoc.scoring.track_point_scores`; as in
+            :func:`~hocnet.hoc.identify.detect`).
 
     Raises:
         TypeError: an argument of the wrong type (named in the message).
@@ -322,9 +333,10 @@ class StreamingDetector:
         A2: float = 2.12,
         alpha2: float = 2.0,
         identify: Identify = "paper",
-        combine: str = "mean",
+        combine: str = DEFAULT_COMBINE,
         max_candidates: int = MAX_CANDIDATES,
-        dedupe: bool = True,
+        dedupe: bool | int = DEFAULT_DEDUPE,
+        score_span: int = DEFAULT_SCORE_SPAN,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
@@ -355,7 +367,8 @@ class StreamingDetector:
             "method": check_choice("identify", identify, ("paper", "greedy", "assignment")),
             "combine": check_choice("combine", combine, COMBINE),
             "max_candidates": check_int("max_candidates", max_candidates, minimum=1),
-            "dedupe": bool(dedupe),
+            "dedupe": _dedupe_scans(dedupe),
+            "score_span": check_int("score_span", score_span, minimum=1),
         }
         self._bound = density_bound("modified", self.v, self.delta)
         self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers

@@ -87,7 +87,14 @@ class TestTable3:
         module = load("hoc-table3")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
         rows = check_outputs("hoc-table3", md, tmp_path)
-        assert len(rows) == 2 * (len(module.CONFIGS) + 1)
+        assert len(rows) == len(module.SCENES) * 2 * (len(module.CONFIGS) + 1)
+        assert {r["scene"] for r in rows} == {"table3-paper", "table3-int"}
+        # the default (whole-sequence score) loses no target point on either variant
+        assert all(
+            int(r["id_target_lost"]) == 0
+            for r in rows
+            if r["config"] == "paper" and r["order"] == "2"
+        )
         values = rejection_columns(rows)
         assert values and all(0.0 <= v <= 1.0 for v in values)
         for label in range(1, 4):  # every true track evaluated (>= 5 points)
@@ -98,8 +105,9 @@ class TestTable3:
     def test_full(self, tmp_path):
         module = load("hoc-table3")
         rows = check_outputs("hoc-table3", module.run(out_dir=tmp_path), tmp_path)
-        assert len(rows) == 20 * 3 * 2
-        assert all(int(r["hoc_target_lost"]) == 0 for r in rows)
+        assert len(rows) == len(module.SCENES) * 20 * 3 * (len(module.CONFIGS) + 1)
+        k2 = [r for r in rows if r["order"] == "2" and r["config"] == "paper"]
+        assert all(int(r["hoc_target_lost"]) == 0 and int(r["id_target_lost"]) == 0 for r in k2)
 
 
 class TestFig6:
@@ -132,7 +140,8 @@ class TestFig5:
         module = load("hoc-fig5")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
         rows = check_outputs("hoc-fig5", md, tmp_path)
-        assert len(rows) == 2 * 4  # 2 seeds x windows 1-10, 3-12, 5-14, 7-16
+        assert len(rows) == 2 * 2 * 4  # 2 scenes x 2 seeds x windows 1-10, 3-12, 5-14, 7-16
+        assert [r["scene"] for r in rows[:: 2 * 4]] == ["fig5-paper", "fig5"]
         assert [r["scans"] for r in rows[:4]] == ["1-10", "3-12", "5-14", "7-16"]
         assert all(r["stream_equals_batch"] == "1" for r in rows)
         assert all(int(r["hoc_eligible_lost"]) == 0 for r in rows)
@@ -143,5 +152,5 @@ class TestFig5:
     def test_full(self, tmp_path):
         module = load("hoc-fig5")
         rows = check_outputs("hoc-fig5", module.run(out_dir=tmp_path), tmp_path)
-        assert len(rows) == 20 * 4
+        assert len(rows) == 2 * 20 * 4
         assert all(r["stream_equals_batch"] == "1" for r in rows)

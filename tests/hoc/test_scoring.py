@@ -5,6 +5,7 @@ import torch
 
 from hocnet.hoc import curvature_score, movement_score, point_score
 from hocnet.hoc.reference import turn_reference
+from hocnet.hoc.scoring import track_point_scores
 
 TABLE_I = dict(A1=9, alpha1=0.5)
 TABLE_I_C = dict(A2=2.356, alpha2=1.91)
@@ -102,3 +103,50 @@ class TestPointScore:
     def test_bad_combine(self):
         with pytest.raises(ValueError, match="`combine`"):
             point_score(1, 0, 1, 0, combine="max")
+
+
+class TestTrackPointScores:
+    """``track_point_scores`` against a loop straight from its definition."""
+
+    @staticmethod
+    def _loop(points, span, combine):
+        p = points.tolist()
+        n = len(p)
+        out = []
+        for i in range(1, n - 1):
+            s1, s2 = min(span, i), min(span, n - 1 - i)
+            m1 = [(p[i][k] - p[i - s1][k]) / s1 for k in (1, 2)]  # (y, x)
+            m2 = [(p[i + s2][k] - p[i][k]) / s2 for k in (1, 2)]
+            out.append(float(point_score(m1[1], m1[0], m2[1], m2[0], combine=combine)))
+        return out
+
+    @pytest.mark.parametrize("span", [1, 2, 3])
+    @pytest.mark.parametrize("combine", ["mean", "min"])
+    def test_against_loop(self, span, combine):
+        g = torch.Generator().manual_seed(span)
+        for n in (0, 1, 2, 3, 5, 10):
+            steps = torch.randint(-3, 4, (n, 2), generator=g)
+            yx = torch.cumsum(steps, 0)
+            pts = torch.cat([torch.arange(n)[:, None], yx], dim=1)
+            got = track_point_scores(pts, span=span, combine=combine)
+            assert got.shape == (max(n - 2, 0),)
+            assert got.tolist() == pytest.approx(self._loop(pts, span, combine))
+
+    def test_span_one_is_the_triple_score(self):
+        pts = torch.tensor([[0, 0, 0], [1, 1, 2], [2, 1, 5], [3, 3, 7]])
+        want = [point_score(2, 1, 3, 0, combine="min"), point_score(3, 0, 2, 2, combine="min")]
+        assert track_point_scores(pts, combine="min").tolist() == pytest.approx(want)
+
+    def test_alternating_moves_average_out(self):
+        # velocity (1.5, 2.5): moves alternate (2, 3) / (1, 2): L1 change 2, scored 2.33
+        pts = torch.tensor([[t, (5 * t + 1) // 2, (3 * t + 1) // 2] for t in range(10)])
+        one = track_point_scores(pts, span=1, combine="min")
+        two = track_point_scores(pts, span=2, combine="min")
+        assert float(one.mean()) < 2.5 < float(two.mean())
+        assert two[1:-1].tolist() == pytest.approx([3.0] * 6)
+
+    def test_bad_input(self):
+        with pytest.raises(ValueError, match="`points`"):
+            track_point_scores(torch.zeros(4, 2))
+        with pytest.raises(ValueError, match="`span`"):
+            track_point_scores(torch.zeros(4, 3), span=0)
