@@ -233,3 +233,70 @@ def test_2x2_grid_interrupted_then_resumed_on_the_cli(ray_instance, tmp_path, ca
         want = evaluate_dpa({"b": float(r["b"]), "g": float(r["g"])}, TINY)
         assert float(r["a_s"]) == pytest.approx(want["a_s"], rel=1e-5)
         assert float(r["pd"]) == pytest.approx(want["pd"], abs=1e-5)
+
+
+# --------------------------------------------------------------------------------------------
+# experiments/dpa_b_sweep.py --engine ray
+# --------------------------------------------------------------------------------------------
+
+EXPERIMENTS = Path(__file__).resolve().parents[1] / "experiments"
+
+
+def _b_sweep():
+    name = "_test_sweep_dpa_b_sweep"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, EXPERIMENTS / "dpa_b_sweep.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+B_SWEEP_TINY = {
+    "scenes": ("NA23A",),
+    "grid": {0.0: [0.0, 4.8, 9.0], 1.0: [0.8]},
+    "seeds": [6000, 6001],
+    "shapes": {"NA23A": (4, 45, 60)},
+    "block": {"NA23A": 15},
+}
+
+
+def _b_sweep_evaluate(engine, **ray):
+    m = _b_sweep()
+    t = B_SWEEP_TINY
+    table = m.variants()
+    return m.evaluate(
+        t["scenes"],
+        table,
+        t["grid"],
+        t["seeds"],
+        t["shapes"],
+        t["block"],
+        False,
+        engine=engine,
+        **ray,
+    )
+
+
+def test_b_sweep_ray_job_gives_the_loop_rows():
+    """The function each Ray trial runs gives the loop engine's rows, job by job."""
+    m = _b_sweep()
+    t = B_SWEEP_TINY
+    loop = _b_sweep_evaluate("loop")
+    jobs = m._jobs(t["scenes"], m.variants(), t["grid"])
+    assert 9.0 not in {j["b"] for j in jobs}  # outside the memory range: skipped
+    rows = [r for job in jobs for r in m.ray_job(job, t["seeds"], t["shapes"], t["block"])]
+    assert rows == loop and len(rows) == len(jobs) * 2
+
+
+def test_b_sweep_rejects_an_unknown_engine():
+    with pytest.raises(ValueError, match="`engine`: expected 'loop' or 'ray'"):
+        _b_sweep_evaluate("spark")
+
+
+@pytest.mark.slow
+@needs_ray
+def test_b_sweep_ray_engine_gives_the_loop_rows(ray_instance, tmp_path):
+    loop = _b_sweep_evaluate("loop")
+    ray_rows = _b_sweep_evaluate("ray", ray={"path": tmp_path / "exp"})
+    assert ray_rows == loop
