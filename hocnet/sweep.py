@@ -665,9 +665,11 @@ def run_sweep(
         resume: continue the experiment in ``path`` (``Tuner.restore``): finished trials are
             kept as they are and not rerun, errored trials are restarted from scratch and
             unfinished ones resumed.
-        address: join a running Ray cluster (``ray.init(address=...)``, e.g. ``"auto"`` or
-            ``"ray://host:10001"``); ``None`` starts an embedded local instance when none is
-            running in this process (and shuts it down afterwards).
+        address: join a running Ray cluster (``ray.init(address=...)``: ``"auto"``, the GCS
+            address ``"host:6379"`` or a client address ``"ray://host:10001"``); ``None``
+            starts an embedded local instance when none is running in this process (and shuts
+            it down afterwards). Ray 2.5x clusters may use token authentication: the client
+            then needs the cluster's token (``RAY_AUTH_TOKEN``, see Ray's docs).
         num_cpus: CPUs of an embedded local instance (``None``: all of the machine's).
         cpus_per_trial: CPUs reserved per trial (Ray runs ``num_cpus / cpus_per_trial`` trials
             at a time).
@@ -701,7 +703,7 @@ def run_sweep(
 
         options: dict[str, Any] = {
             "include_dashboard": False,
-            "logging_level": logging.WARNING,
+            "logging_level": logging.ERROR if quiet else logging.WARNING,
             "log_to_driver": not quiet,
         }
         if address is not None:

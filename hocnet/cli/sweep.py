@@ -124,7 +124,11 @@ def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
             quiet=args.quiet,
         )
     except ValueError as err:
+        _forget(out, experiment, stored)
         raise CLIError(str(err)) from None
+    except BaseException:  # e.g. no Ray cluster at --address: leave no half-made sweep behind
+        _forget(out, experiment, stored)
+        raise
     writers = {RESULTS_FILE: lambda path: write_rows_csv(result.rows, path)}
     (csv_path,) = _write_outputs(out, writers)
     _summary(result, csv_path, args.metric)
@@ -135,6 +139,12 @@ def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
         )
         return 1
     return 0
+
+
+def _forget(out: Path, experiment: Path, stored: dict[str, Any] | None) -> None:
+    """Remove the ``sweep.json`` of a new sweep whose Ray experiment never started."""
+    if stored is None and not experiment.exists():
+        (out / SETTINGS_FILE).unlink(missing_ok=True)
 
 
 def _summary(result: Any, csv_path: Path, metric: str) -> None:
