@@ -8,11 +8,12 @@ Two kinds of sweep, both run by :func:`run_sweep` on Ray Tune (``pip install 'ho
   block SNR (eq. 16) and the scene seeds. Each trial reports the algorithm score ``A_S``
   (eq. 16-17, the paper's reading), ``Pd`` at a per-pixel false-alarm probability (thresholds
   from the target-free ASF of the same scenes) and the back-tracking success rate.
-* **Training runs over configs** (:func:`train_trial`): a :class:`~hocnet.learn.DPATuner` or
-  :class:`~hocnet.learn.LearnedHOCSystem` per grid point (``model.*`` / ``data.*`` keys), fitted
-  and tested with Lightning; the trial reports the test metrics.
+* **Training runs over configs** (:func:`hocnet.learn.sweep.train_trial`): a
+  :class:`~hocnet.learn.DPATuner` or :class:`~hocnet.learn.LearnedHOCSystem` per grid point
+  (``model.*`` / ``data.*`` keys), fitted and tested with Lightning; the trial reports the test
+  metrics. It lives in :mod:`hocnet.learn.sweep`, with the other Lightning code.
 
-The module lives at the top of the package, not in :mod:`hocnet.learn`, because a DPA grid needs
+The engine lives at the top of the package, not in :mod:`hocnet.learn`, because a DPA grid needs
 neither Lightning nor torchmetrics: only Ray Tune and the plain DPA. Ray is imported lazily, so
 importing this module never needs it; :func:`require_ray` raises :class:`RayMissingError` (an
 ``ImportError``) with the install command.
@@ -32,7 +33,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,14 +47,11 @@ __all__ = [
     "DPASweepSettings",
     "RayMissingError",
     "SweepResult",
-    "TrainSweepSettings",
     "dpa_param_space",
     "dpa_trial",
     "evaluate_dpa",
     "require_ray",
     "run_sweep",
-    "train_param_space",
-    "train_trial",
     "write_rows_csv",
 ]
 
@@ -458,117 +456,6 @@ def dpa_trial(config: dict[str, Any], settings: DPASweepSettings | Mapping[str, 
 
 
 # --------------------------------------------------------------------------------------------
-# training runs over configs
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TrainSweepSettings:
-    """The fixed part of a training sweep.
-
-    Args:
-        system: ``"dpa"`` (:class:`~hocnet.learn.DPATuner` on
-            :class:`~hocnet.learn.IRSceneDataModule`) or ``"hoc"``
-            (:class:`~hocnet.learn.LearnedHOCSystem` on
-            :class:`~hocnet.learn.BinarySceneDataModule`), as ``hocnet train``.
-        max_epochs: training epochs per trial.
-        fixed: ``"model.NAME"`` / ``"data.NAME"`` -> value, the same in every trial.
-        seed: ``lightning.seed_everything`` seed of every trial.
-        fast_dev_run: one batch of fit and test only (smoke runs).
-
-    Examples:
-        >>> TrainSweepSettings("dpa", max_epochs=1, fixed={"data.n_train": 4}).system
-        'dpa'
-    """
-
-    system: str = "dpa"
-    max_epochs: int = 1
-    fixed: Mapping[str, Any] = field(default_factory=dict)
-    seed: int = 0
-    fast_dev_run: bool = False
-
-    def __post_init__(self) -> None:
-        check_choice("system", self.system, ("dpa", "hoc"))
-        check_int("max_epochs", self.max_epochs, minimum=1)
-        check_int("seed", self.seed, minimum=0)
-        object.__setattr__(self, "fixed", dict(self.fixed))
-        _check_train_keys(self.fixed)
-
-    def to_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (``TrainSweepSettings(**d)`` rebuilds it)."""
-        return {**asdict(self), "fixed": dict(self.fixed)}
-
-
-def _check_train_keys(values: Mapping[str, Any]) -> None:
-    for key in values:
-        if not isinstance(key, str) or key.split(".", 1)[0] not in ("model", "data"):
-            raise ValueError(f"`grid`: expected keys 'model.NAME' or 'data.NAME', got {key!r}")
-
-
-def train_param_space(grid: Mapping[str, Sequence[Any]]) -> dict[str, Any]:
-    """A Ray Tune ``param_space`` for :func:`train_trial` from ``{"model.lr": [...], ...}``.
-
-    Raises:
-        RayMissingError: without Ray Tune.
-        ValueError: a key that is not ``model.NAME`` / ``data.NAME``, or an empty axis.
-    """
-    _check_train_keys(grid)
-    for key, values in grid.items():
-        if len(values) == 0:
-            raise ValueError(f"`{key}`: expected at least one value, got none")
-    _, tune = require_ray()
-    return {key: tune.grid_search(list(values)) for key, values in grid.items()}
-
-
-def train_metrics(config: Mapping[str, Any], settings: TrainSweepSettings) -> dict[str, float]:
-    """Fit and test one training config (Lightning, no checkpoints, no logger); its metrics.
-
-    The system and data module of ``settings.system`` are built from ``settings.fixed``
-    updated by ``config`` (``model.NAME`` -> system argument, ``data.NAME`` -> data module
-    argument), trained for ``settings.max_epochs`` epochs and tested on the held-out scenes.
-
-    Returns:
-        The test metrics (``test/...``), the last validation metrics (``val/...``) and
-        ``seconds``.
-    """
-    import lightning as L
-
-    from hocnet.learn.train import SYSTEMS
-
-    start = time.perf_counter()
-    values = {**settings.fixed, **config}
-    _check_train_keys(values)
-    model = {k[6:]: v for k, v in values.items() if k.startswith("model.")}
-    data = {k[5:]: v for k, v in values.items() if k.startswith("data.")}
-    system_cls, data_cls = SYSTEMS[settings.system]
-    L.seed_everything(settings.seed, verbose=False)
-    system, module = system_cls(**model), data_cls(**data)
-    trainer = L.Trainer(
-        max_epochs=settings.max_epochs,
-        accelerator="cpu",
-        devices=1,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        fast_dev_run=settings.fast_dev_run,
-    )
-    trainer.fit(system, module)
-    val = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
-    tested = trainer.test(system, module, verbose=False)
-    test = {k: float(v) for k, v in (tested[0] if tested else {}).items()}
-    return {**val, **test, "seconds": time.perf_counter() - start}
-
-
-def train_trial(config: dict[str, Any], settings: TrainSweepSettings | Mapping[str, Any]) -> None:
-    """Ray Tune function trainable of a training sweep: :func:`train_metrics`, reported once."""
-    if not isinstance(settings, TrainSweepSettings):
-        settings = TrainSweepSettings(**settings)
-    torch.set_num_threads(1)
-    _report(train_metrics(config, settings))
-
-
-# --------------------------------------------------------------------------------------------
 # the engine
 # --------------------------------------------------------------------------------------------
 
@@ -654,8 +541,9 @@ def run_sweep(
 
     Args:
         trainable: a function trainable ``f(config, settings)`` that reports its metrics once
-            (:func:`dpa_trial`, :func:`train_trial`, or your own); it must be importable by
-            the Ray workers (a module-level function of an installed package, or a closure).
+            (:func:`dpa_trial`, :func:`hocnet.learn.sweep.train_trial`, or your own); the Ray
+            workers must be able to load it (a module-level function of an installed package,
+            or a closure, which Ray ships by value).
         param_space: the grid (``{name: tune.grid_search([...])}``, e.g.
             :func:`dpa_param_space`); ignored with ``resume`` (the stored one is used).
         path: the experiment folder; its parent is Ray's ``storage_path`` (made absolute, as

@@ -20,7 +20,6 @@ from hocnet.dpa import (
 )
 from hocnet.sweep import (
     DPASweepSettings,
-    TrainSweepSettings,
     check_dpa_axes,
     evaluate_dpa,
     write_rows_csv,
@@ -128,6 +127,34 @@ class TestEvaluateDPA:
         assert not (tmp_path / "s").exists()
 
 
+@pytest.mark.skipif(not HAS_RAY, reason="the ray check comes first")
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--grid", "model.lrx=0.01,0.05"], "--grid: expected model.NAME with NAME an argument"),
+        (["--grid", "lr=0.01"], "--grid: expected keys 'model.NAME' or 'data.NAME'"),
+        (["--grid", "model.lr"], "--grid: expected KEY=VALUES"),
+        ([], "--grid: expected at least one KEY=V1,V2 axis"),
+    ],
+)
+def test_train_sweep_checks_the_configs_before_ray_starts(args, match, capsys, tmp_path):
+    pytest.importorskip("lightning")
+    assert main(["sweep", "train", "dpa", *args, "--out", str(tmp_path / "t")]) == 2
+    assert match in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()
+
+
+def test_set_values_are_typed():
+    from hocnet.cli.sweep import _assignments
+
+    got = _assignments(
+        ["data.shape=8,32,32", "model.g=0.5", "data.clouds=wispy"], "--set", many=False
+    )
+    assert got == {"data.shape": (8, 32, 32), "model.g": 0.5, "data.clouds": "wispy"}
+    grid = _assignments(["model.lr=0.01,1e-3", "model.learnable=b"], "--grid", many=True)
+    assert grid == {"model.lr": [0.01, 0.001], "model.learnable": ["b"]}
+
+
 def test_write_rows_csv(tmp_path):
     out = write_rows_csv([{"b": 0.8, "a_s": math.nan}, {"b": 1.0, "x": "y"}], tmp_path / "r.csv")
     assert _rows(out) == [{"b": "0.8", "a_s": "nan", "x": ""}, {"b": "1", "a_s": "", "x": "y"}]
@@ -135,7 +162,7 @@ def test_write_rows_csv(tmp_path):
 
 def test_train_metrics_fast_dev_run():
     pytest.importorskip("lightning")
-    from hocnet.sweep import train_metrics
+    from hocnet.learn.sweep import TrainSweepSettings, train_metrics
 
     settings = TrainSweepSettings(
         "dpa",
@@ -300,3 +327,17 @@ def test_b_sweep_ray_engine_gives_the_loop_rows(ray_instance, tmp_path):
     loop = _b_sweep_evaluate("loop")
     ray_rows = _b_sweep_evaluate("ray", ray={"path": tmp_path / "exp"})
     assert ray_rows == loop
+
+
+@pytest.mark.slow
+@needs_ray
+def test_train_sweep_on_ray(ray_instance, tmp_path):
+    pytest.importorskip("lightning")
+    out = tmp_path / "t"
+    argv = ["sweep", "train", "dpa", "--grid", "model.lr=0.01,0.05", "--fast-dev-run", "--quiet"]
+    sets = ["data.n_train=2", "data.n_val=1", "data.n_test=2", "data.shape=4,16,16"]
+    argv += [x for s in sets for x in ("--set", s)] + ["--set", "data.batch_size=2"]
+    assert main([*argv, "--out", str(out)]) == 0
+    rows = _rows(out / "results.csv")
+    assert [r["model.lr"] for r in rows] == ["0.01", "0.05"]
+    assert all(r["status"] == "done" and math.isfinite(float(r["test/loss"])) for r in rows)

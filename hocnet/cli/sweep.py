@@ -48,14 +48,19 @@ def _value(text: str) -> Any:
 
 
 def _assignments(items: list[str] | None, flag: str, *, many: bool) -> dict[str, Any]:
-    """``KEY=V1,V2`` (``many``) or ``KEY=V`` items -> dict."""
+    """``KEY=V1,V2`` (``many``: a list of values) or ``KEY=V`` (``V1,V2``: a tuple) -> dict."""
     out: dict[str, Any] = {}
     for item in items or []:
         key, sep, text = item.partition("=")
         if not sep or not key.strip() or not text.strip():
             raise CLIError(f"{flag}: expected KEY=VALUE{'S' if many else ''}, got {item!r}")
         key = key.strip()
-        out[key] = [_value(v) for v in text.split(",")] if many else _value(text)
+        if many:
+            out[key] = [_value(v) for v in text.split(",")]
+        elif "," in text:
+            out[key] = tuple(_value(v) for v in text.split(","))
+        else:
+            out[key] = _value(text)
     return out
 
 
@@ -325,7 +330,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
                 "sweep train: needs the learn extra (Lightning, torchmetrics): "
                 "pip install 'hocnet[learn,sweep]'"
             )
-        from hocnet.sweep import TrainSweepSettings, train_param_space, train_trial
+        from hocnet.learn.sweep import (
+            TrainSweepSettings,
+            check_train_config,
+            train_param_space,
+            train_trial,
+        )
 
         if stored is None:
             grid = _assignments(args.grid, "--grid", many=True)
@@ -341,6 +351,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         else:
             grid, fixed = stored["grid"], stored["settings"]
         settings = TrainSweepSettings(**fixed)
+        check_train_config({k: v[0] for k, v in grid.items()}, settings)
         record = {"kind": "train", "grid": grid, "settings": settings.to_dict()}
         return train_trial, train_param_space(grid), settings, record
 
