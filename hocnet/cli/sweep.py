@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,14 @@ from hocnet.cli._common import CLIError, _check_out_dir, _Formatter, _table, _wr
 SETTINGS_FILE = "sweep.json"
 RESULTS_FILE = "results.csv"
 RAY_FOLDER = "ray"
+
+
+def _wrap(text: str) -> str:
+    """Wrap each paragraph of a description (the formatter keeps line breaks as given)."""
+    return "\n\n".join(
+        textwrap.fill(p, 88, break_on_hyphens=False, break_long_words=False)
+        for p in text.split("\n\n")
+    )
 
 
 def _require_ray() -> None:
@@ -260,17 +269,23 @@ def _add_dpa(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "dpa",
         help="a grid over the DPA's b, g, penalty step, s_n, Max_Numbers and seeds",
-        description="Grid sweep of the DPA of [NR08] on simulated IR scenes. Every combination "
-        "of the grid values is one trial; each reports A_S (eq. 16-17, paper reading), Pd at "
-        "the per-pixel --pfa in the last frame (thresholds from the target-free twins of the "
-        "same scenes), the back-tracking success rate, and valid = 0 (metrics NaN) when b is "
-        "above the memory range of eq. (12)-(14).\n\n"
-        "Example: hocnet sweep dpa --b 0.4 0.8 --g 0 1 --scene na23a --shape 8 45 45",
+        description=_wrap(
+            "Grid sweep of the DPA of [NR08] on simulated IR scenes. Every combination "
+            "of the grid values is one trial; each reports A_S (eq. 16-17, paper reading), Pd at "
+            "the per-pixel --pfa in the last frame (thresholds from the target-free twins of the "
+            "same scenes), the back-tracking success rate, and valid = 0 (metrics NaN) when b is "
+            "above the memory range of eq. (12)-(14).\n\n"
+            "Example: hocnet sweep dpa --b 0.4 0.8 --g 0 1 --scene na23a --shape 8 45 45"
+        ),
         formatter_class=_Formatter,
     )
     grid = p.add_argument_group("grid (every combination is one trial)")
-    grid.add_argument("--b", type=float, nargs="+", default=[0.8], help="memory factors b")
-    grid.add_argument("--g", type=float, nargs="+", default=[1.0], help="sum/max mixing g")
+    grid.add_argument(
+        "--b", type=float, nargs="+", default=[0.8], help="memory factors b (default 0.8)"
+    )
+    grid.add_argument(
+        "--g", type=float, nargs="+", default=[1.0], help="sum/max mixing g (default 1)"
+    )
     grid.add_argument(
         "--penalty-step",
         type=float,
@@ -278,12 +293,22 @@ def _add_dpa(sub: argparse._SubParsersAction) -> None:
         default=[3.0],
         help="penalty step x of W_penalty, in [0, 3] (default 3)",
     )
-    grid.add_argument("--s-n", type=int, nargs="+", default=[1], help="frame sampling s_n")
     grid.add_argument(
-        "--max-numbers", type=int, nargs="+", default=[1], help="Max_Numbers of eq. (16)"
+        "--s-n", type=int, nargs="+", default=[1], help="frame sampling s_n (default 1)"
     )
     grid.add_argument(
-        "--seeds", type=int, nargs="+", default=[0], help="scene seeds (one batch each)"
+        "--max-numbers",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="Max_Numbers of eq. (16) (default 1)",
+    )
+    grid.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="scene seeds, one batch of --scenes each (default 0)",
     )
     fixed = p.add_argument_group("scenes and metrics (the same in every trial)")
     fixed.add_argument("--scene", default="na23a", help="na23a, npa or ir (default na23a)")
@@ -362,10 +387,12 @@ def _add_train(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "train",
         help="training runs (hocnet train dpa|hoc) over a grid of configs",
-        description="One Lightning training run per grid point (the options of `hocnet train "
-        "SYSTEM --help`, as model.NAME / data.NAME keys); each trial reports its test "
-        "metrics.\n\nExample: hocnet sweep train dpa --grid model.lr=0.01,0.05 "
-        "--set data.n_train=8 --max-epochs 2",
+        description=_wrap(
+            "One Lightning training run per grid point (the options of `hocnet train "
+            "SYSTEM --help`, as model.NAME / data.NAME keys); each trial reports its test "
+            "metrics.\n\nExample: hocnet sweep train dpa --grid model.lr=0.01,0.05 "
+            "--set data.n_train=8 --max-epochs 2"
+        ),
         formatter_class=_Formatter,
     )
     p.add_argument("system", choices=("dpa", "hoc"), help="DPATuner or LearnedHOCSystem")
@@ -390,9 +417,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     sweep = commands.add_parser(
         "sweep",
         help="parameter grids of the DPA and training runs over configs, on Ray Tune",
-        description="Sweeps on Ray Tune (the sweep extra: pip install 'hocnet[sweep]'). "
-        "An embedded local Ray instance is started unless --address joins a cluster; the "
-        "sweep is resumable (--resume); results land in --out/results.csv.",
+        description=_wrap(
+            "Sweeps on Ray Tune (the sweep extra: pip install 'hocnet[sweep]'). "
+            "An embedded local Ray instance is started unless --address joins a cluster; the "
+            "sweep is resumable (--resume); results land in --out/results.csv."
+        ),
         formatter_class=_Formatter,
     )
     sub = sweep.add_subparsers(dest="kind", metavar="KIND", required=True)
