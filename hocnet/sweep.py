@@ -622,7 +622,16 @@ def run_sweep(
                     failure_config=tune.FailureConfig(max_failures=0),
                 ),
             )
-        results = tuner.fit()
+        previous = os.environ.get("RAY_AIR_NEW_OUTPUT")
+        if quiet:  # the new output engine prints its configuration box even at verbose=0
+            os.environ["RAY_AIR_NEW_OUTPUT"] = "0"
+        try:
+            results = tuner.fit()
+        finally:
+            if quiet and previous is None:
+                os.environ.pop("RAY_AIR_NEW_OUTPUT", None)
+            elif quiet:
+                os.environ["RAY_AIR_NEW_OUTPUT"] = previous
         rows = _rows(results)
     finally:
         if started:
