@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	# torch first and pinned: an unpinned torch would pull the CUDA build.
 	$(BIN)/python -m pip install --quiet torch==2.13.0
-	$(BIN)/python -m pip install --quiet -e '.[dev,learn]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,learn,sweep]'
 	touch $(STAMP)
 
 setup: $(STAMP)

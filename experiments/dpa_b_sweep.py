@@ -26,11 +26,17 @@ frames). The b range where tracking occurred (>= 50 % of the scenes) is set besi
 direction and the eq. (15) constants of the matrices beside the paper's.
 
 Run: ``python experiments/dpa_b_sweep.py [--quick] [--seeds N] [--out DIR]`` or
-``hocnet reproduce dpa-b-sweep``.
+``hocnet reproduce dpa-b-sweep``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on
+Ray Tune through ``hocnet.sweep.run_sweep``, one trial per (scene, variant, g, b), with the same
+rows; ``--ray-dir DIR`` keeps Ray's experiment folder there (default: a new temporary folder)
+and ``--resume`` continues an interrupted run in it (finished trials are not rerun);
+``--address`` joins a running Ray cluster. The default engine, ``loop``, is unchanged.
 """
 
 from __future__ import annotations
 
+import argparse
+import functools
 import pathlib
 import sys
 from collections.abc import Sequence
@@ -134,44 +140,145 @@ def sampled(scene: str, seeds: Sequence[int], shape: tuple[int, int, int]) -> tu
     return frames, seq.positions[:, 0, ::step]  # the studied target
 
 
-def evaluate(scenes, table, grid, seeds, shapes, block, progress) -> list[dict]:
-    """One row per (scene, variant, g, b, seed), b within the memory range only."""
-    data = {}
-    for scene in scenes:
-        data[scene] = sampled(scene, seeds, shapes[scene])
+def _job_rows(job: dict, frames, truth, weights, seeds, block) -> list[dict]:
+    """The rows of one (scene, variant, g, b) job: one per seed."""
+    scene, variant, g, b = job["scene"], job["variant"], job["g"], job["b"]
+    state = accumulate(frames, weights, b, g, **job["options"])
+    last = min(LAST, frames.shape[1])
+    mn = P.PAPER_MAX_NUMBERS[g]
+    a_s = algorithm_score(state.asf, truth, last=last, block=block[scene], max_numbers=mn)
+    centred = algorithm_score(state.asf, truth, last=last, reading="centred")
+    start = P.nine_block_start(state.asf, truth, block[scene])
+    hit = P.tracked(backtrack(state, start), truth)
+    return [
+        {
+            "table": "sweep",
+            "scene": scene,
+            "variant": variant,
+            "g": g,
+            "b": b,
+            "seed": seed,
+            "a_s": float(a_s[i]),
+            "a_s_centred_mn1": float(centred[i]),
+            "tracked": int(hit[i]),
+        }
+        for i, seed in enumerate(seeds)
+    ]
+
+
+def _jobs(scenes, table, grid) -> list[dict]:
+    """The (scene, variant, g, b) jobs of the grid, b within the memory range only."""
     weights = {(v, g): _weights(table[v], g) for v in table for g in grid}
-    jobs = [
-        (s, v, g, b)
+    return [
+        {
+            "scene": s,
+            "variant": v,
+            "g": g,
+            "b": b,
+            "equal": table[v]["equal"],
+            "options": dict(table[v]["options"]),
+        }
         for s in scenes
         for v in scene_variants(s, table)
         for g in grid
         for b in valid_bs(weights[v, g], g, grid[g])[0]
         if not (table[v]["equal"] and g == 1.0)  # sum-to-one matrices: the same recursion
     ]
+
+
+def evaluate(
+    scenes, table, grid, seeds, shapes, block, progress, *, engine="loop", ray=None
+) -> list[dict]:
+    """One row per (scene, variant, g, b, seed), b within the memory range only.
+
+    ``engine="loop"`` runs the jobs here, one after the other; ``engine="ray"`` runs each
+    (scene, variant, g, b) job as one trial of a ``hocnet.sweep.run_sweep`` grid on Ray Tune
+    (``ray``: its keyword arguments, e.g. ``path``, ``resume``, ``address``). Both give the
+    same rows in the same order.
+    """
+    jobs = _jobs(scenes, table, grid)
+    if engine == "ray":
+        return _evaluate_ray(jobs, seeds, shapes, block, progress, **(ray or {}))
+    if engine != "loop":
+        raise ValueError(f"`engine`: expected 'loop' or 'ray', got {engine!r}")
+    data = {}
+    for scene in scenes:
+        data[scene] = sampled(scene, seeds, shapes[scene])
+    weights = {(v, g): _weights(table[v], g) for v in table for g in grid}
     rows = []
-    for scene, variant, g, b in C.progress(jobs, enabled=progress, desc=NAME):
-        frames, truth = data[scene]
-        state = accumulate(frames, weights[variant, g], b, g, **table[variant]["options"])
-        last = min(LAST, frames.shape[1])
-        mn = P.PAPER_MAX_NUMBERS[g]
-        a_s = algorithm_score(state.asf, truth, last=last, block=block[scene], max_numbers=mn)
-        centred = algorithm_score(state.asf, truth, last=last, reading="centred")
-        start = P.nine_block_start(state.asf, truth, block[scene])
-        hit = P.tracked(backtrack(state, start), truth)
-        rows += [
-            {
-                "table": "sweep",
-                "scene": scene,
-                "variant": variant,
-                "g": g,
-                "b": b,
-                "seed": seed,
-                "a_s": float(a_s[i]),
-                "a_s_centred_mn1": float(centred[i]),
-                "tracked": int(hit[i]),
-            }
-            for i, seed in enumerate(seeds)
-        ]
+    for job in C.progress(jobs, enabled=progress, desc=NAME):
+        frames, truth = data[job["scene"]]
+        w = weights[job["variant"], job["g"]]
+        rows += _job_rows(job, frames, truth, w, seeds, block)
+    return rows
+
+
+@functools.lru_cache(maxsize=4)
+def _sampled_cached(scene: str, seeds: tuple, shape: tuple) -> tuple:
+    """:func:`sampled`, cached per Ray worker (every job of a scene reuses its frames)."""
+    return sampled(scene, list(seeds), shape)
+
+
+def ray_job(job: dict, seeds, shapes, block) -> list[dict]:
+    """One job in a Ray worker: the same computation as the loop engine's."""
+    frames, truth = _sampled_cached(job["scene"], tuple(seeds), tuple(shapes[job["scene"]]))
+    weights = P.weights(equal_g=job["g"] if job["equal"] else None)
+    return _job_rows(job, frames, truth, weights, seeds, block)
+
+
+def _evaluate_ray(
+    jobs, seeds, shapes, block, progress, *, path=None, resume=False, address=None, num_cpus=None
+) -> list[dict]:
+    """Run the jobs on Ray Tune, one trial per job (the ``--engine ray`` of this script)."""
+    import json
+    import tempfile
+
+    from hocnet.sweep import require_ray, run_sweep
+
+    _, tune = require_ray()
+    here = str(pathlib.Path(__file__).resolve().parent)
+    settings = {"jobs": jobs, "seeds": list(seeds), "shapes": shapes, "block": block}
+
+    def trial(config, settings):  # a closure, so that Ray ships it by value to its workers
+        import json
+        import sys
+
+        from ray import tune
+
+        if here not in sys.path:
+            sys.path.insert(0, here)
+        import dpa_b_sweep
+
+        with dpa_b_sweep.C.single_thread():
+            rows = dpa_b_sweep.ray_job(
+                settings["jobs"][config["job"]],
+                settings["seeds"],
+                settings["shapes"],
+                settings["block"],
+            )
+        tune.report({"rows": json.dumps(rows)})
+
+    if path is None:
+        path = pathlib.Path(tempfile.mkdtemp(prefix=f"{NAME}-ray-")) / NAME
+    space = {"job": tune.grid_search(list(range(len(jobs))))}
+    result = run_sweep(
+        trial,
+        space,
+        path,
+        settings=settings,
+        resume=resume,
+        address=address,
+        num_cpus=num_cpus,
+        quiet=not progress,
+    )
+    if result.done < len(jobs):
+        raise RuntimeError(
+            f"{len(jobs) - result.done} of {len(jobs)} Ray trials did not finish; rerun with "
+            f"--engine ray --ray-dir {path} --resume"
+        )
+    rows = []
+    for trial_row in sorted(result.rows, key=lambda r: int(r["job"])):
+        rows += json.loads(trial_row["rows"])
     return rows
 
 
@@ -393,6 +500,8 @@ def run(
     seeds: int | None = None,
     out_dir: pathlib.Path | None = None,
     progress: bool = True,
+    engine: str = "loop",
+    ray: dict | None = None,
 ) -> pathlib.Path:
     """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
 
@@ -401,7 +510,10 @@ def run(
             2 seeds).
         seeds: scenes per setting (default 12, quick 2).
         out_dir: output folder (default ``experiments/results``).
-        progress: show a tqdm progress bar.
+        progress: show a tqdm progress bar (``engine="ray"``: Ray's progress table).
+        engine: ``"loop"`` (default) or ``"ray"`` (Ray Tune, see :func:`evaluate`).
+        ray: keyword arguments of the Ray engine (``path``, ``resume``, ``address``,
+            ``num_cpus``).
 
     Returns:
         Path of the markdown file.
@@ -415,7 +527,9 @@ def run(
     table = variants()
     seed_values = C.seed_list(SEED_BASE, n)
     with C.single_thread(), C.Timer() as timer:
-        rows = evaluate(scenes, table, grid, seed_values, shapes, block, progress)
+        rows = evaluate(
+            scenes, table, grid, seed_values, shapes, block, progress, engine=engine, ray=ray
+        )
     for row in [r for r in rows if table[r["variant"]]["equal"] is False and r["g"] == 1.0]:
         if row["variant"] == P.PAPER_DPA:  # equal gain at g = 1 is the paper's recursion
             rows.append({**row, "variant": P.EQUAL, "copied_from": P.PAPER_DPA})
@@ -532,9 +646,31 @@ def run(
     return md
 
 
+ENGINE_HELP = (
+    " Engine options: --engine {loop,ray} (default loop; ray: Ray Tune via hocnet.sweep, the "
+    "sweep extra), --ray-dir DIR (Ray's experiment folder), --resume (continue it), "
+    "--address ADDRESS (join a Ray cluster), --num-cpus N (local Ray instance)."
+)
+
+
 def main(argv: Sequence[str] | None = None) -> pathlib.Path:
-    """Command line entry point."""
-    return C.main_for(NAME, DESCRIPTION, run, argv)
+    """Command line entry point (``_expkit``'s options plus the engine options)."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--engine", choices=("loop", "ray"), default="loop")
+    pre.add_argument("--ray-dir", default=None)
+    pre.add_argument("--resume", action="store_true")
+    pre.add_argument("--address", default=None)
+    pre.add_argument("--num-cpus", type=int, default=None)
+    args, rest = pre.parse_known_args(argv)
+    if args.engine == "loop" and (args.ray_dir or args.resume or args.address or args.num_cpus):
+        pre.error("--ray-dir, --resume, --address and --num-cpus need --engine ray")
+    ray = {"resume": args.resume, "address": args.address, "num_cpus": args.num_cpus}
+    if args.ray_dir is not None:
+        ray["path"] = pathlib.Path(args.ray_dir)
+    elif args.resume:
+        pre.error("--resume needs --ray-dir (the folder of the run to continue)")
+    runner = functools.partial(run, engine=args.engine, ray=ray if args.engine == "ray" else None)
+    return C.main_for(NAME, DESCRIPTION + ENGINE_HELP, runner, rest)
 
 
 if __name__ == "__main__":

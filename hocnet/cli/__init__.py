@@ -11,6 +11,8 @@ Subcommands (each has ``--help``):
   candidate detections ``frame,x,y,score``), the method's cubes and a picture.
 * ``hocnet reproduce NAME`` / ``hocnet reproduce --list``: run one of the repository's experiment
   scripts (``experiments/*.py``).
+* ``hocnet sweep dpa|train``: DPA parameter grids and training runs over configs on Ray Tune
+  (the ``sweep`` extra), resumable, results as CSV.
 
 Errors in the user's input (bad file, wrong shape, non-binary values, out-of-range option,
 unknown experiment) are reported as one line ``hocnet: error: <message>`` on stderr with exit
@@ -39,7 +41,7 @@ import sys
 from collections.abc import Sequence
 
 import hocnet
-from hocnet.cli import demo, detect, reproduce, track, train
+from hocnet.cli import demo, detect, reproduce, sweep, track, train
 
 # Re-exported for tests and for users of the former single-module ``hocnet.cli``.
 from hocnet.cli._common import (  # noqa: F401
@@ -79,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {hocnet.__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    for module in (demo, detect, train, reproduce, track):
+    for module in (demo, detect, train, sweep, reproduce, track):
         module.add_parser(commands)
     return parser
 
