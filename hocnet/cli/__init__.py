@@ -1,18 +1,22 @@
 """The ``hocnet`` command line.
 
-Subcommands (each has ``--help``):
+Subcommands (each has ``--help``), one line each:
 
-* ``hocnet demo``: simulate a Table-III-like scene of [LA98], run the HOC detector, print true
-  versus found tracks, clutter rejection, target points lost and runtime, and write pictures.
-* ``hocnet detect CUBE``: run a detector on a user's data (a ``.npy`` / ``.npz`` cube, or a
-  folder or glob of PNG / BMP / TIFF frames): the HOC on binary cubes (or on intensity frames
-  binarised with ``--threshold-pfa``), the DPA on intensity frames after registration, temporal
-  background removal and whitening; write ``tracks.json``, ``detections.csv`` (per-frame
+* ``hocnet demo``: simulate a Table-III-like scene of [LA98] and an IR sequence of [NR08], run
+  the HOC and the DPA, print true versus found tracks, write pictures.
+* ``hocnet detect CUBE``: a detector on the user's data (``.npy`` / ``.npz``, or a folder or glob
+  of PNG / BMP / TIFF frames): ``--method hoc`` on binary cubes (or intensity frames binarised
+  with ``--threshold-pfa``), ``--method dpa`` on intensity frames; ``--weights CKPT`` uses the
+  learned weights of ``hocnet train``; writes ``tracks.json``, ``detections.csv`` (per-frame
   candidate detections ``frame,x,y,score``), the method's cubes and a picture.
 * ``hocnet reproduce NAME`` / ``hocnet reproduce --list``: run one of the repository's experiment
   scripts (``experiments/*.py``).
+* ``hocnet train dpa|hoc``: train the DPA's parameters or the HOC network's kernels on simulated
+  scenes through LightningCLI (the ``learn`` extra; YAML configs, ``--print_config``).
 * ``hocnet sweep dpa|train``: DPA parameter grids and training runs over configs on Ray Tune
   (the ``sweep`` extra), resumable, results as CSV.
+* ``hocnet track SEQ``: a detector's per-frame plots (``--detector hoc|dpa``) into the
+  track-oriented MHT of [PD]; writes the confirmed tracks (``tracks.json``, ``tracks.png``).
 
 Errors in the user's input (bad file, wrong shape, non-binary values, out-of-range option,
 unknown experiment) are reported as one line ``hocnet: error: <message>`` on stderr with exit
@@ -66,15 +70,23 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``hocnet`` argument parser (exposed for documentation and tests)."""
     parser = _Parser(
         prog=PROG,
-        description="Track-before-detect for dim multiple moving targets:\n"
+        description="Track-before-detect for dim multiple moving targets, and tracking after\n"
+        "detection. Commands:\n"
+        "  demo       simulate scenes of [LA98] and [NR08], run HOC and DPA, write PNGs\n"
+        "  detect     your data -> tracks.json, detections.csv, PNG (--method hoc|dpa, below)\n"
+        "  reproduce  run an experiment (a table or figure of the papers); --list names them\n"
+        "  train      train the DPA's parameters or the HOC's kernels (LightningCLI, learn extra)\n"
+        "  sweep      DPA parameter grids and training runs on Ray Tune (sweep extra)\n"
+        "  track      a detector's per-frame plots into the MHT of [PD]: confirmed tracks\n"
+        "Methods of detect (and detectors of track):\n"
         "  hoc  the modified high-order correlation (HOC) of [LA98] on BINARY multi-scan cubes\n"
         "       (outputs: tracks.json, detections.csv, cleaned.npy, support.npy, detection.png);\n"
         "  dpa  the dynamic-programming track-before-detect (DPA) of [NR08] on INTENSITY\n"
         "       frames such as infrared sequences (outputs: tracks.json, detections.csv,\n"
         "       asf.npy, shifts.csv, detection.png).\n"
-        "Input: .npy / .npz cubes or folders of PNG / BMP / TIFF frames.\n"
+        "Input: .npy / .npz cubes, or folders of PNG / BMP / TIFF frames (detect).\n"
         "[LA98] Liou & Azimi-Sadjadi, IEEE TAES 34(2), 1998; [NR08] Nichtern & Rotman,\n"
-        "EURASIP JASP 2008.",
+        "EURASIP JASP 2008; [PD] Pannetier, Dezert et al., GMTI tracking with PCR5 type fusion.",
         epilog="Run 'hocnet COMMAND --help' for the options of each command.",
         formatter_class=_Formatter,
     )
