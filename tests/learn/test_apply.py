@@ -99,10 +99,10 @@ class TestDetectDPA:
 
 
 def mhoc_at(model: MHOCImage, cube: torch.Tensor, theta: float) -> torch.Tensor:
-    """Reference: the MHOC image with the limiter ``c > theta`` written into every layer."""
+    """Reference: the MHOC image of a ``(T, H, W)`` cube with ``c > theta`` in every layer."""
     outs = []
     for net in (model.forward_net, model.backward_net):
-        y = cube.float()
+        y = cube[None].float()
         for layer in net.layers:
             y = hoc_layer(
                 y,
@@ -112,7 +112,7 @@ def mhoc_at(model: MHOCImage, cube: torch.Tensor, theta: float) -> torch.Tensor:
                 activation=lambda c: (c > theta).float(),
             )
         outs.append(y)
-    return torch.maximum(*outs) > 0
+    return torch.maximum(*outs)[0] > 0
 
 
 class TestDetectHOC:
@@ -120,15 +120,15 @@ class TestDetectHOC:
         cube = paper_scene("table3", 0.012, seed=5).cube
         model = load_detector(checkpoints["hoc"], "hoc")
         assert torch.equal(detect_hoc(cube, model).support, mhoc_at(model, cube, 0.5))
-        scaled = MHOCImage(order=2, v=2, learnable=True)
+        scaled = MHOCImage(order=2, v=4, learnable=True)
         with torch.no_grad():
             for p in scaled.parameters():
                 p.mul_(0.3)
         support = detect_hoc(cube, scaled).support
         assert torch.equal(support, mhoc_at(scaled, cube, 0.5))
         eq3 = mhoc_at(scaled, cube, 0.0)
-        assert torch.equal(eq3, mhoc_image(cube, order=2, v=2))  # 0.3 x mask: eq. (3) unchanged
-        assert support.sum() < eq3.sum()
+        assert torch.equal(eq3, mhoc_image(cube, order=2, v=4))  # 0.3 x mask: eq. (3) unchanged
+        assert support.sum() < eq3.sum()  # eq. (3) keeps the fixed support, c > 0.5 less
 
     def test_fixed_module_support_is_the_mhoc_image(self):
         cube = paper_scene("table3", 0.012, seed=5).cube
