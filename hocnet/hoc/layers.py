@@ -22,21 +22,48 @@ from hocnet.hoc.functional import Direction, hard_limiter, hoc_layer, original_h
 from hocnet.hoc.kernels import get_direction_mask_kernels, get_shift_kernels, get_window_kernel
 
 __all__ = [
+    "LEARNED_THRESHOLD",
     "HOCLayer",
     "HOCNet",
     "MHOCImage",
     "ModifiedHOCLayer",
+    "learned_limiter",
     "relaxed_limiter",
     "ste_limiter",
 ]
+
+#: Threshold of the hard limiter of a *learnable* layer at evaluation time (our reading):
+#: ``g(c) = 1 if c > 0.5``. On the fixed network's integer counts it is eq. (3) of [LA98]
+#: (``c > 0`` and ``c > 0.5`` agree on integers), and it is the centre of
+#: :func:`relaxed_limiter`, so a learned layer is deployed with the limiter it was trained
+#: towards (a real-valued count of 0.3 is "off" in both). Fixed layers keep eq. (3) exactly.
+LEARNED_THRESHOLD = 0.5
+
+
+def learned_limiter(c: torch.Tensor) -> torch.Tensor:
+    """Hard limiter of learnable layers (our reading): ``1 if c > 0.5 else 0``, ``c``'s dtype.
+
+    Identical to :func:`~hocnet.hoc.functional.hard_limiter` (eq. 3 of [LA98], ``c > 0``) on
+    integer counts, and the limit of :func:`relaxed_limiter` (centred at
+    :data:`LEARNED_THRESHOLD`) as its steepness grows; on real-valued learned counts in
+    ``(0, 0.5]`` it is "off" where eq. (3) would be "on".
+
+    Examples:
+        >>> learned_limiter(torch.tensor([0.0, 0.3, 0.5, 0.7, 2.0])).tolist()
+        [0.0, 0.0, 0.0, 1.0, 1.0]
+        >>> c = torch.tensor([-1.0, 0.0, 1.0, 2.0])  # integer counts: eq. (3)
+        >>> torch.equal(learned_limiter(c), hard_limiter(c))
+        True
+    """
+    return (c > LEARNED_THRESHOLD).to(c.dtype)
 
 
 def relaxed_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
     """Smooth surrogate of the hard limiter: ``sigmoid(steepness * (c - 0.5))``.
 
     Counts of the fixed network are integers, so ``c > 0`` means ``c >= 1``; the surrogate
-    switches half-way between 0 and 1 and tends to :func:`~hocnet.hoc.functional.hard_limiter`
-    on integer inputs as ``steepness`` grows.
+    switches half-way between 0 and 1 and tends to :func:`learned_limiter` (``c > 0.5``) as
+    ``steepness`` grows, hence to :func:`~hocnet.hoc.functional.hard_limiter` on integer inputs.
 
     Examples:
         >>> relaxed_limiter(torch.tensor([0.0, 1.0]), 20.0).round().tolist()
@@ -46,14 +73,18 @@ def relaxed_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
 
 
 def ste_limiter(c: torch.Tensor, steepness: float = 8.0) -> torch.Tensor:
-    """Straight-through hard limiter: hard forward, gradient of :func:`relaxed_limiter`.
+    """Straight-through hard limiter: forward ``c > 0.5``, gradient of :func:`relaxed_limiter`.
+
+    The forward is :func:`learned_limiter`, at the relaxed limiter's centre (0.5): the limiter
+    a learnable layer uses at evaluation time, so training with ``relax="ste"`` sees exactly
+    the deployed network's outputs.
 
     Examples:
         >>> ste_limiter(torch.tensor([0.2, 0.7])).tolist()
-        [1.0, 1.0]
+        [0.0, 1.0]
     """
     soft = relaxed_limiter(c, steepness)
-    return soft + (hard_limiter(c) - soft).detach()
+    return soft + (learned_limiter(c) - soft).detach()
 
 
 _RELAX = {"sigmoid": relaxed_limiter, "ste": ste_limiter}
@@ -81,9 +112,15 @@ class ModifiedHOCLayer(nn.Module):
         init: ``"fixed"`` (start from the paper's masks) or ``"random"`` (uniform in [0, 1)),
             only with ``learnable=True``.
         relax: limiter used in training mode when learnable: ``"sigmoid"`` or ``"ste"``
-            (straight-through). Evaluation always uses the hard limiter.
+            (straight-through). Evaluation uses the hard limiter ``c > threshold``.
         steepness: slope of the relaxed limiter.
         seed: seed of the random initialisation.
+
+    Attributes:
+        threshold: the hard limiter's threshold outside training: ``0`` for a fixed layer
+            (eq. 3 of [LA98] exactly), :data:`LEARNED_THRESHOLD` (0.5, our reading,
+            :func:`learned_limiter`) for a learnable one, the centre of the relaxed limiter.
+            Both give the same output on 0/1 inputs with the fixed kernels (integer counts).
 
     Shape:
         - Input: ``(B, T, H, W)`` float 0/1 cube ``Y^(k-1)``.
@@ -120,6 +157,7 @@ class ModifiedHOCLayer(nn.Module):
         )
         self.direction = check_choice("direction", direction, ("forward", "backward"))
         self.learnable = bool(learnable)
+        self.threshold = LEARNED_THRESHOLD if self.learnable else 0.0
         check_choice("init", init, ("fixed", "random"))
         self.relax = check_choice("relax", relax, tuple(_RELAX))
         self.steepness = check_number("steepness", steepness, low=0.0, low_inclusive=False)
@@ -140,11 +178,17 @@ class ModifiedHOCLayer(nn.Module):
             self.register_buffer("shift_kernels", shifts)
 
     def activation(self) -> Callable[[torch.Tensor], torch.Tensor]:
-        """The limiter in use: relaxed while training a learnable layer, hard otherwise."""
-        if self.learnable and self.training:
+        """The limiter in use: relaxed while training a learnable layer, hard otherwise.
+
+        Hard: :func:`learned_limiter` (``c > 0.5``) for a learnable layer,
+        :func:`~hocnet.hoc.functional.hard_limiter` (eq. 3, ``c > 0``) for a fixed one.
+        """
+        if not self.learnable:
+            return hard_limiter
+        if self.training:
             relax = _RELAX[self.relax]
             return lambda c: relax(c, self.steepness)
-        return hard_limiter
+        return learned_limiter
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         """Apply the layer to a ``(B, T, H, W)`` float cube."""
@@ -177,8 +221,13 @@ class HOCLayer(nn.Module):
         learnable: register the kernel as ``nn.Parameter`` instead of a buffer.
         init: ``"fixed"`` (the paper's window) or ``"random"`` (only with ``learnable=True``).
         relax: limiter used in training mode when learnable: ``"sigmoid"`` or ``"ste"``.
+            Evaluation uses the hard limiter ``c > threshold``.
         steepness: slope of the relaxed limiter.
         seed: seed of the random initialisation.
+
+    Attributes:
+        threshold: ``0`` for a fixed layer (eq. 3), :data:`LEARNED_THRESHOLD` for a learnable
+            one (see :class:`ModifiedHOCLayer`).
 
     Shape:
         - Input: ``(B, T, H, W)`` float 0/1 cube ``Y^(k-1)``.
@@ -209,6 +258,7 @@ class HOCLayer(nn.Module):
         self.v = check_int("v", v, minimum=1)
         self.direction = check_choice("direction", direction, ("forward", "backward"))
         self.learnable = bool(learnable)
+        self.threshold = LEARNED_THRESHOLD if self.learnable else 0.0
         check_choice("init", init, ("fixed", "random"))
         self.relax = check_choice("relax", relax, tuple(_RELAX))
         self.steepness = check_number("steepness", steepness, low=0.0, low_inclusive=False)

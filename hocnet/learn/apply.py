@@ -38,8 +38,9 @@ def load_detector(ckpt_path: str | os.PathLike, method: str | None = None) -> DP
         method: ``"dpa"``, ``"hoc"`` or ``None`` (either).
 
     Returns:
-        :class:`~hocnet.dpa.DPA` (hard max) or :class:`~hocnet.hoc.MHOCImage` (hard limiter),
-        in evaluation mode.
+        :class:`~hocnet.dpa.DPA` (hard max) or :class:`~hocnet.hoc.MHOCImage` (hard limiter
+        ``c > 0.5`` of learnable layers, :func:`~hocnet.hoc.layers.learned_limiter`), in
+        evaluation mode.
 
     Raises:
         ValueError: a checkpoint of the other system, of neither, a corrupted file, or an
@@ -113,9 +114,11 @@ def detect_hoc(
 ) -> HOCResult:
     """Track detection of [LA98] with the support of a (learned) MHOC network.
 
-    The support is ``model(frames)`` with the hard limiter (the learned forward ``Y^(k)`` OR
-    backward ``Y^(k)``, section III-B); the tracks are identified in it by
-    :func:`hocnet.hoc.identify_tracks` with the support as the roots of the five-point
+    The support is ``model(frames)`` in evaluation mode (the learned forward ``Y^(k)`` OR
+    backward ``Y^(k)``, section III-B) with each layer's hard limiter: ``c > 0.5`` for learnable
+    layers (:func:`~hocnet.hoc.layers.learned_limiter`, our reading, the limiter the training's
+    relaxed limiter is centred on), eq. (3) ``c > 0`` for fixed ones. The tracks are identified
+    in it by :func:`hocnet.hoc.identify_tracks` with the support as the roots of the five-point
     sequences (our reading: the fixed network's detector also adds the points its fixed moves
     name, which a learned kernel does not define), at the module's ``v`` and ``delta``. No
     density check (the learned network's discrimination bound is unknown).

@@ -360,9 +360,14 @@ class LearnedHOCSystem(L.LightningModule):
     The model is :class:`~hocnet.hoc.MHOCImage` (forward ``Y^(k)`` OR backward ``Y^(k)``, section
     III-B) with ``learnable=True``: every layer's direction-masked and shift kernels are
     parameters initialised from the fixed masks (``init="fixed"``) or uniformly at random
-    (``init="random"``). Training uses the relaxed limiter (``relax="sigmoid"``: steep sigmoid,
-    or ``"ste"``: straight-through); evaluation (val / test) uses the hard limiter, i.e. exactly
-    the network that :func:`load_model` returns.
+    (``init="random"``). Training uses the relaxed limiter (``relax="sigmoid"``: steep sigmoid
+    centred at 0.5, or ``"ste"``: straight-through, forward ``c > 0.5``); evaluation (val / test)
+    uses the learnable layers' hard limiter ``c > 0.5``
+    (:func:`~hocnet.hoc.layers.learned_limiter`, our reading: eq. (3) of [LA98], ``c > 0``, on
+    the fixed network's integer counts, and the relaxed limiter's centre, so a count the
+    training pushed below 0.5 is "off" when deployed), i.e. exactly the network that
+    :func:`load_model` returns. From the fixed masks, before training, that is the paper's
+    fixed network.
 
     Loss: binary cross-entropy of the output at every on-pixel of the input cube against its
     label (1 target point, 0 clutter point), the target points weighted by ``target_weight``
@@ -370,9 +375,9 @@ class LearnedHOCSystem(L.LightningModule):
     ``{stage}/clutter_rejection`` (mean over scenes, :func:`hocnet.metrics.clutter_rejection`),
     ``{stage}/target_points_lost`` (sum, :func:`hocnet.metrics.target_points_lost`), ``{stage}/pd``
     (kept target points / target points), ``{stage}/pfa`` (kept clutter points / clutter
-    points) -- in training on the output thresholded at 0.5 -- and ``{stage}/auroc`` (the
-    output as the score of each on-pixel, target versus clutter; with the hard limiter a
-    two-level score).
+    points; a point is kept where the output is ``> 0.5``: in training the relaxed output, in
+    val / test the 0/1 output of the hard limiter) and ``{stage}/auroc`` (the output as the
+    score of each on-pixel, target versus clutter; with the hard limiter a two-level score).
 
     Args:
         order: HOC order ``k``.
@@ -469,11 +474,11 @@ class LearnedHOCSystem(L.LightningModule):
         return self._step(batch, "train")
 
     def validation_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        """Hard-limiter validation step."""
+        """Hard-limiter (``c > 0.5``) validation step."""
         self._step(batch, "val")
 
     def test_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> None:
-        """Hard-limiter test step."""
+        """Hard-limiter (``c > 0.5``) test step."""
         self._step(batch, "test")
 
     def on_train_epoch_end(self) -> None:
@@ -512,7 +517,9 @@ def load_model(ckpt_path: str | os.PathLike) -> nn.Module:
     The checkpoint is read with ``torch.load(..., weights_only=True)`` (no pickled code); the
     model is rebuilt from the checkpoint's hyper-parameters and gets the ``model.*`` entries of
     its state dict. The result is in evaluation mode: a :class:`~hocnet.dpa.DPA` with the hard
-    max (``smooth=None``) or an :class:`~hocnet.hoc.MHOCImage` with the hard limiter.
+    max (``smooth=None``) or an :class:`~hocnet.hoc.MHOCImage` with the learnable layers' hard
+    limiter ``c > 0.5`` (:func:`~hocnet.hoc.layers.learned_limiter`, the limiter of the
+    system's val / test steps).
 
     Args:
         ckpt_path: path of a Lightning checkpoint written by either system.

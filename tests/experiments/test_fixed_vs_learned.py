@@ -100,14 +100,72 @@ def test_near_max_against_loop(script):
 
 
 @pytest.mark.parametrize("init", ["fixed", "random"])
-def test_mhoc_at_zero_is_the_hard_limiter_network(script, init):
+def test_mhoc_at_the_layer_threshold_is_the_eval_network(script, init):
     cube = (torch.rand(2, 6, 12, 12, generator=torch.Generator().manual_seed(3)) < 0.1).float()
     learnable = init == "random"
     model = MHOCImage(order=1, v=1, learnable=learnable, init=init, seed=0).eval()
+    theta = model.forward_net.layers[0].threshold
+    assert theta == (script.LEARNED_THRESHOLD if learnable else 0.0)
     with torch.no_grad():
-        assert torch.equal(script.mhoc_at(model, cube, 0.0), model(cube))
+        assert torch.equal(script.mhoc_at(model, cube, theta), model(cube))
     # a larger theta keeps a subset of the points
     assert bool((script.mhoc_at(model, cube, 0.5) <= script.mhoc_at(model, cube, 0.0)).all())
+    if not learnable:  # integer counts: eq. (3) and c > 0.5 agree
+        assert torch.equal(script.mhoc_at(model, cube, 0.5), script.mhoc_at(model, cube, 0.0))
+
+
+def _hoc_row(method, rule, theta, sp, d, lost, kept):
+    return {
+        "method": method,
+        "rule": rule,
+        "theta": theta,
+        "speed": sp,
+        "density": d,
+        "lost": lost,
+        "kept_clutter": kept,
+        "rejection": 1.0 - kept / 100,
+        "target_points": 10,
+    }
+
+
+def test_hoc_duplicates_and_verdict_at_the_deployed_limiter(script):
+    rows = []
+    for sp in ("slow", "fast"):
+        for d in script.DENSITIES:
+            rows += [
+                _hoc_row("fixed [LA98]", script.EQ3, 0.0, sp, d, 0, 20),
+                _hoc_row("fixed [LA98]", script.DEPLOYED, 0.5, sp, d, 0, 20),
+                _hoc_row("fixed [LA98]", script.STAR, 1.5, sp, d, 3, 5),
+                _hoc_row("learned", script.EQ3, 0.0, sp, d, 0, 30),
+                _hoc_row("learned", script.DEPLOYED, 0.5, sp, d, 0, 10),
+                _hoc_row("learned", script.STAR, 0.5, sp, d, 0, 10),
+                _hoc_row("same", script.EQ3, 0.0, sp, d, 0, 10),
+                _hoc_row("same", script.DEPLOYED, 0.5, sp, d, 0, 10),
+            ]
+    same = script.hoc_duplicates(rows)
+    assert same == {
+        ("fixed [LA98]", script.DEPLOYED): script.EQ3,
+        ("learned", script.STAR): script.DEPLOYED,
+    }
+    assert script.hoc_keys(rows) == [
+        ("fixed [LA98]", script.EQ3),
+        ("fixed [LA98]", script.STAR),
+        ("learned", script.EQ3),
+        ("learned", script.DEPLOYED),
+        ("same", script.EQ3),
+        ("same", script.DEPLOYED),  # a learned network's deployed row is always its own
+    ]
+    lines = [x for x in script.hoc_verdict(rows) if x.startswith("- HOC slow targets, learned")]
+    assert [script.DEPLOYED in x for x in lines] == [True, False]  # deployed first, no theta*
+    assert script.EQ3 in lines[1].split(" (theta")[0]
+    # learned keeps 10 clutter points of 100 at 0.5 (30 at 0), the fixed network 20
+    assert "0.8 %: +10.00 pts, lost 0 (fixed 0)" in lines[0] and "is met." in lines[0]
+    assert "0.8 %: -10.00 pts" in lines[1]
+    head = script.hoc_headline(rows)
+    assert len(head) == 4 and "deployed limiter" in head[0]
+    assert "fixed [LA98]: 0 / 40 lost, mean rejection 80.00 %" in head[0]
+    assert "learned: 0 / 40 lost, mean rejection 90.00 %" in head[0]
+    assert "learned: 0 / 40 lost, mean rejection 70.00 %" in head[1]
 
 
 def test_npa_scenes_are_paired_across_snr(script):

@@ -8,11 +8,18 @@ from hocnet.hoc import (
     HOCNet,
     MHOCImage,
     ModifiedHOCLayer,
+    hoc_layer,
     mhoc_image,
     modified_hoc,
     original_hoc,
 )
-from hocnet.hoc.layers import relaxed_limiter, ste_limiter
+from hocnet.hoc.functional import hard_limiter
+from hocnet.hoc.layers import (
+    LEARNED_THRESHOLD,
+    learned_limiter,
+    relaxed_limiter,
+    ste_limiter,
+)
 
 
 def random_cube(seed, shape, density):
@@ -169,3 +176,87 @@ class TestLimiters:
         assert out.tolist() == [0.0, 1.0]
         out.sum().backward()
         assert (c.grad > 0).all()
+
+    def test_learned_limiter_is_eq3_on_integer_counts(self):
+        c = torch.arange(-3, 30, dtype=torch.float32)
+        assert torch.equal(learned_limiter(c), hard_limiter(c))
+        assert torch.equal(learned_limiter(c), (c > 0).float())
+
+    def test_learned_limiter_at_the_sigmoid_centre(self):
+        c = torch.linspace(-2.0, 3.0, 501)
+        off = (c - LEARNED_THRESHOLD).abs() > 1e-3  # float rounding at the sigmoid's centre
+        for steepness in (1.0, 8.0, 50.0):
+            soft = relaxed_limiter(c, steepness)
+            assert torch.equal(learned_limiter(c)[off], (soft > 0.5).float()[off])
+        assert learned_limiter(torch.tensor([0.3])).item() == 0.0
+        assert hard_limiter(torch.tensor([0.3])).item() == 1.0  # eq. (3) would keep 0.3
+
+    @pytest.mark.parametrize("steepness", [1.0, 8.0])
+    def test_ste_forward_equals_learned_limiter(self, steepness):
+        c = torch.linspace(-1.0, 2.0, 301)
+        assert torch.equal(ste_limiter(c, steepness), learned_limiter(c))
+        assert ste_limiter(torch.tensor([0.3])).item() == 0.0
+
+
+def scaled(module, factor):
+    with torch.no_grad():
+        for p in module.parameters():
+            p.mul_(factor)
+    return module
+
+
+class TestLearnedThreshold:
+    """Learnable layers evaluate with ``c > 0.5`` (our reading), fixed ones with eq. (3)."""
+
+    def test_thresholds(self):
+        assert ModifiedHOCLayer(v=1).threshold == 0.0
+        assert HOCLayer(v=1).threshold == 0.0
+        assert ModifiedHOCLayer(v=1, learnable=True).threshold == LEARNED_THRESHOLD == 0.5
+        assert HOCLayer(v=1, learnable=True).threshold == 0.5
+        assert ModifiedHOCLayer(v=1).eval().activation() is hard_limiter
+        assert ModifiedHOCLayer(v=1, learnable=True).eval().activation() is learned_limiter
+
+    @pytest.mark.parametrize("delta", [math.pi / 4, None])
+    def test_learnable_from_fixed_equals_fixed_in_eval(self, delta):
+        cube = random_cube(11, (3, 10, 11, 12), 0.15)
+        fixed = MHOCImage(order=2, v=2, delta=delta)(cube)
+        learned = MHOCImage(order=2, v=2, delta=delta, learnable=True).eval()
+        with torch.no_grad():
+            out = learned(cube.float())
+        assert torch.equal(out, fixed)
+        assert torch.equal(out > 0, mhoc_image(cube, 2, 2, delta))
+        assert fixed.sum() > 0
+
+    @pytest.mark.parametrize("relax", ["sigmoid", "ste"])
+    def test_kernels_scaled_by_0_3_are_off(self, relax):
+        # a lone three-scan track: every count of the fixed network is 0 or 1
+        f = torch.zeros(1, 3, 7, 7)
+        f[0, 0, 3, 1] = f[0, 1, 3, 2] = f[0, 2, 3, 3] = 1.0
+        fixed = ModifiedHOCLayer(v=1)(f)
+        assert fixed[0, 0, 3, 1].item() == 1.0
+        layer = scaled(ModifiedHOCLayer(v=1, learnable=True, relax=relax), 0.3)
+        with torch.no_grad():
+            assert layer.eval()(f).sum().item() == 0.0  # 0.3 < 0.5: off
+            # eq. (3) (c > 0) would keep the point with these kernels
+            kept = hoc_layer(f, layer.mask_kernels, layer.shift_kernels, activation=hard_limiter)
+            assert kept[0, 0, 3, 1].item() == 1.0
+            soft = layer.train()(f)
+        assert soft[0, 0, 3, 1].item() < 0.5  # the relaxed limiter agrees: "off"
+
+    def test_original_kernel_scaled_by_0_3_is_off(self):
+        f = torch.zeros(1, 2, 5, 5)
+        f[0, 0, 2, 2] = f[0, 1, 2, 3] = 1.0
+        layer = scaled(HOCLayer(v=1, learnable=True), 0.3)
+        with torch.no_grad():
+            assert HOCLayer(v=1)(f)[0, 0, 2, 2].item() == 1.0
+            assert layer.eval()(f).sum().item() == 0.0
+            assert layer.train()(f)[0, 0, 2, 2].item() < 0.5
+
+    def test_ste_training_forward_equals_eval(self):
+        cube = random_cube(12, (2, 8, 9, 9), 0.2).float()
+        net = scaled(MHOCImage(order=2, v=1, learnable=True, relax="ste", init="random"), 0.8)
+        with torch.no_grad():
+            train_out = net.train()(cube)
+            eval_out = net.eval()(cube)
+        assert torch.equal(train_out, eval_out)
+        assert 0 < eval_out.sum() < cube.sum()

@@ -14,6 +14,7 @@ from hocnet.data.binary import paper_scene  # noqa: E402
 from hocnet.dpa import DPA  # noqa: E402
 from hocnet.dpa.backtrack import detect as dpa_detect  # noqa: E402
 from hocnet.hoc import identify_tracks, mhoc_image  # noqa: E402
+from hocnet.hoc.functional import hoc_layer  # noqa: E402
 from hocnet.hoc.layers import MHOCImage  # noqa: E402
 from hocnet.learn import (  # noqa: E402
     BinarySceneDataModule,
@@ -97,7 +98,38 @@ class TestDetectDPA:
         assert not torch.equal(got.state.asf, fixed.state.asf)  # the learned matrices are used
 
 
+def mhoc_at(model: MHOCImage, cube: torch.Tensor, theta: float) -> torch.Tensor:
+    """Reference: the MHOC image of a ``(T, H, W)`` cube with ``c > theta`` in every layer."""
+    outs = []
+    for net in (model.forward_net, model.backward_net):
+        y = cube[None].float()
+        for layer in net.layers:
+            y = hoc_layer(
+                y,
+                layer.mask_kernels.detach(),
+                layer.shift_kernels.detach(),
+                direction=layer.direction,
+                activation=lambda c: (c > theta).float(),
+            )
+        outs.append(y)
+    return torch.maximum(*outs)[0] > 0
+
+
 class TestDetectHOC:
+    def test_learned_support_at_c_gt_half(self, checkpoints):
+        cube = paper_scene("table3", 0.012, seed=5).cube
+        model = load_detector(checkpoints["hoc"], "hoc")
+        assert torch.equal(detect_hoc(cube, model).support, mhoc_at(model, cube, 0.5))
+        scaled = MHOCImage(order=2, v=4, learnable=True)
+        with torch.no_grad():
+            for p in scaled.parameters():
+                p.mul_(0.3)
+        support = detect_hoc(cube, scaled).support
+        assert torch.equal(support, mhoc_at(scaled, cube, 0.5))
+        eq3 = mhoc_at(scaled, cube, 0.0)
+        assert torch.equal(eq3, mhoc_image(cube, order=2, v=4))  # 0.3 x mask: eq. (3) unchanged
+        assert support.sum() < eq3.sum()  # eq. (3) keeps the fixed support, c > 0.5 less
+
     def test_fixed_module_support_is_the_mhoc_image(self):
         cube = paper_scene("table3", 0.012, seed=5).cube
         found = detect_hoc(cube, MHOCImage(order=2, v=4))

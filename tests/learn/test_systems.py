@@ -11,7 +11,8 @@ import torch
 L = pytest.importorskip("lightning")
 
 from hocnet.dpa import DPA, b_limit  # noqa: E402
-from hocnet.hoc.layers import MHOCImage  # noqa: E402
+from hocnet.hoc.functional import hoc_layer  # noqa: E402
+from hocnet.hoc.layers import LEARNED_THRESHOLD, MHOCImage  # noqa: E402
 from hocnet.learn import (  # noqa: E402
     BinarySceneDataModule,
     DPATuner,
@@ -21,6 +22,7 @@ from hocnet.learn import (  # noqa: E402
     load_model,
     project_b,
 )
+from hocnet.metrics import clutter_rejection, target_points_lost  # noqa: E402
 
 IR_TINY = {"n_train": 4, "n_val": 2, "n_test": 2, "shape": (5, 16, 16), "speed": (0.1, 1.0)}
 BIN_TINY = {"n_train": 4, "n_val": 2, "n_test": 2, "shape": (6, 16, 16), "speed": (0.1, 1.0)}
@@ -31,6 +33,29 @@ def _quiet():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         yield
+
+
+def mhoc_at(model: MHOCImage, cube: torch.Tensor, theta: float) -> torch.Tensor:
+    """Reference: the MHOC image with the limiter ``c > theta`` written into every layer."""
+    outs = []
+    for net in (model.forward_net, model.backward_net):
+        y = cube.float()
+        for layer in net.layers:
+            y = hoc_layer(
+                y,
+                layer.mask_kernels.detach(),
+                layer.shift_kernels.detach(),
+                direction=layer.direction,
+                activation=lambda c: (c > theta).float(),
+            )
+        outs.append(y)
+    return torch.maximum(*outs)
+
+
+def _scale(module: torch.nn.Module, factor: float) -> None:
+    with torch.no_grad():
+        for p in module.parameters():
+            p.mul_(factor)
 
 
 def _trainer(**kwargs) -> L.Trainer:
@@ -240,6 +265,50 @@ class TestLearnedHOCSystem:
         assert not torch.equal(
             a.model.forward_net.layers[0].mask_kernels, b.model.forward_net.layers[0].mask_kernels
         )
+
+
+class TestLearnedLimiter:
+    """Val / test steps and load_model use the learnable layers' ``c > 0.5`` (not eq. 3's 0)."""
+
+    def test_test_step_counts_at_c_gt_half(self):
+        dm = BinarySceneDataModule(**BIN_TINY, batch_size=2, clutter_density=0.08)
+        system = LearnedHOCSystem(order=1, v=1)
+        _scale(system.model, 0.3)  # counts 0.3 k: "off" at 0.5 where the fixed count k is 1
+        (results,) = _trainer().test(system, dm, verbose=False)
+        dm.setup("test")
+        cube = torch.stack([s["cube"] for s in dm.scenes("test")])
+        target = torch.stack([s["target"] for s in dm.scenes("test")])
+        points = cube > 0
+        with torch.no_grad():
+            at = {t: mhoc_at(system.model, cube, t) > 0.5 for t in (0.0, LEARNED_THRESHOLD)}
+        lost = {t: int(target_points_lost(points, k, target).sum()) for t, k in at.items()}
+        assert lost[0.0] != lost[0.5]  # the data tells the two limiters apart
+        assert results["test/target_points_lost"] == lost[0.5]
+        rejection = clutter_rejection(points, at[0.5], target)
+        assert results["test/clutter_rejection"] == pytest.approx(float(rejection.mean()))
+
+    def test_eval_from_fixed_is_the_fixed_network(self):
+        dm = BinarySceneDataModule(**BIN_TINY, clutter_density=0.05)
+        dm.setup("fit")
+        cube = torch.stack([s["cube"] for s in dm.scenes("train")])
+        system = LearnedHOCSystem(order=2, v=1).eval()
+        with torch.no_grad():
+            assert torch.equal(system(cube), MHOCImage(order=2, v=1)(cube))
+
+    def test_loaded_model_limiter(self, tmp_path):
+        dm = BinarySceneDataModule(**BIN_TINY, batch_size=2, clutter_density=0.05)
+        system = LearnedHOCSystem(order=1, v=1, init="random", lr=0.1)
+        trainer = _trainer(
+            max_epochs=1, enable_checkpointing=True, default_root_dir=tmp_path, limit_val_batches=1
+        )
+        trainer.fit(system, dm)
+        (ckpt,) = tmp_path.rglob("*.ckpt")
+        model = load_model(ckpt)
+        layers = [*model.forward_net.layers, *model.backward_net.layers]
+        assert all(layer.threshold == LEARNED_THRESHOLD for layer in layers)
+        cube = torch.stack([s["cube"] for s in dm.scenes("val")])
+        with torch.no_grad():
+            assert torch.equal(model(cube), mhoc_at(model, cube, LEARNED_THRESHOLD))
 
 
 class _Evil:
