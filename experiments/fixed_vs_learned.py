@@ -3,8 +3,9 @@
 **DPA** ([NR08], IR scenes of :class:`hocnet.learn.IRSceneDataModule`). Four settings: two speed
 ranges (slow 0.1-0.5, fast 1-2 px/frame) x two cloud presets (``clear``, and ``npa``: the clouds
 of :func:`hocnet.data.infrared.npa_like` with the plateau at 0.75 of the 12 dB target peak, the
-ratio ``npa_like`` was built on; our choice, the full 22.5-sigma plateau swamps every target of
-2-15 dB). Per setting, on the same test scenes (the same seeds at every peak SNR of ``SNRS``:
+plateau-to-peak ratio of ``npa_like`` when this experiment was run (it is 0.5 since: 15 sigma
+under a 30-sigma target); our choice, ``npa_like``'s own plateau swamps every target of 2-15 dB).
+Per setting, on the same test scenes (the same seeds at every peak SNR of ``SNRS``:
 same tracks, clouds, jitter and noise, only the target amplitude changes):
 
 * **paper g=0**: ``g = 0``, ``b`` from the effective memory 0.8 of direction 9, ``p = 0.5``,
@@ -87,7 +88,7 @@ TRAIN_SNR = (4.0, 12.0)
 REF_SNR = 6.0
 #: Peak SNRs (dB) of the ROC plot.
 ROC_SNRS = (6.0, 12.0)
-#: Peak SNR (dB) whose target peak sets the NPA-like cloud plateau (0.75 of it, as npa_like).
+#: Peak SNR (dB) whose target peak sets the NPA-like cloud plateau (0.75 of it: see the docstring).
 NPA_REF_DB = 12.0
 NPA_SPEC = dataclasses.replace(NPA_CLOUDS, amplitude=0.75 * 10 ** (NPA_REF_DB / 20))
 CLOUDS = {"clear": "clear", "npa": NPA_SPEC}
