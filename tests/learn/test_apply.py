@@ -131,7 +131,8 @@ class TestDetectHOC:
         assert support.sum() < eq3.sum()  # eq. (3) keeps the fixed support, c > 0.5 less
 
     def test_fixed_module_support_is_the_mhoc_image(self):
-        cube = paper_scene("table3", 0.012, seed=5).cube
+        scene = paper_scene("table3", 0.012, seed=5)
+        cube = scene.cube
         found = detect_hoc(cube, MHOCImage(order=2, v=4))
         assert torch.equal(found.support, mhoc_image(cube, order=2, v=4))
         tracks, _, cleaned = identify_tracks(
@@ -139,7 +140,8 @@ class TestDetectHOC:
         )
         assert torch.equal(found.cleaned, cleaned)
         assert [t.points.tolist() for t in found.tracks] == [t.points.tolist() for t in tracks]
-        assert len(found.tracks) >= 9  # the paper's 9 targets (or more candidates)
+        assert len(found.tracks) >= len(scene.tracks)  # every true track (or more candidates)
+        assert not (scene.target_mask & ~found.cleaned).any()  # no target point lost
 
     def test_learned_support_and_batch(self, checkpoints):
         model = load_detector(checkpoints["hoc"], "hoc")
