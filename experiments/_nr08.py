@@ -63,7 +63,16 @@ NA23 0.2-0.8 (12 scenes at s_n = 4: b = 0 tracked in 42 % / 58 % of them)."""
 FLUCT = "NA23A fluct."
 """Scene key of the fluctuating NA23A-like variant (measured beside the constant-peak presets)."""
 
-VARIANT_SCENES = {FLUCT: ("NA23A", {"fluctuation": FLUCTUATION})}
+POINT = "NA23A point"
+"""Scene key of the one-pixel-target NA23A-like variant (``na23a_like(psf="pixel")``, our reading
+of [NR08]'s "point target" that "subtends less than a pixel", section 1, and of Figure 19, where
+the g = 1 ASF holds "only one high pixel belonging to the target"): the test scene of the
+Max_Numbers study (``tests/dpa/test_metrics.py``)."""
+
+VARIANT_SCENES = {
+    FLUCT: ("NA23A", {"fluctuation": FLUCTUATION}),
+    POINT: ("NA23A", {"psf": "pixel"}),
+}
 """Scene key -> (paper sequence, preset keywords) for the variants beyond ``SCENES``."""
 
 
