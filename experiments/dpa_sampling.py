@@ -8,7 +8,9 @@ and picks the number of highest pixels taken as "target" in the Block SNR of eq.
 with b = 4.8 for g = 0, section 3.2.1(3); NPA's Max_Numbers are those of its s_n = 3 study,
 section 3.2.2(1)). The Max_Numbers peak is therefore read at s_n = 4 for NA23A and s_n = 3 for NPA.
 
-Here every scene (``na23a_like`` / ``npa_like``, the presets after section 3) is simulated with
+Here every scene (``na23a_like`` / ``npa_like``, the presets after section 3, and the NA23A-like
+variants: fluctuating peak, and one-pixel target ``psf="pixel"``, our reading of the paper's point
+target and the test scene of ``tests/dpa/test_metrics.py``) is simulated with
 ``1 + 24 s_n`` frames and every ``s_n``-th frame is kept, so the DPA (5 x 5 matrices, as in
 section 3) always sees 25 frames. It runs with g = 0 and g = 1, each at the b the paper used
 (4.8 and 0.8) and at the effective-memory b of direction 9 (eq. 12-14, EMC 0.8). A_S (eq. 16-17

@@ -606,6 +606,10 @@ def max_numbers_curves(psf: str, g: float) -> torch.Tensor:
 class TestMaxNumbersScene:
     """[NR08] Table 2: A_S peaks at Max_Numbers = 3 for g = 0 and 1 for g = 1 (NA23A, s_n = 4).
 
+    The paper finds g = 0's 3 as the peak of A_S versus Max_Numbers (Figure 15) and g = 1's 1 by
+    counting the target's high pixels in the last frame (Figure 19); its summary 3.2.1(4) prints
+    1 for g = 0 too (a conflict; we test Table 2).
+
     Measured (seeds 0, 1, 2; A_S for Max_Numbers 1..7, mean over the last 6 frames):
 
     one-pixel target, g = 1, b = 0.8 (peak at 1 in every scene, as the paper):
