@@ -24,7 +24,11 @@ PAPER_B_RANGE = {
 PAPER_B_NOTE = "NA23, g = 0: 4.4-6 in the text (section 3.2.1(3)); Table 2 prints 4.4-4.6."
 
 PAPER_MAX_NUMBERS = {0.0: 3, 1.0: 1}
-"""Table 2 of [NR08]: the preferred Max_Numbers of the Block SNR, per g."""
+"""Table 2 of [NR08]: the preferred Max_Numbers of the Block SNR, per g. Section 3.2.1(3) finds
+g = 0's 3 as the peak of A_S versus Max_Numbers (Figure 15, NA23A, s_n = 4, b = 4.8) and g = 1's
+1 from the last frame (Figure 19: "only one high pixel belonging to the target" for b <= 0.8),
+not from an A_S curve; the summary 3.2.1(4) prints 1 for g = 0 as well (we follow section
+3.2.1(3), Figure 21(a) and Table 2)."""
 
 PAPER_SN_RANGE = {"NA23A": (1, 5), "NPA": (3, 5)}
 """Table 2 of [NR08]: range of the sampling s_n where tracking occurred (both g)."""
@@ -63,7 +67,16 @@ NA23 0.2-0.8 (12 scenes at s_n = 4: b = 0 tracked in 42 % / 58 % of them)."""
 FLUCT = "NA23A fluct."
 """Scene key of the fluctuating NA23A-like variant (measured beside the constant-peak presets)."""
 
-VARIANT_SCENES = {FLUCT: ("NA23A", {"fluctuation": FLUCTUATION})}
+POINT = "NA23A point"
+"""Scene key of the one-pixel-target NA23A-like variant (``na23a_like(psf="pixel")``, our reading
+of [NR08]'s "point target" that "subtends less than a pixel", section 1, and of Figure 19, where
+the g = 1 ASF holds "only one high pixel belonging to the target"): the test scene of the
+Max_Numbers study (``tests/dpa/test_metrics.py``)."""
+
+VARIANT_SCENES = {
+    FLUCT: ("NA23A", {"fluctuation": FLUCTUATION}),
+    POINT: ("NA23A", {"psf": "pixel"}),
+}
 """Scene key -> (paper sequence, preset keywords) for the variants beyond ``SCENES``."""
 
 

@@ -60,6 +60,7 @@ __all__ = [
     "NA23A_PEAK",
     "NPA_CLOUDS",
     "NPA_PEAK",
+    "PSF_MODELS",
     "CloudSpec",
     "IRSequence",
     "IRTarget",
@@ -68,6 +69,9 @@ __all__ = [
     "npa_like",
     "simulate_ir",
 ]
+
+PSF_MODELS = ("gaussian", "pixel")
+"""Target signatures of :class:`IRTarget`: eq. (1) sampled at pixel centres, or one pixel."""
 
 MAX_SPEED = 2.0
 """Largest target speed in px/frame accepted by :class:`IRTarget` (the regime of [NR08])."""
@@ -116,6 +120,11 @@ class IRTarget:
         turn_rate: gentle turn in rad/frame.
         turn_at: frame index (>= 1) at which the velocity becomes ``new_velocity``.
         new_velocity: ``(vx, vy)`` after the sharp turn; required with ``turn_at``.
+        psf: ``"gaussian"`` (default): eq. (1) sampled at pixel centres with ``sigma``;
+            ``"pixel"`` (our addition): a point target that subtends less than a pixel ([NR08]
+            section 1; the 1-D example of section 2.2.2), its whole peak ``A`` in the one pixel
+            containing its (jittered) position ``(floor(x + 0.5), floor(y + 0.5))``; ``sigma``
+            is then unused.
 
     Examples:
         >>> IRTarget(10.0, 5.0, 1.0, 0.0, snr_db=6.0).trajectory(3)
@@ -138,8 +147,10 @@ class IRTarget:
     turn_rate: float = 0.0
     turn_at: int | None = None
     new_velocity: tuple[float, float] | None = None
+    psf: str = "gaussian"
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "psf", check_choice("psf", self.psf, PSF_MODELS))
         for name in ("x0", "y0", "vx", "vy", "snr_db", "turn_rate"):
             object.__setattr__(self, name, check_number(name, getattr(self, name)))
         _check_speed("vx, vy", self.vx, self.vy)
@@ -443,7 +454,12 @@ def _render_targets(
     px, py = positions[..., 0:1], positions[..., 1:2]  # (B, N, T, 1)
     sx, sy = sig[None, :, None, 0:1], sig[None, :, None, 1:2]
     prof_x = torch.exp(-((xs - px) ** 2) / (2.0 * sx * sx))  # (B, N, T, W)
-    prof_y = torch.exp(-((ys - py) ** 2) / (2.0 * sy * sy)) * amp[None, :, None, None]
+    prof_y = torch.exp(-((ys - py) ** 2) / (2.0 * sy * sy))
+    pixel = torch.tensor([tg.psf == "pixel" for tg in targets])[None, :, None, None]
+    if bool(pixel.any()):  # one-pixel targets: 1 in the pixel containing the position, else 0
+        prof_x = torch.where(pixel, (xs == torch.floor(px + 0.5)).double(), prof_x)
+        prof_y = torch.where(pixel, (ys == torch.floor(py + 0.5)).double(), prof_y)
+    prof_y = prof_y * amp[None, :, None, None]
     if scale is not None:
         prof_y = prof_y * scale[..., None]
     # Separable PSF: per frame, (H, N) @ (N, W) sums the targets' outer products.
@@ -608,6 +624,7 @@ def na23a_like(
     seed: int | None = None,
     generator: torch.Generator | None = None,
     fluctuation: float | None = None,
+    psf: str = "gaussian",
 ) -> IRSequence:
     """Scene after the NA23A sequence of [NR08]: one target moving right to left, clear sky.
 
@@ -635,6 +652,9 @@ def na23a_like(
         seed: random seed (a seeded preset is reproducible).
         generator: generator to draw from instead of ``seed``.
         fluctuation: per-frame peak fluctuation of :func:`simulate_ir` (``None``: constant).
+        psf: target signature, ``"gaussian"`` (PSF sigma 0.7 px, default) or ``"pixel"`` (the
+            whole peak in one pixel: the point target of [NR08], see :class:`IRTarget`; the
+            test scene of the Max_Numbers study, ``tests/dpa/test_metrics.py``).
 
     Returns:
         An :class:`IRSequence` with one target.
@@ -648,7 +668,7 @@ def na23a_like(
     """
     t_len, h, w = _shape3(shape)
     speed = check_number("speed", speed, low=0.0, high=MAX_SPEED)
-    target = IRTarget(0.5 * w, 0.5 * h, -speed, 0.0, snr_db=snr_db)
+    target = IRTarget(0.5 * w, 0.5 * h, -speed, 0.0, snr_db=snr_db, psf=psf)
     return simulate_ir(
         (t_len, h, w),
         [target],

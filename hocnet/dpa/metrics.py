@@ -463,7 +463,11 @@ def algorithm_score(
     ``reading="centred"`` (our earlier reading, kept as an option): the mean over the last
     frames (and the targets) of ``block_snr(..., reading="centred")`` at the true position of
     each frame (``anchor`` is ignored). Under this reading ``A_S`` can only fall as
-    ``max_numbers`` grows; under the paper's it peaks at the number of target pixels.
+    ``max_numbers`` grows; under the paper's it can peak where the pixels the target lights in
+    the ASF end (measured on the NA23A-like s_n = 4 scene with a one-pixel target,
+    ``tests/dpa/test_metrics.py``: at 1 for g = 1 in every scene, as [NR08] Table 2; for g = 0
+    it rises to 3 and then levels off within a few %, the knee at the paper's 3 but no clear
+    peak, since the spread of the non-target SNRs also shrinks with ``max_numbers``).
 
     Notes:
         Our reading of [NR08]: population standard deviations; equal weight per frame and per

@@ -492,3 +492,28 @@ class TestNpaLike:
             npa_like(shape=(40, 90))
         with pytest.raises(TypeError, match="`clouds`"):
             npa_like(clouds="wispy")
+
+
+class TestPixelPSF:
+    def test_one_lit_pixel_at_the_jittered_position(self):
+        seq = na23a_like(shape=(6, 30, 40), seed=3, psf="pixel")
+        gauss = na23a_like(shape=(6, 30, 40), seed=3)
+        assert torch.equal(seq.target_free, gauss.target_free)
+        assert torch.equal(seq.positions, gauss.positions)
+        signal = seq.frames - seq.target_free
+        for t in range(6):
+            x, y = (math.floor(float(v) + 0.5) for v in seq.positions[0, t])
+            expected = torch.zeros(30, 40)
+            expected[y, x] = 60.0
+            torch.testing.assert_close(signal[t], expected, atol=1e-4, rtol=0)
+
+    def test_mixed_targets_and_validation(self):
+        point = IRTarget(5.0, 5.0, 0.0, 0.0, 20.0, psf="pixel")
+        blob = IRTarget(14.3, 5.0, 0.0, 0.0, 20.0)
+        both = simulate_ir((1, 10, 20), [point, blob], clouds="clear", jitter=0.0, seed=0)
+        alone = simulate_ir((1, 10, 20), [blob], clouds="clear", jitter=0.0, seed=0)
+        diff = both.frames - alone.frames
+        assert float(diff[0, 5, 5]) == pytest.approx(10.0, rel=1e-5)
+        assert int((diff.abs() > 1e-4).sum()) == 1
+        with pytest.raises(ValueError, match="`psf`"):
+            IRTarget(0.0, 0.0, 0.0, 0.0, 20.0, psf="disc")

@@ -1,3 +1,4 @@
+import functools
 import itertools
 import math
 
@@ -5,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from hocnet.data.infrared import IRTarget, simulate_ir
+from hocnet.data.infrared import IRTarget, na23a_like, simulate_ir
 from hocnet.data.whitening import anti_mean
 from hocnet.dpa.functional import accumulate
 from hocnet.dpa.matrices import effective_memory, probability_matrices
@@ -564,3 +565,85 @@ class TestAlgorithmScorePaper:
             algorithm_score(asf, pos, last=2, block=(40, 40))
         with pytest.raises(ValueError, match="`max_numbers`"):
             algorithm_score(asf, pos, last=2, block=2, max_numbers=4)
+
+
+# ----------------------------------------------------------------------------- Max_Numbers scene
+
+MN_SEEDS = (0, 1, 2)
+
+
+@functools.cache
+def max_numbers_scene(psf: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """Whitened frames ``(3, 25, 90, 240)`` and truth ``(3, 25, 2)`` of the NA23A s_n = 4 scene.
+
+    The scene of [NR08] section 3.2.1(3) as far as the paper is explicit: NA23A, a single target
+    in clear sky moving right to left at 0.3 px/frame, every 4th frame kept (s_n = 4, 1.2
+    px/frame), 25 kept frames, anti-mean whitening (section 2.1). Our readings: white noise for
+    the clear sky, Table 2's maximal peak 60 as a peak-to-noise ratio, the assumed U[-0.5, 0.5]
+    jitter, and (``psf="pixel"``) the point target "subtending less than a pixel" as one lit
+    pixel.
+    """
+    seqs = [na23a_like(shape=(97, 90, 240), seed=s, psf=psf) for s in MN_SEEDS]
+    frames = anti_mean(torch.stack([q.frames[::4] for q in seqs]))
+    return frames, torch.stack([q.positions[0, ::4] for q in seqs])
+
+
+@functools.cache
+def max_numbers_curves(psf: str, g: float) -> torch.Tensor:
+    """``(seeds, 7)`` A_S (eq. 16-17, mean over the last 6 frames) for Max_Numbers 1..7.
+
+    5 x 5 matrices (0-1 px/frame, section 3), b = 4.8 for g = 0 and 0.8 for g = 1 (the paper's
+    b of its Max_Numbers study), 30 x 80 blocks (section 3.2.1(2)).
+    """
+    frames, truth = max_numbers_scene(psf)
+    asf = accumulate(frames, probability_matrices(5, v_max=1.0), {0.0: 4.8, 1.0: 0.8}[g], g).asf
+    curves = [
+        algorithm_score(asf, truth, last=6, block=(30, 80), max_numbers=m) for m in range(1, 8)
+    ]
+    return torch.stack(curves, dim=1)
+
+
+class TestMaxNumbersScene:
+    """[NR08] Table 2: A_S peaks at Max_Numbers = 3 for g = 0 and 1 for g = 1 (NA23A, s_n = 4).
+
+    The paper finds g = 0's 3 as the peak of A_S versus Max_Numbers (Figure 15) and g = 1's 1 by
+    counting the target's high pixels in the last frame (Figure 19); its summary 3.2.1(4) prints
+    1 for g = 0 too (a conflict; we test Table 2).
+
+    Measured (seeds 0, 1, 2; A_S for Max_Numbers 1..7, mean over the last 6 frames):
+
+    one-pixel target, g = 1, b = 0.8 (peak at 1 in every scene, as the paper):
+        133.2  89.5  68.9  57.2  49.7  44.4  41.1
+        139.6  92.1  69.4  57.9  49.9  44.6  40.9
+        127.8  84.0  66.9  59.0  53.1  48.8  44.6
+    one-pixel target, g = 0, b = 4.8 (steep rise to 3, then flat within 3 %; argmax 5, 2, 7):
+         49.9  61.3  64.7  65.0  65.4  64.4  63.5
+         52.5  61.0  60.4  58.9  58.1  56.5  55.5
+         42.6  52.0  53.2  53.4  54.2  54.6  54.7
+    0.7 px Gaussian PSF (the presets), g = 1 (argmax 3, 2, 4):
+         84.7  88.2  89.1  86.7  82.3  78.8  77.5
+         88.5  90.7  88.6  84.9  80.8  77.9  76.3
+         82.6  86.2  87.5  89.8  89.3  88.4  86.6
+
+    Why: A_S = (SNR_TB - mean SNR_NTB) / std SNR_NTB; std SNR_NTB falls with Max_Numbers in
+    white-noise blocks, and SNR_TB falls slowly while the highest pixels are pixels the target
+    lights in the ASF and fast beyond. The one-pixel target's g = 1 footprint is one pixel
+    (noiseless: 1, 0.15, 0.09 of the peak), so A_S falls from 1. At g = 0 the max recursion keeps
+    the pixels the target passed (b max(w) = 0.83 per frame; noiseless 1, 0.73, 0.72, 0.61,
+    0.49): A_S gains about 20 % up to 3 and then stays level, so the paper's 3 is the knee of
+    the curve; whether the maximum falls on it is decided by the few-% wiggles beyond (not a
+    peak we reproduce on white noise). The Gaussian PSF lights 3 x 3 pixels and moves the g = 1
+    peak to 2-4.
+    """
+
+    def test_g1_peaks_at_one_for_a_point_target(self):
+        point = max_numbers_curves("pixel", 1.0)
+        assert (point.argmax(dim=1) == 0).all(), point
+        # the spread of the presets' Gaussian PSF is what moves the peak off 1
+        gauss = max_numbers_curves("gaussian", 1.0)
+        assert (gauss.argmax(dim=1) >= 1).all(), gauss
+
+    def test_g0_rises_to_three_then_levels(self):
+        mean = max_numbers_curves("pixel", 0.0).mean(dim=0)
+        assert float(mean[2]) > 1.15 * float(mean[0]), mean
+        assert float(mean[1]) < float(mean[2]) <= float(mean.max()) < 1.05 * float(mean[2]), mean
