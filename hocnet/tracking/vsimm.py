@@ -26,11 +26,15 @@ belong to several sections: :func:`vsimm_expand_sections` adds one row per new s
 per hypothesis ``h``), and :func:`vsimm_section_sprt` updates the section probabilities (24.38)
 and runs Wald's SPRT (24.39-24.40) to keep one.
 
-**Likelihoods** (24.29-24.32): mode ``i`` moving: ``PD_i p(z | M_i)`` if detected, ``1 - PD_i``
-if not; stop: ``delta_{m_j, 0}``. ``PD_i`` is the sensor's ``PD`` or, with the GMTI minimum
-detectable velocity (``use_mdv``), the expected ``PD`` of the mode's predicted state
-(:meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability`; our reading of the
-MDV, floored at 1e-12). The IMM equations are those of :mod:`hocnet.tracking.imm` (mixing
+**Likelihoods** (24.29-24.32, by the one kernel of
+:func:`hocnet.tracking.imm.pd_mode_log_likelihoods`): mode ``i`` moving: ``PD_i p(z | M_i)`` if
+detected, ``1 - PD_i`` if not; stop: ``delta_{m_j, 0}`` for a sensor with an MDV (GMTI, the
+printed 24.31), and like a moving mode for a sensor that sees stopped targets (video / UGS,
+``stop_detectable``; our reading). ``PD_i`` is the sensor's ``PD`` (coverage-aware for video /
+UGS) or, with the GMTI minimum detectable velocity (``use_mdv``), the expected ``PD`` of the
+mode's predicted state (:meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability`;
+our reading of the MDV), floored at 1e-12. The IMM equations are those of
+:mod:`hocnet.tracking.imm` (mixing
 24.33-24.35 with the standard indices, 24.36, 24.37).
 
 **24.38** prints the sum over ``h_bar in {1, ..., N_k - 1}``; we read the subscript ``k - 1``
@@ -57,7 +61,7 @@ from typing import Any, NamedTuple
 import torch
 
 from hocnet._check import check_choice, check_number
-from hocnet.tracking.imm import _combine, _mix, _mixing, imm_mixing_probabilities
+from hocnet.tracking.imm import _combine, _mix, _mixing, _pd_mode_ll, imm_mixing_probabilities
 from hocnet.tracking.kalman import DTYPE, _update, as_float64
 from hocnet.tracking.oosm import (
     Retrodiction,
@@ -66,8 +70,8 @@ from hocnet.tracking.oosm import (
     _retrodict,
     check_oosm_time,
 )
-from hocnet.tracking.road import RoadNetwork
-from hocnet.tracking.sensors import check_measurements
+from hocnet.tracking.road import RoadNetwork, on_segment_probability_from_moments
+from hocnet.tracking.sensors import check_measurements, stop_detectable
 from hocnet.tracking.sprt import sprt_thresholds
 
 __all__ = [
@@ -90,6 +94,26 @@ __all__ = [
 ]
 
 _PD_FLOOR = 1e-12
+
+
+def _mode_pd(sensor: Any, config: VSIMMConfig, x: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """``PD_i`` ``(B, r)`` of 24.30, floored at ``_PD_FLOOR``.
+
+    The MDV-notch expected PD of a GMTI (``use_mdv``), the coverage-aware PD of another sensor,
+    else the constant ``pd``.
+    """
+    B, r = x.shape[:2]
+    if hasattr(sensor, "mdv") and not config.use_mdv:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    elif hasattr(sensor, "expected_detection_probability"):
+        pd = torch.as_tensor(sensor.expected_detection_probability(x, P), dtype=DTYPE)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    return pd.clamp(_PD_FLOOR, 1.0)
+
+
+def _stop_mask(config: VSIMMConfig) -> torch.Tensor:
+    return torch.tensor([k == "stop" for k in config.kinds])
 
 
 def _default_trans(r: int, stay: float = 0.9) -> tuple[tuple[float, ...], ...]:
@@ -296,10 +320,6 @@ def _process_noise(
     return torch.where(stop, torch.zeros_like(Q), Q)
 
 
-def _phi(t: torch.Tensor) -> torch.Tensor:
-    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
-
-
 def _accel_cov(
     net: RoadNetwork,
     seg: torch.Tensor,
@@ -326,12 +346,7 @@ def _accel_cov(
         along = ((x_pred[..., [0, 2]] - net.p0[s]) * u).sum(-1)
         Ppos = P_tmp[..., [0, 2], :][..., [0, 2]]
         var = (u.unsqueeze(-2) @ Ppos @ u.unsqueeze(-1)).squeeze(-1).squeeze(-1)
-        length = net.length[s]
-        sd = var.clamp(min=0.0).sqrt()
-        safe = torch.where(sd > 0, sd, torch.ones_like(sd))
-        p = _phi((length - along) / safe) - _phi(-along / safe)
-        inside = ((along >= 0) & (along <= length)).to(DTYPE)
-        p = torch.where(sd > 0, p, inside).clamp(0.0, 1.0)
+        p = on_segment_probability_from_moments(along, var, net.length[s])
         p_on = torch.where(road.view(1, -1) & (seg >= 0), p, p_on)
         q = sc2.squeeze(-1).squeeze(-1) * p_on + sa2.squeeze(-1).squeeze(-1) * (1.0 - p_on)
         relaxed = sa2 * uu + q.unsqueeze(-1).unsqueeze(-1) * nn
@@ -587,14 +602,15 @@ def vsimm_update(
         ValueError: non-finite measurement in a detected row, bad shapes.
 
     Examples:
-        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> from hocnet.tracking.sensors import GMTISensor
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
         >>> cfg = VSIMMConfig()
         >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
         >>> pred = vsimm_predict(s, net, cfg, 10.0)
-        >>> new, out = vsimm_update(s, pred, torch.tensor([[float("nan"), 0.0]]), VideoSensor(),
-        ...                         net, cfg, detected=torch.tensor([False]))
-        >>> new.mu[0, 0] > s.mu[0, 0]  # a missed detection favours the stop model
+        >>> z = torch.tensor([[float("nan"), 0.0, 0.0]])
+        >>> new, out = vsimm_update(s, pred, z, GMTISensor((0.0, -5000.0, 0.0)), net, cfg,
+        ...                         detected=torch.tensor([False]))
+        >>> new.mu[0, 0] > s.mu[0, 0]  # a GMTI miss favours the stop model (24.31)
         tensor(True)
     """
     B, r = pred.cbar.shape
@@ -621,16 +637,9 @@ def vsimm_update(
     R = R.expand(B, r, m, m)
     nu = zt.unsqueeze(1) - hx
     x_upd, P_upd, ll = _update(pred.x, pred.P, nu, H, R)
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(pred.x, pred.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
+    pd = _mode_pd(sensor, config, pred.x, pred.P)
     d = det.unsqueeze(-1)
-    moving = torch.where(d, torch.log(pd) + ll, torch.log1p(-pd))
-    stop = torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll))
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
-    mode_ll = torch.where(is_stop, stop, moving)
+    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
     x_upd = torch.where(d.unsqueeze(-1), x_upd, pred.x)
     P_upd = torch.where(d.unsqueeze(-1).unsqueeze(-1), P_upd, pred.P)
     # projection on the active segments (road and stop modes)
@@ -739,15 +748,14 @@ def vsimm_association_log_likelihood(
     d2 = (w * w).sum(-1)
     logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
     ll = -0.5 * (d2 + logdet + m * math.log(2.0 * math.pi))
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(pred.x, pred.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    pd = _mode_pd(sensor, config, pred.x, pred.P)
+    is_stop = _stop_mask(config)
+    sees_stop = stop_detectable(sensor)
     log_cbar = torch.log(pred.cbar)
-    det = torch.where(is_stop.unsqueeze(1), -torch.inf, torch.log(pd).unsqueeze(1) + ll)
-    miss = torch.where(is_stop, 0.0, torch.log1p(-pd))
+    det = _pd_mode_ll(ll, torch.ones((B, M), dtype=torch.bool), pd.unsqueeze(1), is_stop, sees_stop)
+    miss = _pd_mode_ll(
+        torch.zeros_like(pd), torch.zeros(B, dtype=torch.bool), pd, is_stop, sees_stop
+    )
     return VSIMMAssociation(
         torch.logsumexp(det + log_cbar.unsqueeze(1), -1),
         torch.logsumexp(miss + log_cbar, -1),
@@ -1151,18 +1159,8 @@ def vsimm_oosm(
     H = H.expand(B, r, m, 4)
     R = R.expand(B, r, m, m)
     x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(r1.x, r1.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
-    d = det.unsqueeze(-1)
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
-    mode_ll = torch.where(
-        is_stop,
-        torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll)),
-        torch.where(d, torch.log(pd) + ll, torch.log1p(-pd)),
-    )
+    pd = _mode_pd(sensor, config, r1.x, r1.P)
+    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
     Dk, Lk = net.constraint(state.segment.clamp(min=0))
     xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
     Pk = Ak @ P_upd @ Ak.transpose(-1, -2)

@@ -70,7 +70,8 @@ def ref_gmti(sensor, z):
     dx, dy = z[0] - xc, z[1] - yc
     g = math.hypot(dx, dy)
     rho = math.sqrt(g * g + zc * zc)
-    H = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, dx / rho, 0, dy / rho]], dtype=float)
+    den = g if sensor.range_rate == "ground" else rho  # 24.18 on the ground (default) or slant
+    H = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, dx / den, 0, dy / den]], dtype=float)
     c, s = dx / g, dy / g
     J = np.array([[rho / g * c, -g * s], [rho / g * s, g * c]])
     R = np.zeros((3, 3))
@@ -143,7 +144,8 @@ def ref_step(net, cfg, state, t, z, det, sensor):
             if cfg.use_mdv and sensor.name == "gmti":
                 xc, yc, zc = sensor.position
                 dx, dy = xp[0] - xc, xp[2] - yc
-                rho = math.sqrt(dx * dx + dy * dy + zc * zc)
+                h2 = 0.0 if sensor.range_rate == "ground" else zc * zc
+                rho = math.sqrt(dx * dx + dy * dy + h2)
                 h3 = np.array([0, dx / rho, 0, dy / rho])
                 m, s = float(h3 @ xp), math.sqrt(float(h3 @ Pp @ h3))
                 if s > 0:
@@ -154,7 +156,7 @@ def ref_step(net, cfg, state, t, z, det, sensor):
             else:
                 pd = sensor.pd
             pd = min(max(pd, 1e-12), 1.0)
-            if kinds[j] == "stop":
+            if kinds[j] == "stop" and sensor.name == "gmti":  # 24.31: the MDV hides a stop
                 lam = 0.0 if det[b] else 1.0
             else:
                 lam = pd * math.exp(ll) if det[b] else 1 - pd
@@ -603,7 +605,8 @@ def ref_oosm(net, cfg, s, tau, z, sensor):
                 K = Pn @ D.T @ np.linalg.pinv(D @ Pn @ D.T, rcond=1e-9, hermitian=True)
                 A = np.eye(4) - K @ D
                 xn, Pn = xn - K @ (D @ xn - L), A @ Pn @ A.T
-            lams.append(0.0 if kind == "stop" else sensor.pd * math.exp(ll))
+            stop_hidden = kind == "stop" and sensor.name == "gmti"  # 24.31 only with an MDV
+            lams.append(0.0 if stop_hidden else sensor.pd * math.exp(ll))
             xs.append(xn)
             Ps.append(Pn)
         w = np.array(lams) * s.mu[b].numpy()
@@ -639,3 +642,34 @@ def test_vsimm_oosm_matches_loop_reference(sensor_name):
         np.testing.assert_allclose(new.P[b].numpy(), Pr, rtol=1e-7, atol=1e-6)
         np.testing.assert_allclose(new.mu[b].numpy(), mur, rtol=1e-8, atol=1e-12)
         assert float(out.log_likelihood[b]) == pytest.approx(llr, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "ugs", "gmti"])
+def test_stopped_track_seen_by_imagery_stays_stopped(sensor_name):
+    """Finding 1: 24.31 (Lambda_0 = delta) only for a sensor with an MDV.
+
+    Before the fix a stopped track mu = [.98, .01, .01] seen by a video sensor at its
+    position lost its stop mode entirely (mu_0 -> 0); now video / UGS score the stop mode
+    PD p(z | M0), while a GMTI detection still rules the stop mode out (the printed 24.31).
+    """
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+    cfg = VSIMMConfig()
+    x0 = torch.tensor([[500.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    P0 = torch.diag(torch.tensor([25.0, 0.01, 25.0, 0.01], dtype=torch.float64))
+    mu0 = torch.tensor([0.98, 0.01, 0.01], dtype=torch.float64)
+    s = vsimm_init(net, x0, P0, cfg, mu0=mu0)
+    if sensor_name == "gmti":
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        z = sensor.measure(x0)
+    else:
+        sensor = VideoSensor(10.0, 0.9, name=sensor_name)
+        z = x0[:, [0, 2]].clone()
+    new, out = vsimm_step(s, net, cfg, 10.0, z, sensor)
+    if sensor_name == "gmti":
+        assert float(new.mu[0, 0]) == 0.0
+    else:
+        assert float(new.mu[0, 0]) > 0.9
+    # association likelihoods use the same kernel
+    pred = vsimm_predict(s, net, cfg, 10.0)
+    a = vsimm_association_log_likelihood(pred, z, sensor, cfg)
+    torch.testing.assert_close(a.log_likelihood[:, 0], out.log_likelihood)
