@@ -43,13 +43,15 @@ spawned hypothesis has ``mu = 0`` at ``k - 1``, so summing over the ``N_k`` curr
 same). ``Omega[h_bar, h]`` is the probability of moving from the road of ``h_bar`` to that of
 ``h`` (:func:`section_transition`, our choice of values).
 
-**SPRT thresholds** (24.39-24.40; "given in [5, 20]"): Wald's ``A = (1 - beta) / alpha`` and
-``B = beta / (1 - alpha)`` for the error probabilities ``alpha`` (accepting a wrong section) and
-``beta`` (rejecting the true one). The chapter's letters are swapped with respect to Wald's: its
-24.39 accepts ``h`` when ``mu_h / mu_h' >= B`` for all ``h'`` and 24.40 rejects when
-``<= A``; the acceptance bound must be the large one, so we accept above Wald's
-``A = (1 - beta) / alpha`` and reject below Wald's ``B = beta / (1 - alpha)``
-(:func:`hocnet.tracking.sprt.sprt_thresholds` returns their logarithms, ``(ln lower, ln upper)``).
+**SPRT thresholds** (24.39-24.40; "given in [5, 20]"): Wald's (1947) bounds for the error
+probabilities ``alpha`` (accepting a wrong section) and ``beta`` (rejecting the true one): the
+upper bound ``(1 - beta) / alpha`` and the lower bound ``beta / (1 - alpha)`` (Wald names the
+upper one ``A`` and the lower one ``B``; the chapter's 24.39 accepts ``h`` when
+``mu_h / mu_h' >= B`` and 24.40 rejects when ``<= A``, letters swapped with respect to Wald's).
+We write "upper" and "lower" everywhere: accept above the upper bound, reject below the lower
+bound (:func:`hocnet.tracking.sprt.sprt_thresholds` returns ``(ln lower, ln upper)``). With
+three or more hypotheses the printed 24.40 can stall; :func:`sprt_decide` ``reject="best"`` is
+our option.
 """
 
 from __future__ import annotations
@@ -842,19 +844,27 @@ def section_probabilities(
 
 
 def sprt_decide(
-    mu: Any, upper: float, lower: float, valid: Any | None = None
+    mu: Any, upper: float, lower: float, valid: Any | None = None, *, reject: str = "all"
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Wald's SPRT on hypothesis probabilities, eq. 24.39-24.40, batched over tracks.
 
     Accept ``h`` when ``mu_h / mu_h' >= upper`` for all valid ``h' != h``; reject ``h`` when
-    ``mu_h / mu_h' <= lower`` for all valid ``h' != h`` (as printed); otherwise wait for the next
-    scan. A track with a single valid hypothesis accepts it.
+    ``mu_h / mu_h' <= lower`` for all valid ``h' != h`` (``reject="all"``, as printed, the
+    default); otherwise wait for the next scan. A track with a single valid hypothesis accepts it.
+
+    With three or more hypotheses the printed 24.40 never rejects a hypothesis dominated by the
+    best one but not by a weaker third (``mu = [.98, .019, .001]``, bounds 99 and 1/99: the
+    second is not rejected since ``.019 / .001 > 1/99``, and nothing is accepted since
+    ``.98 / .019 < 99``). ``reject="best"`` (our option, Armitage's multi-hypothesis SPRT form
+    of pairwise tests against the leader, Armitage 1950) rejects ``h`` when
+    ``mu_h / max_{h' != h} mu_h' <= lower``, i.e. when the best other hypothesis dominates it.
 
     Args:
         mu: ``(T, H)`` probabilities.
-        upper: acceptance bound (Wald's ``(1 - beta) / alpha``).
-        lower: rejection bound (Wald's ``beta / (1 - alpha)``).
+        upper: acceptance bound (the upper bound ``(1 - beta) / alpha``).
+        lower: rejection bound (the lower bound ``beta / (1 - alpha)``).
         valid: ``(T, H)`` bool.
+        reject: ``"all"`` (24.40 as printed) or ``"best"`` (dominated by the best other one).
 
     Returns:
         ``(accepted, rejected)``: two ``(T, H)`` bool tensors.
@@ -875,7 +885,11 @@ def sprt_decide(
     ratio = torch.where(den > 0, num / den.clamp(min=1e-300), torch.where(num > 0, torch.inf, 1.0))
     others = val.unsqueeze(-2) & ~torch.eye(mu.shape[-1], dtype=torch.bool)
     acc = torch.where(others, ratio >= upper, torch.ones_like(others)).all(-1) & val
-    rej = torch.where(others, ratio <= lower, torch.ones_like(others)).all(-1) & val
+    check_choice("reject", reject, ("all", "best"))
+    if reject == "all":
+        rej = torch.where(others, ratio <= lower, torch.ones_like(others)).all(-1) & val
+    else:
+        rej = torch.where(others, ratio <= lower, torch.zeros_like(others)).any(-1) & val
     rej = rej & others.any(-1)  # a lone hypothesis is never rejected
     return acc, rej
 
@@ -941,6 +955,7 @@ def vsimm_section_sprt(
     alpha: float = 0.01,
     beta: float = 0.01,
     omega: Any | None = None,
+    reject: str = "all",
 ) -> tuple[VSIMMState, torch.Tensor]:
     """Update ``mu_section`` by 24.38 and keep the rows the SPRT (24.39-24.40) does not reject.
 
@@ -954,6 +969,13 @@ def vsimm_section_sprt(
         alpha: SPRT probability of accepting a wrong section (:func:`sprt_thresholds`).
         beta: SPRT probability of rejecting the true section.
         omega: optional callable ``sections (T, H) -> (T, H, H)`` or a fixed ``(H, H)`` tensor.
+        reject: the rejection rule of :func:`sprt_decide` (``"all"``, 24.40 as printed, or
+            ``"best"``).
+
+    The defaults ``alpha = beta = 0.01`` differ from the track-status SPRT of the MHT
+    (``1e-3``): this test chooses among road-section hypotheses that must be settled within a
+    few scans after a junction (symmetric errors, ratio bounds 99 and 1/99), while the track
+    status weighs a false confirmation against a lost target over a whole track life.
 
     Returns:
         ``(kept_state, kept_rows)`` with ``kept_rows`` the ``(B',)`` indices into ``state``.
@@ -984,7 +1006,7 @@ def vsimm_section_sprt(
         om = as_float64("omega", omega, min_dim=2)
     mu_prev = torch.where(valid, state.mu_section[safe], torch.zeros_like(secs, dtype=DTYPE))
     mu = section_probabilities(mu_prev, ll[safe], om, valid)
-    acc, rej = sprt_decide(mu, upper, lower, valid)
+    acc, rej = sprt_decide(mu, upper, lower, valid, reject=reject)
     keep = valid & ~rej
     has_acc = acc.any(-1, keepdim=True)
     keep = torch.where(has_acc, acc, keep)

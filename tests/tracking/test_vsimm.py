@@ -673,3 +673,37 @@ def test_stopped_track_seen_by_imagery_stays_stopped(sensor_name):
     pred = vsimm_predict(s, net, cfg, 10.0)
     a = vsimm_association_log_likelihood(pred, z, sensor, cfg)
     torch.testing.assert_close(a.log_likelihood[:, 0], out.log_likelihood)
+
+
+def test_sprt_decide_reject_best_option():
+    """Finding 7: 24.40 as printed stalls with three hypotheses; ``reject="best"`` does not."""
+    from hocnet.tracking.vsimm import sprt_decide
+
+    mu = torch.tensor([[0.98, 0.019, 0.001]], dtype=torch.float64)
+    acc, rej = sprt_decide(mu, 99.0, 1 / 99)
+    assert acc.tolist() == [[False, False, False]]  # .98 / .019 < 99
+    # the third is dominated by the best (.001 / .98 <= 1/99) but not by the second
+    # (.001 / .019 > 1/99): the printed rule rejects nothing, the test stalls
+    assert rej.tolist() == [[False, False, False]]
+    acc_b, rej_b = sprt_decide(mu, 99.0, 1 / 99, reject="best")
+    assert acc_b.tolist() == acc.tolist()
+    assert rej_b.tolist() == [[False, False, True]]
+
+    # loop reference of the two rules on random probabilities (some invalid hypotheses)
+    g = torch.Generator().manual_seed(3)
+    mu = torch.rand(50, 4, generator=g, dtype=torch.float64) ** 4
+    valid = torch.rand(50, 4, generator=g) > 0.2
+    for rule in ("all", "best"):
+        _, rej = sprt_decide(mu, 20.0, 0.05, valid, reject=rule)
+        for t in range(50):
+            for h in range(4):
+                others = [k for k in range(4) if k != h and valid[t, k]]
+                ratios = [float(mu[t, h] / mu[t, k]) for k in others]
+                if rule == "all":
+                    want = all(r <= 0.05 for r in ratios)
+                else:
+                    want = any(r <= 0.05 for r in ratios)
+                want = want and bool(valid[t, h]) and bool(others)
+                assert bool(rej[t, h]) == want, (rule, t, h)
+    with pytest.raises(ValueError, match="`reject`"):
+        sprt_decide(mu, 20.0, 0.05, reject="some")
