@@ -71,6 +71,7 @@ from hocnet.tracking.oosm import (
     _projection,
     _retrodict,
     check_oosm_time,
+    oosm_too_old,
 )
 from hocnet.tracking.road import RoadNetwork, on_segment_probability_from_moments
 from hocnet.tracking.sensors import check_measurements, stop_detectable
@@ -79,6 +80,7 @@ from hocnet.tracking.sprt import sprt_thresholds
 __all__ = [
     "VSIMMAssociation",
     "VSIMMConfig",
+    "VSIMMOOSMUpdate",
     "VSIMMPrediction",
     "VSIMMState",
     "VSIMMUpdate",
@@ -678,6 +680,21 @@ def vsimm_update(
     return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
 
 
+class VSIMMOOSMUpdate(NamedTuple):
+    """Result of :func:`vsimm_oosm` with ``too_old="drop"``.
+
+    Attributes:
+        log_likelihood: ``(B,)`` ``log Lambda`` (0 for undetected and dropped rows).
+        mode_log_likelihood: ``(B, r)`` ``log Lambda_i``.
+        dropped: ``(B,)`` bool, the rows whose measurement was older than the one-step lag and
+            was not used (``int(dropped.sum())`` is the count).
+    """
+
+    log_likelihood: torch.Tensor
+    mode_log_likelihood: torch.Tensor
+    dropped: torch.Tensor
+
+
 class VSIMMAssociation(NamedTuple):
     """Result of :func:`vsimm_association_log_likelihood`.
 
@@ -686,6 +703,10 @@ class VSIMMAssociation(NamedTuple):
             ``j`` (PD-aware, 24.30-24.31 with ``m_j != 0``).
         missed_log_likelihood: ``(B,)`` ``log Lambda`` of a missed detection (``m_j = 0``).
         d2: ``(B, M, r)`` squared Mahalanobis distances of every mode's innovation (for gating).
+
+    Gating convention: no gate is applied here; the caller gates on ``d2`` (per mode: "any mode
+    inside" is the Stone Soup hypothesiser's rule, while :class:`~hocnet.tracking.mht.MHT`
+    gates on its filter's combined innovation).
     """
 
     log_likelihood: torch.Tensor
@@ -1099,7 +1120,8 @@ def vsimm_oosm(
     config: VSIMMConfig,
     *,
     detected: Any | None = None,
-) -> tuple[VSIMMState, VSIMMUpdate]:
+    too_old: str = "raise",
+) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
     For every mode: ``F(tau, k)`` (CV with ``-(t_k - tau)``; the stop mode keeps its position),
@@ -1120,13 +1142,20 @@ def vsimm_oosm(
         net: road network.
         config: :class:`VSIMMConfig`.
         detected: ``(B,)`` bool (default all).
+        too_old: policy for a measurement older than the one-step lag (``t < t_{k-1}``; only
+            the one-step A1 is implemented, see :mod:`hocnet.tracking.oosm`): ``"raise"``
+            (default, backward compatible) or ``"drop"``: the row is left unchanged as if not
+            detected, and the result is a :class:`VSIMMOOSMUpdate` whose ``dropped`` mask
+            counts them (the policy a pipeline should use).
 
     Returns:
-        ``(new_state, VSIMMUpdate)``; undetected rows are unchanged.
+        ``(new_state, VSIMMUpdate)`` (``VSIMMOOSMUpdate`` with ``too_old="drop"``); undetected
+        and dropped rows are unchanged.
 
     Raises:
-        ValueError: a measurement older than the one-step lag (message names the lag; ``state``
-            is not modified), non-finite measurements, bad shapes.
+        ValueError: with ``too_old="raise"``, a measurement older than the one-step lag
+            (message names the lag; ``state`` is not modified); non-finite measurements, bad
+            shapes.
 
     Examples:
         >>> from hocnet.tracking.sensors import VideoSensor
@@ -1143,7 +1172,7 @@ def vsimm_oosm(
     """
     B, r = state.mu.shape
     tau = _times("t", t, B)
-    check_oosm_time(tau, state.t_prev, state.t)
+    check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
     det = (
         torch.ones(B, dtype=torch.bool)
         if detected is None
@@ -1151,6 +1180,10 @@ def vsimm_oosm(
     )
     if det.shape != (B,):
         raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    dropped = oosm_too_old(tau, state.t_prev, state.t) & det
+    if bool(dropped.any()):
+        det = det & ~dropped
+        tau = torch.where(dropped, state.t_prev.expand(B), tau)  # any in-lag time: unused
     m = sensor.dim
     zt = torch.as_tensor(z, dtype=DTYPE)
     if zt.shape != (B, m):
@@ -1195,6 +1228,7 @@ def vsimm_oosm(
     x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
     P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
     new = state._replace(mu=mu, x=x_new, P=P_new)
-    return new, VSIMMUpdate(
-        torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE)), mode_ll
-    )
+    ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
+    if too_old == "drop":
+        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
+    return new, VSIMMUpdate(ll_out, mode_ll)

@@ -707,3 +707,30 @@ def test_sprt_decide_reject_best_option():
                 assert bool(rej[t, h]) == want, (rule, t, h)
     with pytest.raises(ValueError, match="`reject`"):
         sprt_decide(mu, 20.0, 0.05, reject="some")
+
+
+def test_vsimm_oosm_too_old_drop_policy():
+    """Finding 9: reports older than the one-step lag are dropped and counted with "drop"."""
+    from hocnet.tracking.vsimm import VSIMMOOSMUpdate
+
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+    cfg, video = VSIMMConfig(), VideoSensor(10.0)
+    x0 = torch.tensor([[0.0, 10.0, 0.0, 0.0], [5.0, 9.0, 0.0, 0.0]], dtype=torch.float64)
+    s = vsimm_init(net, x0, 100 * torch.eye(4), cfg)
+    s, _ = vsimm_step(s, net, cfg, 10.0, torch.tensor([[100.0, 0.0], [96.0, 0.0]]), video)
+    s, _ = vsimm_step(s, net, cfg, 20.0, torch.tensor([[200.0, 0.0], [187.0, 0.0]]), video)
+    z = torch.tensor([[150.0, 0.0], [50.0, 0.0]], dtype=torch.float64)
+    t = torch.tensor([15.0, 5.0], dtype=torch.float64)  # row 1 is two steps old
+    with pytest.raises(ValueError, match="one-step lag"):
+        vsimm_oosm(s, z, t, video, net, cfg)
+    new, out = vsimm_oosm(s, z, t, video, net, cfg, too_old="drop")
+    assert isinstance(out, VSIMMOOSMUpdate) and out.dropped.tolist() == [False, True]
+    # row 0 as if alone (in-lag), row 1 untouched
+    ref, ref_out = vsimm_oosm(s.select([0]), z[:1], t[:1], video, net, cfg)
+    torch.testing.assert_close(new.x[:1], ref.x)
+    torch.testing.assert_close(new.mu[:1], ref.mu)
+    torch.testing.assert_close(out.log_likelihood[:1], ref_out.log_likelihood)
+    assert torch.equal(new.x[1], s.x[1]) and torch.equal(new.mu[1], s.mu[1])
+    assert float(out.log_likelihood[1]) == 0.0
+    with pytest.raises(ValueError, match="`too_old`"):
+        vsimm_oosm(s, z, t, video, net, cfg, too_old="keep")
