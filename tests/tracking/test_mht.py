@@ -506,7 +506,7 @@ class TestReviewFixes:
             np.testing.assert_allclose(
                 new["mu"][0].numpy(), [a * b / tot for a, b in zip(lam, cbar)]
             )
-            miss_states, lm = f.miss(pred, 0.9)
+            _, lm = f.miss(pred, 0.9)
             lam_miss = [0.1 if sd else 1.0, 0.1]
             assert float(lm[0]) == pytest.approx(
                 math.log(sum(a * b for a, b in zip(lam_miss, cbar))), rel=1e-12
