@@ -33,9 +33,9 @@ Lag rule: only the one-step lag is exact and allowed: ``tau`` must satisfy
 pure). **Policy for older reports** (``too_old``): ``"raise"`` (default here) or ``"drop"``:
 the report is not used and is counted (:func:`oosm_too_old` gives the mask;
 :func:`hocnet.tracking.vsimm.vsimm_oosm` ``too_old="drop"`` returns it as ``dropped``). Bar-Shalom's
-multi-step Bl1 is not implemented. In the chapter's scenario the UGS reports (every 1 s, 11 s
-delay) against a 10 s GMTI revisit are about 10 % older than one step; a pipeline should use
-``"drop"`` (and report the count) rather than stop on them.
+multi-step Bl1 is not implemented. In the chapter's scenario the video / UGS reports arrive
+11 s late while the GMTI revisits every 10 s, so some are older than one step; a pipeline should
+use ``"drop"`` (and report the count) rather than stop on them.
 """
 
 from __future__ import annotations
