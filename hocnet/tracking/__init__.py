@@ -1,20 +1,33 @@
-"""Tracking after detection ([PD], Pannetier, Dezert et al.): batched numeric core.
+"""Tracking after detection ([PD], Pannetier, Dezert et al.): the VS-IMMC SB-MHT with PCR5.
 
-First increment: batched Kalman / EKF filtering and gating (:mod:`hocnet.tracking.kalman`), the
-IMM with a stop model (:mod:`hocnet.tracking.imm`) and belief functions with PCR5 and the
-pignistic transformation (:mod:`hocnet.tracking.belief`), and the road-segment model with the
-constrained estimate by projection (:mod:`hocnet.tracking.road`).
+Modules (numerics batched over tracks, float64 torch):
 
-The experiment of [PD] section 24.6: the scenario simulator (road network, ten targets, GMTI /
-UAV video / UGS reports; :mod:`hocnet.tracking.scenario`) and the per-target metrics with GOSPA
-(:mod:`hocnet.tracking.evaluation`).
-Second increment: the road network (:class:`~hocnet.tracking.road.RoadNetwork`), the GMTI and
-video measurement models (:mod:`hocnet.tracking.sensors`), the variable-structure IMM on roads
-with the junction SPRT (:mod:`hocnet.tracking.vsimm`) and out-of-sequence measurements by
-one-step-lag retrodiction (:mod:`hocnet.tracking.oosm`).
-constrained estimate by projection (:mod:`hocnet.tracking.road`). Data association: Murty's
-k-best assignment (:mod:`hocnet.tracking.assignment`) and the track-oriented structured-branching
-MHT with LLR track scores and SPRT track status (:mod:`hocnet.tracking.mht`).
+- :mod:`hocnet.tracking.kalman`: Kalman / EKF predict and update, Gaussian likelihoods,
+  gating, the constant-velocity and stop models, the shared normal CDF.
+- :mod:`hocnet.tracking.imm`: the IMM with the stop model M0 (24.29-24.37), and the one
+  implementation of the PD-aware likelihoods 24.30-24.31.
+- :mod:`hocnet.tracking.road`: road segments, directional and relaxed process noise
+  (24.2-24.12), projection on the road (24.14-24.16), the road network (segments, sections,
+  junctions, GeoJSON).
+- :mod:`hocnet.tracking.sensors`: the GMTI model with range-rate, AEKF linearisation and MDV
+  notch (24.17-24.20), video / UGS position reports (24.23-24.24) with optional coverage.
+- :mod:`hocnet.tracking.vsimm`: the variable-structure IMM on the road network (VS-IMMC) with
+  road-section hypotheses at junctions decided by the SPRT (24.38-24.40).
+- :mod:`hocnet.tracking.oosm`: out-of-sequence measurements by Bar-Shalom's one-step-lag
+  retrodiction, done on the road (24.4.5), with a drop policy for older reports.
+- :mod:`hocnet.tracking.sprt`: Wald's SPRT bounds, shared by the track status and the
+  road-section test.
+- :mod:`hocnet.tracking.assignment`: Murty's k-best assignment.
+- :mod:`hocnet.tracking.mht`: the track-oriented structured-branching MHT with LLR track scores
+  (24.41-24.43), SPRT track status, clustering, N-best hypotheses, N-scan pruning per road
+  section, merging, and the type term of 24.48.
+- :mod:`hocnet.tracking.belief`: belief functions on bitmask tensors: PCR5 (24.44), the
+  pignistic transformation (24.47), frame refinement (24.5.3), the target-type tracker.
+- :mod:`hocnet.tracking.scenario`: the simulator of the chapter's experiment (section 24.6).
+- :mod:`hocnet.tracking.evaluation`: per-target metrics (24.52, ARMSE, track and type
+  purity) and GOSPA.
+- :mod:`hocnet.tracking.stonesoup` (optional, needs Stone Soup; not imported here): adapters
+  of the IMM, road models, GMTI model and SPRT track logic as Stone Soup parts.
 """
 
 from hocnet.tracking.assignment import Assignment, brute_force_assignments, k_best_assignments
@@ -63,6 +76,7 @@ from hocnet.tracking.kalman import (
     kalman_predict,
     kalman_update,
     mahalanobis2,
+    normal_cdf,
     stop_model,
 )
 from hocnet.tracking.mht import (
@@ -81,12 +95,14 @@ from hocnet.tracking.oosm import (
     oosm_a1,
     oosm_apply,
     oosm_retrodict,
+    oosm_too_old,
     project_retrodiction,
 )
 from hocnet.tracking.road import (
     RoadLocation,
     RoadNetwork,
     on_segment_probability,
+    on_segment_probability_from_moments,
     project_estimate,
     relaxed_road_noise_cov,
     road_constant_velocity,
@@ -112,17 +128,21 @@ from hocnet.tracking.sensors import (
     GMTISensor,
     VideoSensor,
     check_measurements,
+    disc_coverage,
     gmti_aekf_matrix,
     gmti_jacobian,
     gmti_measure,
     gmti_report_to_tcf,
     gmti_tcf_to_report,
     make_sensor,
+    rectangle_coverage,
+    stop_detectable,
 )
 from hocnet.tracking.sprt import sprt_thresholds
 from hocnet.tracking.vsimm import (
     VSIMMAssociation,
     VSIMMConfig,
+    VSIMMOOSMUpdate,
     VSIMMPrediction,
     VSIMMState,
     VSIMMUpdate,
@@ -164,6 +184,7 @@ __all__ = [
     "UGSConfig",
     "VSIMMAssociation",
     "VSIMMConfig",
+    "VSIMMOOSMUpdate",
     "VSIMMPrediction",
     "VSIMMState",
     "VSIMMUpdate",
@@ -180,6 +201,7 @@ __all__ = [
     "cv_transition",
     "cwna_noise",
     "dempster",
+    "disc_coverage",
     "ekf_update",
     "frame_mapping",
     "from_dict",
@@ -205,11 +227,14 @@ __all__ = [
     "mahalanobis2",
     "make_sensor",
     "monte_carlo_metrics",
+    "normal_cdf",
     "observed_bba",
     "on_segment_probability",
+    "on_segment_probability_from_moments",
     "oosm_a1",
     "oosm_apply",
     "oosm_retrodict",
+    "oosm_too_old",
     "pcr5",
     "pcr5_sources",
     "pd_ground_truth",
@@ -221,6 +246,7 @@ __all__ = [
     "plot_scenario",
     "project_estimate",
     "project_retrodiction",
+    "rectangle_coverage",
     "refine",
     "relaxed_road_noise_cov",
     "road_constant_velocity",
@@ -230,6 +256,7 @@ __all__ = [
     "segment_constraint",
     "sprt_decide",
     "sprt_thresholds",
+    "stop_detectable",
     "stop_model",
     "target_metrics",
     "to_dict",

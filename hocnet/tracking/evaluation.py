@@ -14,7 +14,8 @@ type purity. The chapter defines them in one sentence each; our readings:
   sample time, clipped to the target's lifetime) of the tracks associated with ``n`` in run
   ``k`` (0 if none) and ``L_n`` the duration of the true trajectory. A target lost and picked
   up again by a new track thus scores lower, as the chapter wants ("track as long as possible the
-  target with one track"). ``length="max"`` or ``"sum"`` use the longest or the total duration.
+  target with one track"). ``length="max"`` or ``"sum"`` use the longest or the total duration
+  (``"sum"`` is not clipped at 1, so that duplicate, overlapping tracks show as a ratio above 1).
 - **ARMSE** ("the root mean square error averaged on the time"): at each time ``t`` of the
   truth grid the RMS over runs (and over the target's tracks alive then) of the position error
   ``|p_hat(t) - p(t)|``, then the mean over the times at which there was at least one estimate.
@@ -229,7 +230,10 @@ def monte_carlo_metrics(
         assignments: one ``{track_id: target_id or None}`` per run (default
             :func:`assign_tracks`).
         length: track length ``l_n^k`` of a run: ``"mean"`` (our reading of eq. 24.52), ``"max"``
-            or ``"sum"`` of the durations of the target's tracks.
+            or ``"sum"`` of the durations of the target's tracks. Each duration is clipped to the
+            target's life, so ``"mean"`` and ``"max"`` are at most 1 (the ``min(., 1)`` only
+            removes round-off); ``"sum"`` is deliberately not clipped: overlapping tracks on one
+            target (duplicates) add up, and a ratio above 1 shows them.
 
     Returns:
         ``{target_id: TargetMetrics}`` in the order of ``truth``.

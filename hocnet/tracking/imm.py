@@ -12,8 +12,18 @@ One call filters all ``N`` tracks and all ``r`` modes at once; shapes:
 Equations ([PD] section 24.4.2, the plain IMM of Bar-Shalom, Li and Kirubarajan 2001, section
 11.6.6): mixing probabilities (24.33), mixed estimates (24.34-24.35), mode-matched filtering,
 PD-aware mode likelihoods with the stop model (24.29-24.31), the track likelihood (24.32), the
-mode-probability update (24.36) and the combination (24.37). Road constraints (VS-IMMC) are not
-part of this module yet.
+mode-probability update (24.36) and the combination (24.37). Road constraints (VS-IMMC, 24.4.2
+with segment constraints, variable mode sets and road-section hypotheses 24.38-24.40) are in
+:mod:`hocnet.tracking.vsimm`, built on this module's kernels.
+
+**The PD-aware likelihoods 24.30-24.31 are implemented once**, in
+:func:`pd_mode_log_likelihoods` (its unchecked kernel ``_pd_mode_ll``);
+:mod:`~hocnet.tracking.vsimm`, :mod:`~hocnet.tracking.mht` and :mod:`~hocnet.tracking.stonesoup`
+call it. Our reading of 24.31:
+the stop mode's ``Lambda_0 = delta_{m_j, 0}`` rests on the GMTI clutter notch (a stopped target
+is below the minimum detectable velocity, so a GMTI cannot see it). For a sensor without an MDV
+(video / UGS imagery sees stopped targets) the stop mode is scored like a moving one,
+``Lambda_0 = PD p(z | M0)`` if detected and ``1 - PD`` if not (``stop_detectable=True``).
 
 Our reading of 24.34-24.35: the OCR prints ``x0_i = sum_j x_j mu_{i|j}``, which swaps the
 indices of (24.33) where ``mu_{i|j} = p_ij mu_i / cbar_j`` is the probability of mode ``i`` at
@@ -156,36 +166,76 @@ def _mix(
     return x0, P0.mul_(0.5)
 
 
+def _pd_mode_ll(
+    ll: torch.Tensor,
+    det: torch.Tensor,
+    pd: torch.Tensor,
+    is_stop: torch.Tensor | None,
+    stop_detectable: torch.Tensor | bool = False,
+) -> torch.Tensor:
+    """Kernel of 24.30-24.31 on validated tensors (the one implementation; no checks).
+
+    ``ll (..., r)``, ``det (...)`` bool, ``pd`` broadcastable to ``(..., r)`` in [0, 1],
+    ``is_stop (r,)`` bool or ``None``, ``stop_detectable`` bool or ``(...)`` bool.
+    """
+    d = det.unsqueeze(-1)
+    moving = torch.where(d, torch.log(pd) + ll, torch.log1p(-pd))
+    if is_stop is None or not bool(is_stop.any()):
+        return moving
+    delta = torch.where(d, -torch.inf, 0.0).to(DTYPE)  # 24.31: delta_{m_j, 0}
+    sd = torch.as_tensor(stop_detectable, dtype=torch.bool)
+    if sd.dim():
+        sd = sd.unsqueeze(-1)
+    stop = torch.where(sd, moving, delta)
+    return torch.where(is_stop, stop, moving)
+
+
 def pd_mode_log_likelihoods(
-    log_lik: Any, detected: Any, pd: float, *, stop_mode: int | None = 0
+    log_lik: Any,
+    detected: Any,
+    pd: Any,
+    *,
+    stop_mode: int | None = None,
+    stop_detectable: Any = False,
 ) -> torch.Tensor:
     """PD-aware mode likelihoods with the stop model, eq. 24.30-24.31, in log form.
 
-    Moving modes ``i != stop_mode``: ``Lambda_i = PD p(z | M_i)`` when the track is detected and
-    ``1 - PD`` when not (24.30). Stop mode: ``Lambda_0 = delta_{m_j, 0}``, i.e. 1 when the track
-    is not detected (a stopped target is below the GMTI minimum detectable velocity) and 0 when it
-    is (24.31). ``stop_mode=None`` treats all modes as moving.
+    Moving modes ``i != stop_mode``: ``Lambda_i = PD_i p(z | M_i)`` when the track is detected
+    and ``1 - PD_i`` when not (24.30). Stop mode with ``stop_detectable=False`` (the chapter's
+    GMTI case): ``Lambda_0 = delta_{m_j, 0}``, i.e. 1 when the track is not detected (a stopped
+    target is below the GMTI minimum detectable velocity) and 0 when it is (24.31). With
+    ``stop_detectable=True`` (a sensor without MDV, e.g. video / UGS, which does see stopped
+    targets; our reading, see the module docstring) the stop mode is scored as 24.30:
+    ``PD_0 p(z | M0)`` or ``1 - PD_0``. ``stop_mode=None`` (default) treats all modes as moving.
 
     Args:
-        log_lik: ``(N, r)`` Gaussian log-likelihoods ``log p(z | M_i)`` (ignored where not
+        log_lik: ``(..., r)`` Gaussian log-likelihoods ``log p(z | M_i)`` (ignored where not
             detected; any finite value).
-        detected: ``(N,)`` bool, whether a measurement is associated with the track.
-        pd: detection probability in (0, 1].
+        detected: ``(...)`` bool, whether a measurement is associated with the track.
+        pd: detection probability in (0, 1], or per-mode ``PD_i`` broadcastable to
+            ``(..., r)`` with values in [0, 1] (e.g. the MDV-notch expected ``PD``).
         stop_mode: index of M0 in the mode axis, or ``None``.
+        stop_detectable: bool or ``(...)`` bool tensor: whether the sensor sees stopped
+            targets (no MDV); default ``False`` (the printed 24.31).
 
     Returns:
-        ``(N, r)`` float64 ``log Lambda_i`` (``-inf`` for the stop mode of detected tracks).
+        ``(..., r)`` float64 ``log Lambda_i`` (``-inf`` for the stop mode of detected tracks when
+        ``stop_detectable`` is false).
 
     Raises:
-        TypeError, ValueError: bad shapes, ``pd`` outside (0, 1], ``stop_mode`` out of range.
+        TypeError, ValueError: bad shapes, ``pd`` outside its range, ``stop_mode`` out of range.
 
     Examples:
-        >>> ll = pd_mode_log_likelihoods(torch.zeros(2, 2), torch.tensor([True, False]), 0.9)
-        >>> ll.exp()
+        >>> det = torch.tensor([True, False])
+        >>> pd_mode_log_likelihoods(torch.zeros(2, 2), det, 0.9, stop_mode=0).exp()
         tensor([[0.0000, 0.9000],
                 [1.0000, 0.1000]], dtype=torch.float64)
+        >>> pd_mode_log_likelihoods(torch.zeros(2, 2), det, 0.9, stop_mode=0,
+        ...                         stop_detectable=True).exp()
+        tensor([[0.9000, 0.9000],
+                [0.1000, 0.1000]], dtype=torch.float64)
     """
-    ll = as_float64("log_lik", log_lik, min_dim=2)
+    ll = as_float64("log_lik", log_lik, min_dim=1)
     det = torch.as_tensor(detected)
     if det.dtype != torch.bool:
         raise TypeError(f"`detected`: expected a bool tensor, got dtype {det.dtype}")
@@ -193,20 +243,32 @@ def pd_mode_log_likelihoods(
         raise ValueError(
             f"`detected`: expected shape {tuple(ll.shape[:-1])}, got {tuple(det.shape)}"
         )
-    pd = check_number("pd", pd, low=0.0, high=1.0, low_inclusive=False)
+    if isinstance(pd, (int, float)):
+        pd = check_number("pd", pd, low=0.0, high=1.0, low_inclusive=False)
+        pdt = torch.tensor(pd, dtype=DTYPE)
+    else:
+        pdt = as_float64("pd", pd)
+        if pdt.numel() and bool(((pdt < 0) | (pdt > 1)).any()):
+            raise ValueError("`pd`: expected detection probabilities in [0, 1], got values outside")
+        try:
+            torch.broadcast_shapes(pdt.shape, ll.shape)
+        except RuntimeError:
+            raise ValueError(
+                f"`pd`: expected a shape broadcastable to {tuple(ll.shape)}, got {tuple(pdt.shape)}"
+            ) from None
     r = ll.shape[-1]
-    moving = torch.ones(r, dtype=torch.bool)
+    is_stop = None
     if stop_mode is not None:
         stop_mode = check_int("stop_mode", stop_mode, minimum=0, maximum=r - 1)
-        moving[stop_mode] = False
-    log_pd = torch.log(torch.tensor(pd, dtype=DTYPE))
-    log_miss = torch.log1p(torch.tensor(-pd, dtype=DTYPE))
-    neg_inf = torch.tensor(-torch.inf, dtype=DTYPE)
-    zero = torch.tensor(0.0, dtype=DTYPE)
-    d = det.unsqueeze(-1)
-    moving_ll = torch.where(d, log_pd + ll, log_miss)
-    stop_ll = torch.where(d, neg_inf, zero).expand_as(ll)
-    return torch.where(moving, moving_ll, stop_ll)
+        is_stop = torch.arange(r) == stop_mode
+    sd = torch.as_tensor(stop_detectable)
+    if sd.dtype != torch.bool:
+        raise TypeError(f"`stop_detectable`: expected a bool or bool tensor, got {sd.dtype}")
+    if sd.dim() and sd.shape != ll.shape[:-1]:
+        raise ValueError(
+            f"`stop_detectable`: expected shape {tuple(ll.shape[:-1])}, got {tuple(sd.shape)}"
+        )
+    return _pd_mode_ll(ll, det, pdt, is_stop, sd)
 
 
 def imm_track_log_likelihood(mode_log_lik: Any, cbar: Any) -> torch.Tensor:
@@ -344,6 +406,7 @@ def imm_step(
     detected: Any | None = None,
     pd: float | None = None,
     stop_mode: int | None = None,
+    stop_detectable: Any = False,
 ) -> IMMStep:
     """One IMM cycle for ``N`` tracks at once: mix, predict, update, combine.
 
@@ -368,6 +431,8 @@ def imm_step(
         detected: ``(N,)`` bool; ``None`` means all detected.
         pd: detection probability for 24.30, or ``None`` for the plain IMM.
         stop_mode: index of the stop model M0 (used only with ``pd``).
+        stop_detectable: whether the sensor sees stopped targets (no MDV; video / UGS), see
+            :func:`pd_mode_log_likelihoods` (used only with ``pd`` and ``stop_mode``).
 
     Returns:
         :class:`IMMStep`.
@@ -438,7 +503,9 @@ def imm_step(
             )
         mode_ll = ll
     else:
-        mode_ll = pd_mode_log_likelihoods(ll, det, pd, stop_mode=stop_mode)
+        mode_ll = pd_mode_log_likelihoods(
+            ll, det, pd, stop_mode=stop_mode, stop_detectable=stop_detectable
+        )
         keep = det.view(-1, 1, 1)
         x_upd = torch.where(keep, x_upd, x_pred)
         P_upd = torch.where(keep.unsqueeze(-1), P_upd, P_pred)

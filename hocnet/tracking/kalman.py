@@ -30,10 +30,31 @@ __all__ = [
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
+    "normal_cdf",
     "stop_model",
 ]
 
 DTYPE = torch.float64
+
+
+def normal_cdf(t: Any) -> torch.Tensor:
+    """Standard normal CDF ``Phi(t) = erfc(-t / sqrt 2) / 2`` (float64), one helper for tracking.
+
+    Used by the on-segment probability (24.11-24.12, :mod:`hocnet.tracking.road`) and the GMTI
+    MDV notch (:mod:`hocnet.tracking.sensors`). ``erfc`` keeps the lower tail accurate.
+
+    Args:
+        t: ``(...)`` real values (``+-inf`` allowed).
+
+    Returns:
+        ``(...)`` float64 in [0, 1].
+
+    Examples:
+        >>> normal_cdf(torch.tensor([0.0, float("inf")])).tolist()
+        [0.5, 1.0]
+    """
+    t = torch.as_tensor(t, dtype=DTYPE)
+    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
 
 
 def as_float64(name: str, value: Any, *, min_dim: int = 0, square: bool = False) -> torch.Tensor:
@@ -115,8 +136,10 @@ def constant_velocity(
 
     ``F = blockdiag([[1, dt], [0, 1]], [[1, dt], [0, 1]])`` for ``[x, vx, y, vy]`` and
     ``Q = Gamma(dt) @ Sigma @ Gamma(dt)'`` with ``Sigma = sigma_a^2 I_2`` (discrete white noise
-    acceleration; [PD] eq. 24.5 with an isotropic noise, as in the off-road models M1 of the
-    chapter's section 24.6: ``sigma_a = 0.05`` m/s^2).
+    acceleration; [PD] eq. 24.5 with an isotropic noise). The chapter's M1 (``sigma = 0.05``
+    m/s^2, section 24.6) is road-constrained: its noise is the directional one of 24.6 (pass it as
+    ``acceleration_cov``, see :func:`hocnet.tracking.road.road_noise_cov`); the isotropic form
+    is for tracking off the road network (e.g. pixel tracks).
 
     Args:
         dt: time step in s (``>= 0``).

@@ -6,7 +6,9 @@ One :meth:`MHT.step` per scan runs the six blocks of the chapter's figure 24.2:
    (track, measurement) pair is gated with the chi-square gate of
    :func:`hocnet.tracking.kalman.gate`; each track branches into a missed-detection child and
    one child per gated measurement (all updates in one filter call); each measurement also
-   starts a new track (a new *family*, i.e. a new target tree).
+   starts a new track (a new *family*, i.e. a new target tree). Gating convention: one test per
+   pair on the filter's combined innovation (:meth:`MotionFilter.innovation`, for an IMM the
+   moment-matched mixture of the modes), unlike the Stone Soup hypothesiser (any mode).
 2. **Track score** (eq. 24.41-24.43, log-likelihood ratio against the false-alarm hypothesis)
    and **track status by Wald's SPRT** (tentative / confirmed / deleted).
 3. **Clustering**: families linked by a shared measurement (in this scan or in the last
@@ -39,16 +41,35 @@ Popoli, *Design and Analysis of Modern Tracking Systems*, 1999, ch. 6 and 16, it
   log-odds new target against false alarm; ``initial_score="printed"`` keeps the chapter's
   printed ``L(0) = ln(lambda_fa / (lambda_fa + lambda_nt))``. The SPRT is not applied on the
   birth scan (one plot cannot be tested; our reading).
-* SPRT ([PD] section 24.4.3, Wald): ``A = beta / (1 - alpha)``, ``B = (1 - beta) / alpha`` with
-  ``alpha`` the probability of confirming a false track and ``beta`` of deleting a true one;
-  tentative tracks are confirmed when ``L >= ln B`` and deleted when ``L <= ln A``. A confirmed
-  track is deleted when its score falls ``drop`` below its maximum (Blackman and Popoli 1999,
-  section 6.4; our reading, default ``drop = ln(B / A)``).
+* SPRT ([PD] section 24.4.3, Wald 1947): the lower bound ``beta / (1 - alpha)`` and the upper
+  bound ``(1 - beta) / alpha`` (:func:`~hocnet.tracking.sprt.sprt_thresholds`) with ``alpha``
+  the probability of confirming a false track and ``beta`` of deleting a true one. **The
+  deletion rule** (the same in :class:`~hocnet.tracking.stonesoup.SPRTInitiator` /
+  :class:`~hocnet.tracking.stonesoup.SPRTDeleter`): a tentative track is confirmed when
+  ``L >= ln upper`` and deleted when ``L <= ln lower`` (Wald's test stops on reaching a bound);
+  a confirmed track is deleted when ``L <= max L - drop`` (Blackman and Popoli 1999, section
+  6.4; our reading, default ``drop = ln(upper / lower)``, so a confirmed track, whose maximum is
+  at least ``ln upper``, is deleted at the latest when it falls to ``ln lower``); ``ln lower``
+  is not applied to confirmed tracks. Defaults ``alpha = beta = 1e-3`` (also those of the Stone
+  Soup adapters): with the default densities (``ln(lambda_nt / lambda_fa) = -2.30``) and
+  ``PD = 0.9`` (a miss scores ``ln 0.1 = -2.30``), the former default ``beta = 0.1`` put
+  ``L(0)`` below ``ln lower = -2.3016`` (a new track survived only because the birth scan is
+  not tested, and any miss at its second scan deleted it); ``beta = 1e-3`` gives ``ln lower =
+  -6.91``: one miss after birth does not delete, two consecutive misses do. The road-section
+  SPRT of :func:`~hocnet.tracking.vsimm.vsimm_section_sprt` is a different test (a choice among
+  hypotheses that must end within a few scans at a junction) and keeps ``0.01 / 0.01``.
+* ``missed_pd`` (as :func:`~hocnet.tracking.stonesoup.track_score`): score every miss
+  ``ln(1 - missed_pd)`` (Blackman and Popoli's single-model increment) instead of the filter's
+  ``ln Lambda_miss``; default ``None`` (the filter's), as the Stone Soup adapters.
 * 24.48 (type attribute): when a measurement carries a type bba, the track's bba is revised by
   PCR5 (:func:`~hocnet.tracking.belief.pcr5`) and ``ln P{dtype(k) | dtype(k-1)}`` is added to the
   detection increment, with ``P`` the pignistic probability (24.47) of the updated bba on the
   estimated type (``type_term="estimate"``, the chapter's text: ``max BetP``) or on the type the
-  report declares (``type_term="declared"``, our alternative).
+  report declares (``type_term="declared"``, our alternative:
+  :func:`~hocnet.tracking.belief.type_likelihood` with the declared class index on the sensor's
+  frame and the sensor's ``mapping`` into the common frame, both passed to :meth:`MHT.step`;
+  without ``declared`` the argmax of the report's BetP is used, which is only right for a report
+  made on the common frame).
 
 Numbers are float64 torch tensors; the tree (histories, families, hypotheses) is Python
 bookkeeping. The motion model is pluggable (:class:`MotionFilter`): :class:`CVKalmanFilter`
@@ -66,7 +87,7 @@ import torch
 
 from hocnet._check import check_choice, check_int, check_number
 from hocnet.tracking.assignment import k_best_assignments
-from hocnet.tracking.imm import _combine, _mix, _mixing, _mode_probabilities
+from hocnet.tracking.imm import _combine, _mix, _mixing, _mode_probabilities, _pd_mode_ll
 from hocnet.tracking.kalman import (
     DTYPE,
     _predict,
@@ -209,8 +230,13 @@ class IMMFilter:
 
     Between :meth:`predict` and :meth:`update` the state key ``"mu"`` holds the predicted mode
     probabilities ``mu_i(k|k-1)`` (24.32); after an update or a miss it holds ``mu_i(k)``
-    (24.36). With ``stop_mode`` given, a detection has zero likelihood under the stop model and a
-    miss has likelihood 1 under it (24.30-24.31).
+    (24.36). With ``stop_mode`` given, the mode likelihoods are those of 24.30-24.31 by the one
+    kernel :func:`hocnet.tracking.imm.pd_mode_log_likelihoods`: for a sensor with an MDV (GMTI;
+    ``stop_detectable=False``, default) a detection has zero likelihood under the stop model and
+    a miss has likelihood 1 under it; for a sensor that sees stopped targets
+    (``stop_detectable=True``, video / UGS / a detector that sees static objects) the stop model
+    is scored like the moving ones. ``PD`` is factored out of :meth:`update` (the MHT adds
+    ``ln PD``). :meth:`MHT.step` can set ``stop_detectable`` per scan.
 
     Args:
         models: ``r`` callables ``dt -> (F (4, 4), Q (4, 4))`` such as
@@ -220,6 +246,7 @@ class IMMFilter:
         initial_mu: ``(r,)`` mode probabilities of a new track (default uniform).
         stop_mode: index of the stop model M0, or ``None``.
         velocity_std: velocity standard deviation of a new track.
+        stop_detectable: whether the sensor sees stopped targets (see above).
 
     Examples:
         >>> from functools import partial
@@ -241,8 +268,10 @@ class IMMFilter:
         initial_mu: Any | None = None,
         stop_mode: int | None = None,
         velocity_std: float = 1.0,
+        stop_detectable: bool = False,
     ) -> None:
         self.models = list(models)
+        self.stop_detectable = bool(stop_detectable)
         r = len(self.models)
         if r < 1:
             raise ValueError("`models`: expected at least one model, got none")
@@ -290,11 +319,8 @@ class IMMFilter:
         x, P = _combine(states["mu"], states["x"], states["P"])
         return x[:, [0, 2]], P[:, [0, 2]][:, :, [0, 2]]
 
-    def _moving(self, r: int) -> torch.Tensor:
-        moving = torch.ones(r, dtype=torch.bool)
-        if self.stop_mode is not None:
-            moving[self.stop_mode] = False
-        return moving
+    def _is_stop(self, r: int) -> torch.Tensor | None:
+        return None if self.stop_mode is None else torch.arange(r) == self.stop_mode
 
     def update(
         self, states: States, z: torch.Tensor, R: torch.Tensor
@@ -305,7 +331,9 @@ class IMMFilter:
         hx = _shared_left(_H_POS, x.unsqueeze(-1)).squeeze(-1)
         z, R = torch.as_tensor(z, dtype=DTYPE), torch.as_tensor(R, dtype=DTYPE)
         x_upd, P_upd, ll = _update(x, P, z.unsqueeze(1) - hx, _H_POS, R.unsqueeze(1))
-        mode_ll = torch.where(self._moving(r), ll, torch.full_like(ll, -math.inf))
+        det = torch.ones(ll.shape[:-1], dtype=torch.bool)
+        one = torch.tensor(1.0, dtype=DTYPE)  # PD is factored out (the MHT adds ln PD)
+        mode_ll = _pd_mode_ll(ll, det, one, self._is_stop(r), self.stop_detectable)
         a = mode_ll + torch.log(cbar)
         track_ll = torch.logsumexp(a, dim=-1)
         ok = torch.isfinite(track_ll)
@@ -318,14 +346,14 @@ class IMMFilter:
         k, r = cbar.shape
         if self.stop_mode is None:
             return states, torch.full((k,), math.log1p(-pd) if pd < 1 else -math.inf, dtype=DTYPE)
-        log_miss = math.log1p(-pd) if pd < 1 else -math.inf
-        mode_ll = torch.where(
-            self._moving(r),
-            torch.tensor(log_miss, dtype=DTYPE),
-            torch.tensor(0.0, dtype=DTYPE),
-        ).expand(k, r)
-        mu = _mode_probabilities(cbar, mode_ll)
-        return {**states, "mu": mu}, torch.logsumexp(mode_ll + torch.log(cbar), dim=-1)
+        det = torch.zeros(k, dtype=torch.bool)
+        pdt = torch.tensor(pd, dtype=DTYPE)
+        is_stop = self._is_stop(r)
+        mode_ll = _pd_mode_ll(cbar.new_zeros(k, r), det, pdt, is_stop, self.stop_detectable)
+        total = torch.logsumexp(mode_ll + torch.log(cbar), dim=-1)
+        if not bool(torch.isfinite(total).all()):  # PD = 1 and no mode explains a miss
+            return states, total
+        return {**states, "mu": _mode_probabilities(cbar, mode_ll)}, total
 
     def mean_cov(self, states: States) -> tuple[torch.Tensor, torch.Tensor]:
         """See :meth:`MotionFilter.mean_cov`."""
@@ -422,8 +450,10 @@ class MHT:
         lambda_nt: new-target density per unit volume, ``> 0``.
         gate_probability: probability mass of the chi-square gate (threshold
             ``chi2.ppf(gate_probability, m)``), in (0, 1).
-        alpha, beta: SPRT error probabilities (:func:`sprt_thresholds`).
-        drop: score drop from its maximum that deletes a confirmed track (default ``ln(B/A)``).
+        alpha, beta: SPRT error probabilities (:func:`sprt_thresholds`; defaults ``1e-3``, see
+            the module docstring).
+        drop: score drop from its maximum that deletes a confirmed track (default
+            ``ln(upper / lower)``).
         n_hypotheses: global hypotheses kept per cluster (``NHypo`` of the chapter), ``>= 1``.
         hypothesis_ratio: also drop the hypotheses whose probability is below this fraction of
             the best one's in their cluster (score below ``best + ln(ratio)``; ratio pruning of
@@ -434,6 +464,8 @@ class MHT:
         initial_score: ``"log_odds"`` or ``"printed"`` (module docstring, reading of 24.43).
         type_term: ``"estimate"`` or ``"declared"`` (reading of 24.48), or ``None`` to ignore
             type reports in the score (they still update the tracks' bbas).
+        missed_pd: score misses ``ln(1 - missed_pd)`` instead of the filter's miss likelihood
+            (``None``, default).
 
     Raises:
         TypeError, ValueError: bad parameters.
@@ -457,7 +489,7 @@ class MHT:
         lambda_nt: float = 1e-5,
         gate_probability: float = 0.999,
         alpha: float = 1e-3,
-        beta: float = 0.1,
+        beta: float = 1e-3,
         drop: float | None = None,
         n_hypotheses: int = 10,
         hypothesis_ratio: float | None = 1e-6,
@@ -465,6 +497,7 @@ class MHT:
         merge_scans: int = 3,
         initial_score: str = "log_odds",
         type_term: str | None = "estimate",
+        missed_pd: float | None = None,
     ) -> None:
         from scipy.stats import chi2
 
@@ -505,6 +538,11 @@ class MHT:
         if type_term is not None:
             check_choice("type_term", type_term, ("estimate", "declared"))
         self.type_term = type_term
+        self.missed_pd = (
+            None
+            if missed_pd is None
+            else check_number("missed_pd", missed_pd, low=0.0, high=1.0, high_inclusive=False)
+        )
         if self.initial_score == "log_odds":
             self.l_init = math.log(self.lambda_nt / self.lambda_fa)
         else:
@@ -518,6 +556,8 @@ class MHT:
         self._next_uid = 0
         self._next_family = 0
         self._finished: dict[int, MHTTrack] = {}
+        self._declared: torch.Tensor | None = None
+        self._mapping: Any = None
 
     # ---------------------------------------------------------------- input checks
     @staticmethod
@@ -558,6 +598,9 @@ class MHT:
         time: float | None = None,
         R: Any = None,
         bba: Any = None,
+        declared: Any = None,
+        mapping: Any = None,
+        stop_detectable: bool | None = None,
     ) -> list[MHTTrack]:
         """Process one scan of measurements and return the confirmed tracks.
 
@@ -566,6 +609,12 @@ class MHT:
             time: scan time; default: the previous time plus 1 (first scan: 0).
             R: ``(m, m)`` or ``(M, m, m)`` measurement noise; default the constructor's ``R``.
             bba: optional ``(M, 2**n)`` type bbas of the reports (24.48).
+            declared: optional ``(M,)`` integer class each report declares, on its sensor's
+                frame (for ``type_term="declared"``).
+            mapping: the sensor's refinement into the common frame of ``bba``
+                (:func:`~hocnet.tracking.belief.frame_mapping`), ``None`` for the common frame.
+            stop_detectable: for this scan, whether the sensor sees stopped targets (sets the
+                filter's ``stop_detectable``, e.g. :class:`IMMFilter`; ``None`` keeps it).
 
         Returns:
             The confirmed tracks of the best hypothesis of every cluster (:meth:`tracks`).
@@ -608,6 +657,23 @@ class MHT:
                 f"`time`: expected >= the previous scan time {self.time:g}, got {time:g}"
             )
         dt = 0.0 if self.time is None else time - self.time
+        if declared is not None:
+            if bba is None:
+                raise ValueError("`declared`: expected together with `bba`, got no bba")
+            declared = torch.as_tensor(declared)
+            if declared.dtype.is_floating_point or declared.shape != (n_meas,):
+                raise ValueError(
+                    f"`declared`: expected ({n_meas},) integer class indices, got dtype "
+                    f"{declared.dtype} and shape {tuple(declared.shape)}"
+                )
+        self._declared, self._mapping = declared, mapping
+        if stop_detectable is not None:
+            if not hasattr(self.filter, "stop_detectable"):
+                raise ValueError(
+                    "`stop_detectable`: expected a filter with a `stop_detectable` attribute, "
+                    f"got {type(self.filter).__name__}"
+                )
+            self.filter.stop_detectable = bool(stop_detectable)
         self._step(z, R, bba, dt)
         self.time = time
         self.scan += 1
@@ -636,6 +702,8 @@ class MHT:
                 zp, hph = f.innovation(pred)
                 pairs_l, pairs_j = self._gate(zp, hph, z, R)
             miss_states, log_miss = f.miss(pred, self.pd)
+            if self.missed_pd is not None:
+                log_miss = torch.full_like(scores, math.log1p(-self.missed_pd))
             miss_scores = scores + log_miss
         else:
             pred = None
@@ -661,7 +729,11 @@ class MHT:
                     betp = pignistic(det_bba)
                     if self.type_term == "estimate":
                         p = betp.max(-1).values
-                    else:
+                    elif self._declared is not None:
+                        from hocnet.tracking.belief import type_likelihood
+
+                        p = type_likelihood(det_bba, self._declared[pairs_j], self._mapping)
+                    else:  # backward compatible: the report's BetP argmax (common frame only)
                         declared = pignistic(bba[pairs_j]).argmax(-1)
                         p = betp.gather(-1, declared[:, None])[:, 0]
                     det_scores = det_scores + torch.log(p)
@@ -820,7 +892,7 @@ class MHT:
         return l_idx[key], j_idx[key]
 
     def _sprt(self, parent_status: str, score: float, max_score: float) -> tuple[str, float]:
-        """Status of a child track by the SPRT (module docstring)."""
+        """Status of a child track by the SPRT (the deletion rule of the module docstring)."""
         if parent_status == "confirmed":
             return ("deleted" if score <= max_score - self.drop else "confirmed"), max_score
         if score >= self.log_b:

@@ -30,7 +30,12 @@ and the updated estimate is projected again on its current segment by the caller
 Lag rule: only the one-step lag is exact and allowed: ``tau`` must satisfy
 ``t_{k-1} <= tau <= t_k`` (``t_k - tau <= t_k - t_{k-1}``); an older measurement raises
 ``ValueError`` naming the lag (and leaves every input tensor untouched: all functions here are
-pure).
+pure). **Policy for older reports** (``too_old``): ``"raise"`` (default here) or ``"drop"``:
+the report is not used and is counted (:func:`oosm_too_old` gives the mask;
+:func:`hocnet.tracking.vsimm.vsimm_oosm` ``too_old="drop"`` returns it as ``dropped``). Bar-Shalom's
+multi-step Bl1 is not implemented. In the chapter's scenario the video / UGS reports arrive
+11 s late while the GMTI revisits every 10 s, so some are older than one step; a pipeline should
+use ``"drop"`` (and report the count) rather than stop on them.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from hocnet._check import check_number
+from hocnet._check import check_choice, check_number
 from hocnet.tracking.kalman import DTYPE, as_float64
 
 __all__ = [
@@ -52,6 +57,7 @@ __all__ = [
     "oosm_a1",
     "oosm_apply",
     "oosm_retrodict",
+    "oosm_too_old",
     "project_retrodiction",
 ]
 
@@ -95,17 +101,44 @@ def cwna_noise(dt: float, q: Any) -> torch.Tensor:
     return out
 
 
-def check_oosm_time(t: Any, t_prev: Any, t_last: Any) -> torch.Tensor:
+def oosm_too_old(t: Any, t_prev: Any, t_last: Any) -> torch.Tensor:
+    """Mask of measurement times older than the one-step lag (``t < t_{k-1}``).
+
+    The test of :func:`check_oosm_time` (tolerance ``1e-9 (1 + |t_k|)``).
+
+    Args:
+        t: ``(...)`` times of the out-of-sequence measurements, s.
+        t_prev: ``(...)`` times ``t_{k-1}`` of the previous scan, s (broadcast).
+        t_last: ``(...)`` times ``t_k`` of the current estimates, s (broadcast).
+
+    Returns:
+        ``(...)`` bool.
+
+    Examples:
+        >>> oosm_too_old(torch.tensor([5.0, -1.0]), 0.0, 10.0).tolist()
+        [False, True]
+    """
+    t = as_float64("t", t)
+    tp = as_float64("t_prev", t_prev)
+    tl = as_float64("t_last", t_last)
+    t, tp, tl = torch.broadcast_tensors(t, tp, tl)
+    return t < tp - 1e-9 * (1.0 + tl.abs())
+
+
+def check_oosm_time(t: Any, t_prev: Any, t_last: Any, *, too_old: str = "raise") -> torch.Tensor:
     """Check that measurement times ``t`` are within the one-step lag, return them as float64.
 
     Args:
         t: ``(...)`` times of the out-of-sequence measurements, s.
         t_prev: ``(...)`` times ``t_{k-1}`` of the previous scan, s.
         t_last: ``(...)`` times ``t_k`` of the current estimates, s.
+        too_old: ``"raise"`` (default) or ``"drop"``: accept times older than ``t_{k-1}`` (the
+            caller drops them, see :func:`oosm_too_old`).
 
     Raises:
-        ValueError: ``t`` older than ``t_{k-1}`` (the message gives the lag ``t_k - t`` and the
-            allowed lag ``t_k - t_{k-1}``) or newer than ``t_k`` (not out of sequence).
+        ValueError: ``t`` older than ``t_{k-1}`` with ``too_old="raise"`` (the message gives the
+            lag ``t_k - t`` and the allowed lag ``t_k - t_{k-1}``) or newer than ``t_k`` (not
+            out of sequence).
 
     Examples:
         >>> check_oosm_time(5.0, 0.0, 10.0).item()
@@ -115,9 +148,10 @@ def check_oosm_time(t: Any, t_prev: Any, t_last: Any) -> torch.Tensor:
     tp = as_float64("t_prev", t_prev)
     tl = as_float64("t_last", t_last)
     t, tp, tl = torch.broadcast_tensors(t, tp, tl)
+    check_choice("too_old", too_old, ("raise", "drop"))
     tol = 1e-9 * (1.0 + tl.abs())
     old = t < tp - tol
-    if old.numel() and bool(old.any()):
+    if too_old == "raise" and old.numel() and bool(old.any()):
         i = int(torch.nonzero(old.flatten())[0])
         lag, allowed = float((tl - t).flatten()[i]), float((tl - tp).flatten()[i])
         raise ValueError(

@@ -46,7 +46,6 @@ results in places):
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -54,12 +53,13 @@ import numpy as np
 import torch
 
 from hocnet._check import _describe, check_int, check_number
-from hocnet.tracking.kalman import DTYPE, as_float64, constant_velocity
+from hocnet.tracking.kalman import DTYPE, as_float64, constant_velocity, normal_cdf
 
 __all__ = [
     "RoadLocation",
     "RoadNetwork",
     "on_segment_probability",
+    "on_segment_probability_from_moments",
     "project_estimate",
     "relaxed_road_noise_cov",
     "road_constant_velocity",
@@ -181,7 +181,9 @@ def on_segment_probability(x: Any, P: Any, p0: Any, p1: Any) -> torch.Tensor:
 
     ``P{e_s} = Phi((l - Pi_s) / sigma_s) - Phi(-Pi_s / sigma_s)`` with ``Pi_s = u'(pos - p0)``
     the along-road coordinate (m), ``sigma_s^2 = u' P_pos u`` and ``Phi`` the standard normal
-    CDF (our reading of 24.11-24.12; see the module docstring).
+    CDF (our reading of 24.11-24.12; see the module docstring). With zero variance along the road
+    (a known position) this is the limit ``sigma_s -> 0``: the indicator ``0 <= Pi_s <= l``
+    (:func:`on_segment_probability_from_moments`, also used by :mod:`hocnet.tracking.vsimm`).
 
     Args:
         x: predicted states ``(..., 4)``.
@@ -193,7 +195,7 @@ def on_segment_probability(x: Any, P: Any, p0: Any, p1: Any) -> torch.Tensor:
         ``(...)`` float64 in [0, 1].
 
     Raises:
-        ValueError: zero variance along the road, bad shapes.
+        ValueError: negative variance along the road (``P`` not PSD), bad shapes.
 
     Examples:
         >>> p = on_segment_probability(torch.tensor([50.0, 0, 0, 0]), 100 * torch.eye(4),
@@ -213,14 +215,43 @@ def on_segment_probability(x: Any, P: Any, p0: Any, p1: Any) -> torch.Tensor:
     along = ((pos - p0) * u).sum(-1)
     Ppos = P[..., [0, 2], :][..., [0, 2]]
     var = (u.unsqueeze(-2) @ Ppos @ u.unsqueeze(-1)).squeeze(-1).squeeze(-1)
-    if var.numel() and bool((var <= 0).any()):
-        raise ValueError("`P`: expected a positive position variance along the road, got 0")
-    sd = var.sqrt()
+    if var.numel() and bool((var < 0).any()):
+        raise ValueError(
+            "`P`: expected a non-negative position variance along the road, got a negative one"
+        )
+    return on_segment_probability_from_moments(along, var, length)
 
-    def phi(t: torch.Tensor) -> torch.Tensor:
-        return 0.5 * torch.erfc(-t / math.sqrt(2.0))
 
-    return (phi((length - along) / sd) - phi(-along / sd)).clamp(0.0, 1.0)
+def on_segment_probability_from_moments(along: Any, var: Any, length: Any) -> torch.Tensor:
+    """``P{e_s}`` of eq. 24.11 from the along-road mean, variance and segment length (no checks).
+
+    ``Phi((l - Pi_s) / sigma_s) - Phi(-Pi_s / sigma_s)`` with ``Phi`` =
+    :func:`~hocnet.tracking.kalman.normal_cdf`; where ``sigma_s^2 <= 0`` (a known position, or a
+    round-off negative) the limit ``sigma_s -> 0``: 1 if ``0 <= Pi_s <= l``, else 0. The one
+    implementation of the 24.9-24.12 relaxation's probability (:func:`on_segment_probability`
+    and :mod:`hocnet.tracking.vsimm` call it).
+
+    Args:
+        along: ``(...)`` along-road coordinate ``Pi_s`` of the predicted position (m).
+        var: ``(...)`` its variance ``sigma_s^2`` (m^2).
+        length: ``(...)`` segment length ``l`` (m), broadcast.
+
+    Returns:
+        ``(...)`` float64 in [0, 1].
+
+    Examples:
+        >>> on_segment_probability_from_moments(torch.tensor([5.0, 15.0]), torch.zeros(2),
+        ...                                     torch.tensor(10.0)).tolist()
+        [1.0, 0.0]
+    """
+    along = torch.as_tensor(along, dtype=DTYPE)
+    var = torch.as_tensor(var, dtype=DTYPE)
+    length = torch.as_tensor(length, dtype=DTYPE)
+    sd = var.clamp(min=0.0).sqrt()
+    safe = torch.where(sd > 0, sd, torch.ones_like(sd))
+    p = normal_cdf((length - along) / safe) - normal_cdf(-along / safe)
+    inside = ((along >= 0) & (along <= length)).to(DTYPE)
+    return torch.where(sd > 0, p, inside).clamp(0.0, 1.0)
 
 
 def relaxed_road_noise_cov(

@@ -55,26 +55,28 @@ Sensors are created by name with :func:`make_sensor` (``"gmti"``, ``"video"``, `
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 
 from hocnet._check import _describe, check_choice, check_number
-from hocnet.tracking.kalman import DTYPE, as_float64
+from hocnet.tracking.kalman import DTYPE, as_float64, normal_cdf
 
 __all__ = [
     "SENSOR_NAMES",
     "GMTISensor",
     "VideoSensor",
     "check_measurements",
+    "disc_coverage",
     "gmti_aekf_matrix",
     "gmti_jacobian",
     "gmti_measure",
     "gmti_report_to_tcf",
     "gmti_tcf_to_report",
     "make_sensor",
+    "rectangle_coverage",
+    "stop_detectable",
 ]
 
 H_POSITION = ((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0))
@@ -132,22 +134,27 @@ def _state(x: Any) -> torch.Tensor:
     return x
 
 
-def _los(x: torch.Tensor, pos: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Horizontal offsets ``dx, dy`` and slant range ``rho`` of states ``x`` from the sensor."""
+def _los(
+    x: torch.Tensor, pos: torch.Tensor, ground: bool = False
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Horizontal offsets ``dx, dy`` and slant (or, ``ground=True``, ground) range ``rho``."""
     dx = x[..., 0] - pos[..., 0]
     dy = x[..., 2] - pos[..., 1]
-    rho = torch.sqrt(dx * dx + dy * dy + pos[..., 2] * pos[..., 2])
+    h2 = 0.0 if ground else pos[..., 2] * pos[..., 2]
+    rho = torch.sqrt(dx * dx + dy * dy + h2)
     if rho.numel() and bool((rho <= 0).any()):
         raise ValueError("`x`: expected targets away from the sensor position, got range 0")
     return dx, dy, rho
 
 
-def gmti_measure(x: Any, position: Any) -> torch.Tensor:
+def gmti_measure(x: Any, position: Any, *, ground: bool = False) -> torch.Tensor:
     """Noise-free GMTI measurement ``h(x) = [x, y, rho_dot]`` (eq. 24.17-24.18).
 
     Args:
         x: states ``(..., 4)`` (m, m/s).
         position: sensor position ``(3,)`` ``(xc, yc, zc)`` or ``(2,)`` (m), broadcast.
+        ground: divide by the ground range (24.18 as printed, ``zc`` ignored) instead of the
+            slant range including the altitude ``zc`` (default, backward compatible).
 
     Returns:
         ``(..., 3)`` float64: m, m, m/s.
@@ -158,16 +165,17 @@ def gmti_measure(x: Any, position: Any) -> torch.Tensor:
     """
     x = _state(x)
     pos = _sensor_position(position)
-    dx, dy, rho = _los(x, pos)
+    dx, dy, rho = _los(x, pos, ground)
     rr = (dx * x[..., 1] + dy * x[..., 3]) / rho
     return torch.stack([x[..., 0], x[..., 2], rr], -1)
 
 
-def gmti_jacobian(x: Any, position: Any) -> torch.Tensor:
+def gmti_jacobian(x: Any, position: Any, *, ground: bool = False) -> torch.Tensor:
     """Full EKF Jacobian ``d h / d x`` of :func:`gmti_measure`, ``(..., 3, 4)``.
 
     ``d rho_dot / dx = (vx - rho_dot dx / rho) / rho``, ``d rho_dot / dvx = dx / rho`` (and
     likewise in ``y``): the standard EKF linearisation, which the chapter replaces by 24.20.
+    ``ground`` as :func:`gmti_measure`.
 
     Examples:
         >>> gmti_jacobian(torch.tensor([3.0, 0.0, 4.0, 0.0]), torch.zeros(2))[2].tolist()
@@ -175,7 +183,7 @@ def gmti_jacobian(x: Any, position: Any) -> torch.Tensor:
     """
     x = _state(x)
     pos = _sensor_position(position)
-    dx, dy, rho = _los(x, pos)
+    dx, dy, rho = _los(x, pos, ground)
     rr = (dx * x[..., 1] + dy * x[..., 3]) / rho
     zero, one = torch.zeros_like(rho), torch.ones_like(rho)
     row3 = [
@@ -194,7 +202,7 @@ def gmti_jacobian(x: Any, position: Any) -> torch.Tensor:
     )
 
 
-def gmti_aekf_matrix(reference: Any, position: Any) -> torch.Tensor:
+def gmti_aekf_matrix(reference: Any, position: Any, *, ground: bool = False) -> torch.Tensor:
     """AEKF measurement matrix ``H_mti`` of eq. 24.20 (Bizup and Brown), ``(..., 3, 4)``.
 
     ``[[1, 0, 0, 0], [0, 0, 1, 0], [0, ux, 0, uy]]`` with the line of sight
@@ -206,6 +214,7 @@ def gmti_aekf_matrix(reference: Any, position: Any) -> torch.Tensor:
         reference: ``(..., 2)`` positions or ``(..., 4)`` states (m) where ``u`` is evaluated
             (the reported position in the AEKF).
         position: sensor position ``(3,)`` or ``(2,)`` (m).
+        ground: line of sight normalised by the ground range (as :func:`gmti_measure`).
 
     Examples:
         >>> gmti_aekf_matrix(torch.tensor([3.0, 4.0]), torch.zeros(2))[2].tolist()
@@ -224,7 +233,7 @@ def gmti_aekf_matrix(reference: Any, position: Any) -> torch.Tensor:
         )
     ref = _state(ref)
     pos = _sensor_position(position)
-    dx, dy, rho = _los(ref, pos)
+    dx, dy, rho = _los(ref, pos, ground)
     zero, one = torch.zeros_like(rho), torch.ones_like(rho)
     return torch.stack(
         [
@@ -314,10 +323,6 @@ def gmti_tcf_to_report(x: Any, position: Any) -> torch.Tensor:
     return torch.stack([rho, torch.atan2(dy, dx), rr], -1)
 
 
-def _phi(t: torch.Tensor) -> torch.Tensor:
-    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
-
-
 @dataclass(frozen=True)
 class GMTISensor:
     """A GMTI radar: TCF position + range-rate reports, AEKF linearisation, MDV notch.
@@ -328,8 +333,19 @@ class GMTISensor:
         sigma_azimuth: rad (0.0008, the chapter's "cross-range").
         sigma_range_rate: m/s (1).
         pd: detection probability outside the clutter notch (0.9).
-        mdv: minimum detectable velocity, m/s (1); 0 disables the notch.
+        mdv: minimum detectable velocity, m/s (1); 0 disables the notch (and then the sensor is
+            taken to see stopped targets, ``stop_detectable``).
         name: ``"gmti"``.
+        range_rate: ``"ground"`` (default): eq. 24.18 as printed, the range-rate along the
+            ground line of sight ``(p - p_c) . v / |p - p_c|``, as the scenario simulator
+            (:func:`hocnet.tracking.scenario.gmti_range_rate`) generates it; ``"slant"``: divided
+            by the slant range including the altitude ``zc`` (a factor ``g / rho``, 0.9987 at
+            78 km ground range and 4 km altitude). Before this option the model used ``"slant"``.
+
+    Attributes:
+        stop_detectable: ``False`` when ``mdv > 0``: a stopped target is inside the clutter
+            notch, so the stop mode follows the printed 24.31 (``Lambda_0 = delta``; see
+            :func:`hocnet.tracking.imm.pd_mode_log_likelihoods`).
 
     Examples:
         >>> s = GMTISensor((0.0, 0.0, 0.0), 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
@@ -344,6 +360,7 @@ class GMTISensor:
     pd: float = 0.9
     mdv: float = 1.0
     name: str = "gmti"
+    range_rate: str = "ground"
 
     dim = 3
 
@@ -355,6 +372,16 @@ class GMTISensor:
         for n in ("sigma_range", "sigma_azimuth", "sigma_range_rate", "mdv"):
             check_number(n, getattr(self, n), low=0.0)
         check_number("pd", self.pd, low=0.0, high=1.0)
+        check_choice("range_rate", self.range_rate, ("ground", "slant"))
+
+    @property
+    def stop_detectable(self) -> bool:
+        """Whether a stopped target can be detected (only without an MDV notch)."""
+        return self.mdv <= 0.0
+
+    @property
+    def _ground(self) -> bool:
+        return self.range_rate == "ground"
 
     @property
     def _pos(self) -> torch.Tensor:
@@ -362,11 +389,11 @@ class GMTISensor:
 
     def measure(self, x: Any) -> torch.Tensor:
         """Noise-free ``h(x)`` ``(..., 3)`` (24.17-24.18)."""
-        return gmti_measure(x, self._pos)
+        return gmti_measure(x, self._pos, ground=self._ground)
 
     def jacobian(self, x: Any) -> torch.Tensor:
         """Full EKF Jacobian ``(..., 3, 4)``."""
-        return gmti_jacobian(x, self._pos)
+        return gmti_jacobian(x, self._pos, ground=self._ground)
 
     def covariance(self, z: Any) -> torch.Tensor:
         """``R`` ``(..., 3, 3)`` of TCF measurements ``z`` ``(..., 3)`` (at their positions)."""
@@ -402,7 +429,7 @@ class GMTISensor:
         x = _state(x_pred)
         z = check_measurements("z", z, 3)
         ref = z[..., :2] if reference == "measurement" else x
-        H = gmti_aekf_matrix(ref, self._pos)
+        H = gmti_aekf_matrix(ref, self._pos, ground=self._ground)
         if reference == "measurement":
             H = H.expand(*torch.broadcast_shapes(H.shape[:-2], x.shape[:-1]), 3, 4)
         hx = (H @ x.unsqueeze(-1)).squeeze(-1)
@@ -420,12 +447,12 @@ class GMTISensor:
         """
         x = _state(x)
         P = as_float64("P", P, min_dim=2, square=True)
-        H3 = gmti_aekf_matrix(x, self._pos)[..., 2, :]
+        H3 = gmti_aekf_matrix(x, self._pos, ground=self._ground)[..., 2, :]
         m = (H3 * x).sum(-1)
         var = (H3.unsqueeze(-2) @ P @ H3.unsqueeze(-1)).squeeze(-1).squeeze(-1)
         sd = var.clamp(min=0.0).sqrt()
         safe = torch.where(sd > 0, sd, torch.ones_like(sd))
-        inside = _phi((self.mdv - m) / safe) - _phi((-self.mdv - m) / safe)
+        inside = normal_cdf((self.mdv - m) / safe) - normal_cdf((-self.mdv - m) / safe)
         hard = (m.abs() < self.mdv).to(DTYPE)
         inside = torch.where(sd > 0, inside, hard)
         return self.pd * (1.0 - inside)
@@ -435,10 +462,19 @@ class GMTISensor:
 class VideoSensor:
     """Video EO/IR (UAV) or UGS position reports, eq. 24.23-24.24.
 
+    Imagery has no clutter notch: a stopped target is seen like a moving one
+    (``stop_detectable = True``; the stop mode is then scored ``PD p(z | M0)``, not by the
+    printed 24.31, see :func:`hocnet.tracking.imm.pd_mode_log_likelihoods`).
+
     Args:
         sigma: position standard deviation in x and y, m (the chapter: 10 for the UAV).
-        pd: detection probability (0.9).
+        pd: detection probability (0.9) inside the coverage.
         name: ``"video"`` or ``"ugs"``.
+        coverage: where the sensor sees (our addition; the chapter's UAV footprint and the UGS
+            1000 m range): ``None`` (everywhere, the former behaviour), a callable
+            ``positions (..., 2) -> bool (...)``, or :func:`disc_coverage` /
+            :func:`rectangle_coverage`. ``PD = 0`` outside. The expected ``PD`` of a Gaussian
+            state uses the coverage at its mean (our simplification).
 
     Examples:
         >>> hx, H, R = VideoSensor(10.0).linearize(torch.zeros(4), torch.ones(2))
@@ -449,12 +485,19 @@ class VideoSensor:
     sigma: float = 10.0
     pd: float = 0.9
     name: str = "video"
+    coverage: Any = None
 
     dim = 2
+    stop_detectable = True
 
     def __post_init__(self) -> None:
         check_number("sigma", self.sigma, low=0.0, low_inclusive=False)
         check_number("pd", self.pd, low=0.0, high=1.0)
+        if self.coverage is not None and not callable(self.coverage):
+            raise TypeError(
+                "`coverage`: expected None or a callable positions -> bool, got "
+                f"{_describe(self.coverage)}"
+            )
 
     def measure(self, x: Any) -> torch.Tensor:
         """``H_video x`` ``(..., 2)`` (24.23 without noise)."""
@@ -481,13 +524,82 @@ class VideoSensor:
         return x[..., [0, 2]], H, self.covariance(z)
 
     def detection_probability(self, x: Any) -> torch.Tensor:
-        """Constant ``PD`` ``(...)`` (no clutter notch for imagery)."""
+        """``PD`` inside the coverage, 0 outside, ``(...)`` (no clutter notch for imagery)."""
         x = _state(x)
-        return torch.full(x.shape[:-1], self.pd, dtype=DTYPE)
+        pd = torch.full(x.shape[:-1], self.pd, dtype=DTYPE)
+        if self.coverage is None:
+            return pd
+        inside = torch.as_tensor(self.coverage(x[..., [0, 2]]), dtype=torch.bool)
+        return torch.where(inside, pd, torch.zeros_like(pd))
 
     def expected_detection_probability(self, x: Any, P: Any) -> torch.Tensor:
-        """Constant ``PD`` ``(...)``."""
+        """:meth:`detection_probability` at the mean ``(...)`` (``P`` unused)."""
         return self.detection_probability(x)
+
+
+def disc_coverage(center: Any, radius: float) -> Any:
+    """Coverage of a sensor with range ``radius`` (m) around ``center`` ``(2,)`` (e.g. a UGS).
+
+    Returns:
+        A callable ``positions (..., 2) -> bool (...)`` (inside or on the circle).
+
+    Examples:
+        >>> cov = disc_coverage((0.0, 0.0), 1000.0)
+        >>> cov(torch.tensor([[500.0, 0.0], [0.0, 1500.0]])).tolist()
+        [True, False]
+    """
+    c = as_float64("center", center, min_dim=1)
+    if c.shape != (2,):
+        raise ValueError(f"`center`: expected shape (2,), got {tuple(c.shape)}")
+    r = check_number("radius", radius, low=0.0)
+
+    def inside(pos: Any) -> torch.Tensor:
+        p = torch.as_tensor(pos, dtype=DTYPE)
+        return ((p - c) ** 2).sum(-1) <= r * r
+
+    return inside
+
+
+def rectangle_coverage(rectangles: Any) -> Any:
+    """Coverage by axis-aligned rectangles ``(K, 4)`` ``[xmin, ymin, xmax, ymax]`` (m).
+
+    E.g. a UAV footprint.
+
+    Returns:
+        A callable ``positions (..., 2) -> bool (...)`` (inside any rectangle, borders included).
+
+    Examples:
+        >>> cov = rectangle_coverage([[0.0, 0.0, 10.0, 5.0]])
+        >>> cov(torch.tensor([[5.0, 5.0], [11.0, 1.0]])).tolist()
+        [True, False]
+    """
+    b = as_float64("rectangles", rectangles, min_dim=1)
+    b = b.reshape(-1, 4) if b.numel() else b.reshape(0, 4)
+    if b.shape[-1] != 4 or bool((b[:, 2] < b[:, 0]).any() or (b[:, 3] < b[:, 1]).any()):
+        raise ValueError("`rectangles`: expected rows [xmin, ymin, xmax, ymax] with min <= max")
+
+    def inside(pos: Any) -> torch.Tensor:
+        p = torch.as_tensor(pos, dtype=DTYPE).unsqueeze(-2)  # (..., 1, 2)
+        ok = (p[..., 0] >= b[:, 0]) & (p[..., 0] <= b[:, 2])
+        ok = ok & (p[..., 1] >= b[:, 1]) & (p[..., 1] <= b[:, 3])
+        return ok.any(-1)
+
+    return inside
+
+
+def stop_detectable(sensor: Any) -> bool:
+    """Whether ``sensor`` sees stopped targets (no MDV clutter notch).
+
+    Its ``stop_detectable`` attribute, else ``False`` for a sensor with an ``mdv`` (a GMTI) and
+    ``True`` otherwise.
+
+    Examples:
+        >>> stop_detectable(GMTISensor()), stop_detectable(VideoSensor())
+        (False, True)
+    """
+    if hasattr(sensor, "stop_detectable"):
+        return bool(sensor.stop_detectable)
+    return not hasattr(sensor, "mdv")
 
 
 _SENSORS = {"gmti": GMTISensor, "video": VideoSensor, "ugs": VideoSensor}

@@ -14,20 +14,23 @@ __all__ = ["sprt_thresholds"]
 
 
 def sprt_thresholds(alpha: float, beta: float) -> tuple[float, float]:
-    """Wald's SPRT thresholds on the log-likelihood ratio: ``(ln A, ln B)``.
+    """Wald's SPRT bounds on the log-likelihood ratio: ``(ln lower, ln upper)``.
 
-    ``A = beta / (1 - alpha)`` (delete at or below) and ``B = (1 - beta) / alpha`` (confirm at or
-    above) ([PD] section 24.4.3; A. Wald, *Sequential Analysis*, 1947).
+    ``lower = beta / (1 - alpha)`` (reject / delete at or below) and ``upper = (1 - beta) /
+    alpha`` (accept / confirm at or above) ([PD] section 24.4.3; A. Wald, *Sequential Analysis*,
+    1947, where the upper bound is called ``A`` and the lower ``B``; the chapter swaps the
+    letters, so this code says "lower" and "upper" only).
 
     Args:
-        alpha: probability of confirming a false track, in (0, 1).
-        beta: probability of deleting a true track, in (0, 1), with ``alpha + beta < 1``.
+        alpha: probability of confirming a false track (accepting a wrong hypothesis), in (0, 1).
+        beta: probability of deleting a true track (rejecting the true hypothesis), in (0, 1),
+            with ``alpha + beta < 1``.
 
     Returns:
-        ``(ln A, ln B)``.
+        ``(ln lower, ln upper)``.
 
     Raises:
-        ValueError: out-of-range ``alpha`` or ``beta``.
+        ValueError: out-of-range ``alpha`` or ``beta``, or ``alpha + beta >= 1``.
 
     Examples:
         >>> [round(v, 4) for v in sprt_thresholds(0.01, 0.1)]

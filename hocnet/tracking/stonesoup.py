@@ -47,9 +47,16 @@ mixing indices; 24.42 for a missed detection ``Delta L = ln Lambda_miss`` with
 ``Lambda_miss = sum_i mu_i(k|k-1) Lambda_i`` from 24.30-24.31 (``ln(1 - PD)`` without a stop
 model); 24.43 ``L(0) = ln(lambda_nt / lambda_fa)`` by default (Blackman and Popoli 1999, section
 6.2; ``initial_score="printed"`` keeps the chapter's ``ln(lambda_fa / (lambda_fa + lambda_nt))``);
-Wald's thresholds ``ln A = ln(beta / (1 - alpha))`` (delete), ``ln B = ln((1 - beta) / alpha)``
-(confirm); a confirmed track is deleted when its score falls ``drop`` below its maximum (our
-reading, Blackman and Popoli 1999 section 6.4).
+Wald's bounds (:func:`~hocnet.tracking.sprt.sprt_thresholds`) ``ln lower = ln(beta / (1 -
+alpha))`` and ``ln upper = ln((1 - beta) / alpha)`` with the deletion rule of
+:mod:`hocnet.tracking.mht` (one rule for both): a tentative track is confirmed at ``L >= ln
+upper`` and dropped at ``L <= ln lower``; a confirmed track is deleted at ``L <= max L - drop``
+(our reading, Blackman and Popoli 1999 section 6.4; ``ln lower`` is not applied to it); defaults
+``alpha = beta = 1e-3`` as the MHT (the reason is given there). The stop mode follows the
+printed 24.31 (``Lambda_0 = delta``) only for a sensor with an MDV (a
+:class:`GMTIMeasurementModel`); with another measurement model (video / UGS positions) it is
+scored ``PD p(z | M0)`` (:func:`hocnet.tracking.imm.pd_mode_log_likelihoods`, our reading;
+``IMMUpdater(stop_detectable=...)`` overrides).
 
 Stone Soup is an optional dependency: importing :mod:`hocnet.tracking` never imports it; importing
 this module without it raises :class:`ImportError` ("pip install stonesoup").
@@ -67,8 +74,9 @@ Examples:
     ...     transition_models=[StopModel(), ConstantVelocity2D(sigma_a=0.5)],
     ...     mode_transition=[[0.9, 0.1], [0.1, 0.9]],
     ... )
-    >>> updater = IMMUpdater(
-    ...     measurement_model=LinearGaussian(4, (0, 2), np.eye(2)), pd=0.9, stop_mode=0
+    >>> updater = IMMUpdater(  # positions from a GMTI: the MDV hides a stopped target (24.31)
+    ...     measurement_model=LinearGaussian(4, (0, 2), np.eye(2)), pd=0.9, stop_mode=0,
+    ...     stop_detectable=False,
     ... )
     >>> t0 = datetime(2024, 1, 1)
     >>> state = GaussianState([[0.0], [1.0], [0.0], [0.0]], np.eye(4), timestamp=t0)
@@ -118,12 +126,12 @@ except ImportError as exc:  # pragma: no cover - exercised only without the opti
 
 from hocnet._check import check_choice, check_number
 from hocnet.tracking.imm import (
+    _pd_mode_ll,
     imm_combine,
     imm_mix,
     imm_mixing_probabilities,
     imm_mode_probabilities,
     imm_track_log_likelihood,
-    pd_mode_log_likelihoods,
 )
 from hocnet.tracking.kalman import DTYPE, constant_velocity, ekf_update, gate, kalman_predict
 from hocnet.tracking.oosm import _projection
@@ -140,6 +148,7 @@ from hocnet.tracking.sensors import (
     gmti_jacobian,
     gmti_measure,
 )
+from hocnet.tracking.sprt import sprt_thresholds
 
 __all__ = [
     "ConstantVelocity2D",
@@ -592,6 +601,9 @@ class IMMUpdater(Updater):
         stop_mode: index of M0 among the modes (with ``pd``), or ``None``.
         project: project road modes on their segments.
         use_joseph_cov: Joseph-form covariance update (the default, as ``imm_step``).
+        stop_detectable: whether the sensor sees stopped targets (the stop mode is then scored
+            as 24.30 instead of 24.31); ``None`` (default): ``False`` for a
+            :class:`GMTIMeasurementModel` (MDV clutter notch), ``True`` for any other model.
         detection_probability: optional per-mode ``PD_i`` from the predicted modes, a callable
             ``(x (r, n), P (r, n, n)) -> (r,)``, e.g.
             :meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability` (the MDV
@@ -608,6 +620,9 @@ class IMMUpdater(Updater):
         default=None,
         doc="Per-mode PD: callable (x (r, n), P (r, n, n)) -> (r,); overrides pd.",
     )
+    stop_detectable: bool = Property(
+        default=None, doc="Sensor sees stopped targets; None: not for a GMTI model, else yes."
+    )
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -619,27 +634,36 @@ class IMMUpdater(Updater):
         """Whether missed detections can be scored (``pd`` or ``detection_probability`` set)."""
         return self.pd is not None or self.detection_probability is not None
 
+    def _sees_stop(self, model: Any) -> bool:
+        if self.stop_detectable is not None:
+            return bool(self.stop_detectable)
+        model = self.measurement_model if model is None else model
+        return not isinstance(model, GMTIMeasurementModel)
+
     def _mode_log_likelihoods(
-        self, ll: torch.Tensor, detected: bool, x: torch.Tensor, P: torch.Tensor
+        self,
+        ll: torch.Tensor,
+        detected: bool,
+        x: torch.Tensor,
+        P: torch.Tensor,
+        model: Any = None,
     ) -> torch.Tensor:
         """``log Lambda_i`` ``(1, r)``: 24.29 (no PD), or 24.30-24.31 (scalar or per-mode PD)."""
         det = torch.full((1,), detected, dtype=torch.bool)
         if self.detection_probability is None:
             if self.pd is None:
                 return ll
-            return pd_mode_log_likelihoods(ll, det, self.pd, stop_mode=self.stop_mode)
-        pd = torch.as_tensor(self.detection_probability(x, P), dtype=DTYPE).reshape(1, -1)
-        if pd.shape != ll.shape:
-            raise ValueError(
-                f"`detection_probability`: expected {ll.shape[-1]} mode values, got {pd.shape[-1]}"
-            )
-        pd = pd.clamp(1e-12, 1.0)
-        moving = torch.log(pd) + ll if detected else torch.log1p(-pd)
-        if self.stop_mode is None:
-            return moving
-        stop = torch.full_like(ll, -torch.inf if detected else 0.0)
-        is_stop = torch.arange(ll.shape[-1]) == self.stop_mode
-        return torch.where(is_stop, stop, moving)
+            pd = torch.tensor(float(self.pd), dtype=DTYPE)
+        else:
+            pd = torch.as_tensor(self.detection_probability(x, P), dtype=DTYPE).reshape(1, -1)
+            if pd.shape != ll.shape:
+                raise ValueError(
+                    f"`detection_probability`: expected {ll.shape[-1]} mode values, "
+                    f"got {pd.shape[-1]}"
+                )
+            pd = pd.clamp(1e-12, 1.0)
+        is_stop = None if self.stop_mode is None else torch.arange(ll.shape[-1]) == self.stop_mode
+        return _pd_mode_ll(ll, det, pd, is_stop, self._sees_stop(model))
 
     def _linearise(
         self, pred: IMMState, model: Any, measurement: Any | None
@@ -737,7 +761,7 @@ class IMMUpdater(Updater):
         x_upd, P_upd, ll = ekf_update(
             x_pred, P_pred, nu[None], torch.zeros_like(nu)[None], H, R, joseph=self.use_joseph_cov
         )
-        mode_ll = self._mode_log_likelihoods(ll, True, x_pred[0], P_pred[0])
+        mode_ll = self._mode_log_likelihoods(ll, True, x_pred[0], P_pred[0], model)
         return self._result(pred, cbar, mode_ll, x_upd, P_upd, measurement, hypothesis)
 
     def _result(
@@ -819,6 +843,9 @@ class GMTIMeasurementModel(MeasurementModel, GaussianModel):
         noise_covar: ``R (3, 3)`` (m^2, m^2, (m/s)^2), e.g. from
             :meth:`~hocnet.tracking.sensors.GMTISensor.from_report`.
         reference: ``(x, y)`` of the AEKF linearisation, or ``None`` (EKF).
+        ground: range-rate divided by the ground range (24.18 as printed, the default of
+            :class:`~hocnet.tracking.sensors.GMTISensor` and of the scenario simulator) instead
+            of the slant range (``False``, default here, backward compatible).
         ndim_state: 4; mapping: ``(0, 2)`` (the measured position components).
 
     Examples:
@@ -833,6 +860,9 @@ class GMTIMeasurementModel(MeasurementModel, GaussianModel):
     sensor_position: Sequence[float] = Property(doc="(xc, yc, zc) in m.")
     noise_covar: CovarianceMatrix = Property(doc="R (3, 3).")
     reference: Sequence[float] = Property(default=None, doc="AEKF reference position, or None.")
+    ground: bool = Property(
+        default=False, doc="Range-rate over the ground range (24.18 as printed), not the slant one."
+    )
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -857,9 +887,9 @@ class GMTIMeasurementModel(MeasurementModel, GaussianModel):
         x = self._states(state)
         pos = _torch(self.sensor_position)
         if self.reference is None:
-            z = gmti_measure(x, pos)
+            z = gmti_measure(x, pos, ground=self.ground)
         else:
-            H = gmti_aekf_matrix(_torch(self.reference).reshape(2), pos)
+            H = gmti_aekf_matrix(_torch(self.reference).reshape(2), pos, ground=self.ground)
             z = x @ H.T
         out = _numpy(z.T)
         if isinstance(noise, bool) or noise is None:
@@ -872,8 +902,8 @@ class GMTIMeasurementModel(MeasurementModel, GaussianModel):
         x = self._states(state)[0]
         pos = _torch(self.sensor_position)
         if self.reference is None:
-            return _numpy(gmti_jacobian(x, pos))
-        return _numpy(gmti_aekf_matrix(_torch(self.reference).reshape(2), pos))
+            return _numpy(gmti_jacobian(x, pos, ground=self.ground))
+        return _numpy(gmti_aekf_matrix(_torch(self.reference).reshape(2), pos, ground=self.ground))
 
     def covar(self, **kwargs: Any) -> CovarianceMatrix:
         """``R (3, 3)``."""
@@ -916,6 +946,7 @@ def gmti_detection(
         sensor_position=sensor.position,
         noise_covar=_numpy(R),
         reference=_numpy(z[:2]).tolist() if aekf else None,
+        ground=getattr(sensor, "range_rate", "slant") == "ground",
     )
     return Detection(
         StateVector(_numpy(z)),
@@ -937,7 +968,8 @@ class IMMHypothesiser(Hypothesiser):
     the missed-detection state (PD-aware mode probabilities, 24.30-24.31) as its ``prediction``,
     so that Stone Soup's ``MultiTargetTracker`` appends it, and has weight ``Lambda_miss``; a
     detection is gated in when its innovation passes :func:`~hocnet.tracking.kalman.gate`
-    (``d^2 <= gate_threshold``) for at least one mode, and has weight
+    (``d^2 <= gate_threshold``) for at least one mode (gating convention: any mode, unlike the
+    MHT's single test on the combined innovation), and has weight
     ``Lambda / lambda_fa`` (``exp`` of the score increment 24.42). The hypotheses are
     ``SingleProbabilityHypothesis`` (un-normalised), so ``GNNWith2DAssignment`` picks the
     assignment of highest summed score increments.
@@ -1066,12 +1098,6 @@ def track_score(
     return scores if history else scores[-1]
 
 
-def _sprt_bounds(alpha: float, beta: float) -> tuple[float, float]:
-    a = check_number("alpha", alpha, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
-    b = check_number("beta", beta, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
-    return math.log(b / (1.0 - a)), math.log((1.0 - b) / a)
-
-
 class IMMInitiator(Initiator):
     """One-point initiation of IMM tracks from detections.
 
@@ -1120,8 +1146,9 @@ class SPRTInitiator(Initiator):
 
     Each scan the tentative tracks are associated with the detections (``data_associator``,
     e.g. Stone Soup's ``GNNWith2DAssignment`` over an :class:`IMMHypothesiser`) and updated;
-    a tentative track is released to the tracker when its score reaches ``ln B =
-    ln((1 - beta) / alpha)`` and dropped when it falls to ``ln A = ln(beta / (1 - alpha))``;
+    a tentative track is released to the tracker when its score reaches ``ln upper =
+    ln((1 - beta) / alpha)`` and dropped when it falls to ``ln lower = ln(beta / (1 - alpha))``
+    (the deletion rule of :mod:`hocnet.tracking.mht`);
     every detection left over starts a tentative track (``initiator``, e.g.
     :class:`IMMInitiator`). The birth scan is not tested (one plot cannot be; our reading).
 
@@ -1139,14 +1166,14 @@ class SPRTInitiator(Initiator):
     updater: IMMUpdater = Property(doc="IMM updater.")
     false_alarm_density: float = Property(doc="lambda_fa.")
     new_target_density: float = Property(doc="lambda_nt.")
-    alpha: float = Property(default=0.01, doc="P(confirm a false track).")
-    beta: float = Property(default=0.01, doc="P(drop a true track).")
+    alpha: float = Property(default=1e-3, doc="P(confirm a false track).")
+    beta: float = Property(default=1e-3, doc="P(drop a true track).")
     initial_score: str = Property(default="log_odds", doc="'log_odds' or 'printed'.")
     missed_pd: float = Property(default=None, doc="Score misses ln(1 - PD) (see track_score).")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.lower, self.upper = _sprt_bounds(self.alpha, self.beta)
+        self.lower, self.upper = sprt_thresholds(self.alpha, self.beta)
         _initial_score(self.false_alarm_density, self.new_target_density, self.initial_score)
         self.holding_tracks: set = set()
 
@@ -1182,10 +1209,13 @@ class SPRTInitiator(Initiator):
 
 
 class SPRTDeleter(Deleter):
-    """Delete tracks by their LLR score (24.41-24.43): below ``ln A`` or ``drop`` below the maximum.
+    """Delete confirmed tracks by their LLR score (24.41-24.43): ``drop`` below its maximum.
 
-    ``ln A = ln(beta / (1 - alpha))`` (Wald); ``drop`` defaults to ``ln(B / A)`` (our reading,
-    Blackman and Popoli 1999 section 6.4).
+    The deletion rule of :mod:`hocnet.tracking.mht` for confirmed tracks: delete when ``L <=
+    max L - drop``; ``drop`` defaults to ``ln(upper / lower)`` (Wald's bounds of
+    :func:`~hocnet.tracking.sprt.sprt_thresholds`; our reading, Blackman and Popoli 1999
+    section 6.4), so a track confirmed at ``ln upper`` goes at the latest at ``ln lower``.
+    Before this rule was unified, ``L <= ln lower`` also deleted and the drop test was strict.
 
     Args (Stone Soup properties, pass by keyword):
         false_alarm_density, new_target_density, alpha, beta, initial_score, missed_pd: as
@@ -1201,15 +1231,15 @@ class SPRTDeleter(Deleter):
 
     false_alarm_density: float = Property(doc="lambda_fa.")
     new_target_density: float = Property(doc="lambda_nt.")
-    alpha: float = Property(default=0.01, doc="P(confirm a false track).")
-    beta: float = Property(default=0.01, doc="P(drop a true track).")
+    alpha: float = Property(default=1e-3, doc="P(confirm a false track).")
+    beta: float = Property(default=1e-3, doc="P(drop a true track).")
     drop: float = Property(default=None, doc="Allowed fall below the maximum score.")
     initial_score: str = Property(default="log_odds", doc="'log_odds' or 'printed'.")
     missed_pd: float = Property(default=None, doc="Score misses ln(1 - PD) (see track_score).")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.lower, self.upper = _sprt_bounds(self.alpha, self.beta)
+        self.lower, self.upper = sprt_thresholds(self.alpha, self.beta)
         if self.drop is None:
             self.drop = self.upper - self.lower
         check_number("drop", self.drop, low=0.0)
@@ -1226,4 +1256,4 @@ class SPRTDeleter(Deleter):
         )
         if len(scores) == 1:
             return False
-        return scores[-1] <= self.lower or scores[-1] < max(scores) - self.drop
+        return scores[-1] <= max(scores) - self.drop

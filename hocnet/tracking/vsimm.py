@@ -26,11 +26,15 @@ belong to several sections: :func:`vsimm_expand_sections` adds one row per new s
 per hypothesis ``h``), and :func:`vsimm_section_sprt` updates the section probabilities (24.38)
 and runs Wald's SPRT (24.39-24.40) to keep one.
 
-**Likelihoods** (24.29-24.32): mode ``i`` moving: ``PD_i p(z | M_i)`` if detected, ``1 - PD_i``
-if not; stop: ``delta_{m_j, 0}``. ``PD_i`` is the sensor's ``PD`` or, with the GMTI minimum
-detectable velocity (``use_mdv``), the expected ``PD`` of the mode's predicted state
-(:meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability`; our reading of the
-MDV, floored at 1e-12). The IMM equations are those of :mod:`hocnet.tracking.imm` (mixing
+**Likelihoods** (24.29-24.32, by the one kernel of
+:func:`hocnet.tracking.imm.pd_mode_log_likelihoods`): mode ``i`` moving: ``PD_i p(z | M_i)`` if
+detected, ``1 - PD_i`` if not; stop: ``delta_{m_j, 0}`` for a sensor with an MDV (GMTI, the
+printed 24.31), and like a moving mode for a sensor that sees stopped targets (video / UGS,
+``stop_detectable``; our reading). ``PD_i`` is the sensor's ``PD`` (coverage-aware for video /
+UGS) or, with the GMTI minimum detectable velocity (``use_mdv``), the expected ``PD`` of the
+mode's predicted state (:meth:`~hocnet.tracking.sensors.GMTISensor.expected_detection_probability`;
+our reading of the MDV), floored at 1e-12. The IMM equations are those of
+:mod:`hocnet.tracking.imm` (mixing
 24.33-24.35 with the standard indices, 24.36, 24.37).
 
 **24.38** prints the sum over ``h_bar in {1, ..., N_k - 1}``; we read the subscript ``k - 1``
@@ -39,13 +43,15 @@ spawned hypothesis has ``mu = 0`` at ``k - 1``, so summing over the ``N_k`` curr
 same). ``Omega[h_bar, h]`` is the probability of moving from the road of ``h_bar`` to that of
 ``h`` (:func:`section_transition`, our choice of values).
 
-**SPRT thresholds** (24.39-24.40; "given in [5, 20]"): Wald's ``A = (1 - beta) / alpha`` and
-``B = beta / (1 - alpha)`` for the error probabilities ``alpha`` (accepting a wrong section) and
-``beta`` (rejecting the true one). The chapter's letters are swapped with respect to Wald's: its
-24.39 accepts ``h`` when ``mu_h / mu_h' >= B`` for all ``h'`` and 24.40 rejects when
-``<= A``; the acceptance bound must be the large one, so we accept above Wald's
-``A = (1 - beta) / alpha`` and reject below Wald's ``B = beta / (1 - alpha)``
-(:func:`hocnet.tracking.sprt.sprt_thresholds` returns their logarithms, ``(ln lower, ln upper)``).
+**SPRT thresholds** (24.39-24.40; "given in [5, 20]"): Wald's (1947) bounds for the error
+probabilities ``alpha`` (accepting a wrong section) and ``beta`` (rejecting the true one): the
+upper bound ``(1 - beta) / alpha`` and the lower bound ``beta / (1 - alpha)`` (Wald names the
+upper one ``A`` and the lower one ``B``; the chapter's 24.39 accepts ``h`` when
+``mu_h / mu_h' >= B`` and 24.40 rejects when ``<= A``, letters swapped with respect to Wald's).
+We write "upper" and "lower" everywhere: accept above the upper bound, reject below the lower
+bound (:func:`hocnet.tracking.sprt.sprt_thresholds` returns ``(ln lower, ln upper)``). With
+three or more hypotheses the printed 24.40 can stall; :func:`sprt_decide` ``reject="best"`` is
+our option.
 """
 
 from __future__ import annotations
@@ -57,7 +63,7 @@ from typing import Any, NamedTuple
 import torch
 
 from hocnet._check import check_choice, check_number
-from hocnet.tracking.imm import _combine, _mix, _mixing, imm_mixing_probabilities
+from hocnet.tracking.imm import _combine, _mix, _mixing, _pd_mode_ll, imm_mixing_probabilities
 from hocnet.tracking.kalman import DTYPE, _update, as_float64
 from hocnet.tracking.oosm import (
     Retrodiction,
@@ -65,14 +71,16 @@ from hocnet.tracking.oosm import (
     _projection,
     _retrodict,
     check_oosm_time,
+    oosm_too_old,
 )
-from hocnet.tracking.road import RoadNetwork
-from hocnet.tracking.sensors import check_measurements
+from hocnet.tracking.road import RoadNetwork, on_segment_probability_from_moments
+from hocnet.tracking.sensors import check_measurements, stop_detectable
 from hocnet.tracking.sprt import sprt_thresholds
 
 __all__ = [
     "VSIMMAssociation",
     "VSIMMConfig",
+    "VSIMMOOSMUpdate",
     "VSIMMPrediction",
     "VSIMMState",
     "VSIMMUpdate",
@@ -90,6 +98,26 @@ __all__ = [
 ]
 
 _PD_FLOOR = 1e-12
+
+
+def _mode_pd(sensor: Any, config: VSIMMConfig, x: torch.Tensor, P: torch.Tensor) -> torch.Tensor:
+    """``PD_i`` ``(B, r)`` of 24.30, floored at ``_PD_FLOOR``.
+
+    The MDV-notch expected PD of a GMTI (``use_mdv``), the coverage-aware PD of another sensor,
+    else the constant ``pd``.
+    """
+    B, r = x.shape[:2]
+    if hasattr(sensor, "mdv") and not config.use_mdv:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    elif hasattr(sensor, "expected_detection_probability"):
+        pd = torch.as_tensor(sensor.expected_detection_probability(x, P), dtype=DTYPE)
+    else:
+        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
+    return pd.clamp(_PD_FLOOR, 1.0)
+
+
+def _stop_mask(config: VSIMMConfig) -> torch.Tensor:
+    return torch.tensor([k == "stop" for k in config.kinds])
 
 
 def _default_trans(r: int, stay: float = 0.9) -> tuple[tuple[float, ...], ...]:
@@ -296,10 +324,6 @@ def _process_noise(
     return torch.where(stop, torch.zeros_like(Q), Q)
 
 
-def _phi(t: torch.Tensor) -> torch.Tensor:
-    return 0.5 * torch.erfc(-t / math.sqrt(2.0))
-
-
 def _accel_cov(
     net: RoadNetwork,
     seg: torch.Tensor,
@@ -326,12 +350,7 @@ def _accel_cov(
         along = ((x_pred[..., [0, 2]] - net.p0[s]) * u).sum(-1)
         Ppos = P_tmp[..., [0, 2], :][..., [0, 2]]
         var = (u.unsqueeze(-2) @ Ppos @ u.unsqueeze(-1)).squeeze(-1).squeeze(-1)
-        length = net.length[s]
-        sd = var.clamp(min=0.0).sqrt()
-        safe = torch.where(sd > 0, sd, torch.ones_like(sd))
-        p = _phi((length - along) / safe) - _phi(-along / safe)
-        inside = ((along >= 0) & (along <= length)).to(DTYPE)
-        p = torch.where(sd > 0, p, inside).clamp(0.0, 1.0)
+        p = on_segment_probability_from_moments(along, var, net.length[s])
         p_on = torch.where(road.view(1, -1) & (seg >= 0), p, p_on)
         q = sc2.squeeze(-1).squeeze(-1) * p_on + sa2.squeeze(-1).squeeze(-1) * (1.0 - p_on)
         relaxed = sa2 * uu + q.unsqueeze(-1).unsqueeze(-1) * nn
@@ -587,14 +606,15 @@ def vsimm_update(
         ValueError: non-finite measurement in a detected row, bad shapes.
 
     Examples:
-        >>> from hocnet.tracking.sensors import VideoSensor
+        >>> from hocnet.tracking.sensors import GMTISensor
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
         >>> cfg = VSIMMConfig()
         >>> s = vsimm_init(net, torch.tensor([[0.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
         >>> pred = vsimm_predict(s, net, cfg, 10.0)
-        >>> new, out = vsimm_update(s, pred, torch.tensor([[float("nan"), 0.0]]), VideoSensor(),
-        ...                         net, cfg, detected=torch.tensor([False]))
-        >>> new.mu[0, 0] > s.mu[0, 0]  # a missed detection favours the stop model
+        >>> z = torch.tensor([[float("nan"), 0.0, 0.0]])
+        >>> new, out = vsimm_update(s, pred, z, GMTISensor((0.0, -5000.0, 0.0)), net, cfg,
+        ...                         detected=torch.tensor([False]))
+        >>> new.mu[0, 0] > s.mu[0, 0]  # a GMTI miss favours the stop model (24.31)
         tensor(True)
     """
     B, r = pred.cbar.shape
@@ -621,16 +641,9 @@ def vsimm_update(
     R = R.expand(B, r, m, m)
     nu = zt.unsqueeze(1) - hx
     x_upd, P_upd, ll = _update(pred.x, pred.P, nu, H, R)
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(pred.x, pred.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
+    pd = _mode_pd(sensor, config, pred.x, pred.P)
     d = det.unsqueeze(-1)
-    moving = torch.where(d, torch.log(pd) + ll, torch.log1p(-pd))
-    stop = torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll))
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
-    mode_ll = torch.where(is_stop, stop, moving)
+    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
     x_upd = torch.where(d.unsqueeze(-1), x_upd, pred.x)
     P_upd = torch.where(d.unsqueeze(-1).unsqueeze(-1), P_upd, pred.P)
     # projection on the active segments (road and stop modes)
@@ -667,6 +680,21 @@ def vsimm_update(
     return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
 
 
+class VSIMMOOSMUpdate(NamedTuple):
+    """Result of :func:`vsimm_oosm` with ``too_old="drop"``.
+
+    Attributes:
+        log_likelihood: ``(B,)`` ``log Lambda`` (0 for undetected and dropped rows).
+        mode_log_likelihood: ``(B, r)`` ``log Lambda_i``.
+        dropped: ``(B,)`` bool, the rows whose measurement was older than the one-step lag and
+            was not used (``int(dropped.sum())`` is the count).
+    """
+
+    log_likelihood: torch.Tensor
+    mode_log_likelihood: torch.Tensor
+    dropped: torch.Tensor
+
+
 class VSIMMAssociation(NamedTuple):
     """Result of :func:`vsimm_association_log_likelihood`.
 
@@ -675,6 +703,10 @@ class VSIMMAssociation(NamedTuple):
             ``j`` (PD-aware, 24.30-24.31 with ``m_j != 0``).
         missed_log_likelihood: ``(B,)`` ``log Lambda`` of a missed detection (``m_j = 0``).
         d2: ``(B, M, r)`` squared Mahalanobis distances of every mode's innovation (for gating).
+
+    Gating convention: no gate is applied here; the caller gates on ``d2`` (per mode: "any mode
+    inside" is the Stone Soup hypothesiser's rule, while :class:`~hocnet.tracking.mht.MHT`
+    gates on its filter's combined innovation).
     """
 
     log_likelihood: torch.Tensor
@@ -739,15 +771,14 @@ def vsimm_association_log_likelihood(
     d2 = (w * w).sum(-1)
     logdet = 2.0 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1)
     ll = -0.5 * (d2 + logdet + m * math.log(2.0 * math.pi))
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(pred.x, pred.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
+    pd = _mode_pd(sensor, config, pred.x, pred.P)
+    is_stop = _stop_mask(config)
+    sees_stop = stop_detectable(sensor)
     log_cbar = torch.log(pred.cbar)
-    det = torch.where(is_stop.unsqueeze(1), -torch.inf, torch.log(pd).unsqueeze(1) + ll)
-    miss = torch.where(is_stop, 0.0, torch.log1p(-pd))
+    det = _pd_mode_ll(ll, torch.ones((B, M), dtype=torch.bool), pd.unsqueeze(1), is_stop, sees_stop)
+    miss = _pd_mode_ll(
+        torch.zeros_like(pd), torch.zeros(B, dtype=torch.bool), pd, is_stop, sees_stop
+    )
     return VSIMMAssociation(
         torch.logsumexp(det + log_cbar.unsqueeze(1), -1),
         torch.logsumexp(miss + log_cbar, -1),
@@ -834,19 +865,27 @@ def section_probabilities(
 
 
 def sprt_decide(
-    mu: Any, upper: float, lower: float, valid: Any | None = None
+    mu: Any, upper: float, lower: float, valid: Any | None = None, *, reject: str = "all"
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Wald's SPRT on hypothesis probabilities, eq. 24.39-24.40, batched over tracks.
 
     Accept ``h`` when ``mu_h / mu_h' >= upper`` for all valid ``h' != h``; reject ``h`` when
-    ``mu_h / mu_h' <= lower`` for all valid ``h' != h`` (as printed); otherwise wait for the next
-    scan. A track with a single valid hypothesis accepts it.
+    ``mu_h / mu_h' <= lower`` for all valid ``h' != h`` (``reject="all"``, as printed, the
+    default); otherwise wait for the next scan. A track with a single valid hypothesis accepts it.
+
+    With three or more hypotheses the printed 24.40 never rejects a hypothesis dominated by the
+    best one but not by a weaker third (``mu = [.98, .019, .001]``, bounds 99 and 1/99: the
+    second is not rejected since ``.019 / .001 > 1/99``, and nothing is accepted since
+    ``.98 / .019 < 99``). ``reject="best"`` (our option, Armitage's multi-hypothesis SPRT form
+    of pairwise tests against the leader, Armitage 1950) rejects ``h`` when
+    ``mu_h / max_{h' != h} mu_h' <= lower``, i.e. when the best other hypothesis dominates it.
 
     Args:
         mu: ``(T, H)`` probabilities.
-        upper: acceptance bound (Wald's ``(1 - beta) / alpha``).
-        lower: rejection bound (Wald's ``beta / (1 - alpha)``).
+        upper: acceptance bound (the upper bound ``(1 - beta) / alpha``).
+        lower: rejection bound (the lower bound ``beta / (1 - alpha)``).
         valid: ``(T, H)`` bool.
+        reject: ``"all"`` (24.40 as printed) or ``"best"`` (dominated by the best other one).
 
     Returns:
         ``(accepted, rejected)``: two ``(T, H)`` bool tensors.
@@ -867,7 +906,11 @@ def sprt_decide(
     ratio = torch.where(den > 0, num / den.clamp(min=1e-300), torch.where(num > 0, torch.inf, 1.0))
     others = val.unsqueeze(-2) & ~torch.eye(mu.shape[-1], dtype=torch.bool)
     acc = torch.where(others, ratio >= upper, torch.ones_like(others)).all(-1) & val
-    rej = torch.where(others, ratio <= lower, torch.ones_like(others)).all(-1) & val
+    check_choice("reject", reject, ("all", "best"))
+    if reject == "all":
+        rej = torch.where(others, ratio <= lower, torch.ones_like(others)).all(-1) & val
+    else:
+        rej = torch.where(others, ratio <= lower, torch.zeros_like(others)).any(-1) & val
     rej = rej & others.any(-1)  # a lone hypothesis is never rejected
     return acc, rej
 
@@ -933,6 +976,7 @@ def vsimm_section_sprt(
     alpha: float = 0.01,
     beta: float = 0.01,
     omega: Any | None = None,
+    reject: str = "all",
 ) -> tuple[VSIMMState, torch.Tensor]:
     """Update ``mu_section`` by 24.38 and keep the rows the SPRT (24.39-24.40) does not reject.
 
@@ -946,6 +990,13 @@ def vsimm_section_sprt(
         alpha: SPRT probability of accepting a wrong section (:func:`sprt_thresholds`).
         beta: SPRT probability of rejecting the true section.
         omega: optional callable ``sections (T, H) -> (T, H, H)`` or a fixed ``(H, H)`` tensor.
+        reject: the rejection rule of :func:`sprt_decide` (``"all"``, 24.40 as printed, or
+            ``"best"``).
+
+    The defaults ``alpha = beta = 0.01`` differ from the track-status SPRT of the MHT
+    (``1e-3``): this test chooses among road-section hypotheses that must be settled within a
+    few scans after a junction (symmetric errors, ratio bounds 99 and 1/99), while the track
+    status weighs a false confirmation against a lost target over a whole track life.
 
     Returns:
         ``(kept_state, kept_rows)`` with ``kept_rows`` the ``(B',)`` indices into ``state``.
@@ -976,7 +1027,7 @@ def vsimm_section_sprt(
         om = as_float64("omega", omega, min_dim=2)
     mu_prev = torch.where(valid, state.mu_section[safe], torch.zeros_like(secs, dtype=DTYPE))
     mu = section_probabilities(mu_prev, ll[safe], om, valid)
-    acc, rej = sprt_decide(mu, upper, lower, valid)
+    acc, rej = sprt_decide(mu, upper, lower, valid, reject=reject)
     keep = valid & ~rej
     has_acc = acc.any(-1, keepdim=True)
     keep = torch.where(has_acc, acc, keep)
@@ -1069,7 +1120,8 @@ def vsimm_oosm(
     config: VSIMMConfig,
     *,
     detected: Any | None = None,
-) -> tuple[VSIMMState, VSIMMUpdate]:
+    too_old: str = "raise",
+) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
     For every mode: ``F(tau, k)`` (CV with ``-(t_k - tau)``; the stop mode keeps its position),
@@ -1090,13 +1142,20 @@ def vsimm_oosm(
         net: road network.
         config: :class:`VSIMMConfig`.
         detected: ``(B,)`` bool (default all).
+        too_old: policy for a measurement older than the one-step lag (``t < t_{k-1}``; only
+            the one-step A1 is implemented, see :mod:`hocnet.tracking.oosm`): ``"raise"``
+            (default, backward compatible) or ``"drop"``: the row is left unchanged as if not
+            detected, and the result is a :class:`VSIMMOOSMUpdate` whose ``dropped`` mask
+            counts them (the policy a pipeline should use).
 
     Returns:
-        ``(new_state, VSIMMUpdate)``; undetected rows are unchanged.
+        ``(new_state, VSIMMUpdate)`` (``VSIMMOOSMUpdate`` with ``too_old="drop"``); undetected
+        and dropped rows are unchanged.
 
     Raises:
-        ValueError: a measurement older than the one-step lag (message names the lag; ``state``
-            is not modified), non-finite measurements, bad shapes.
+        ValueError: with ``too_old="raise"``, a measurement older than the one-step lag
+            (message names the lag; ``state`` is not modified); non-finite measurements, bad
+            shapes.
 
     Examples:
         >>> from hocnet.tracking.sensors import VideoSensor
@@ -1113,7 +1172,7 @@ def vsimm_oosm(
     """
     B, r = state.mu.shape
     tau = _times("t", t, B)
-    check_oosm_time(tau, state.t_prev, state.t)
+    check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
     det = (
         torch.ones(B, dtype=torch.bool)
         if detected is None
@@ -1121,6 +1180,10 @@ def vsimm_oosm(
     )
     if det.shape != (B,):
         raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    dropped = oosm_too_old(tau, state.t_prev, state.t) & det
+    if bool(dropped.any()):
+        det = det & ~dropped
+        tau = torch.where(dropped, state.t_prev.expand(B), tau)  # any in-lag time: unused
     m = sensor.dim
     zt = torch.as_tensor(z, dtype=DTYPE)
     if zt.shape != (B, m):
@@ -1151,18 +1214,8 @@ def vsimm_oosm(
     H = H.expand(B, r, m, 4)
     R = R.expand(B, r, m, m)
     x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
-    if config.use_mdv and hasattr(sensor, "mdv"):
-        pd = sensor.expected_detection_probability(r1.x, r1.P)
-    else:
-        pd = torch.full((B, r), float(sensor.pd), dtype=DTYPE)
-    pd = pd.clamp(_PD_FLOOR, 1.0)
-    d = det.unsqueeze(-1)
-    is_stop = torch.tensor([k == "stop" for k in config.kinds]).view(1, -1)
-    mode_ll = torch.where(
-        is_stop,
-        torch.where(d, torch.full_like(ll, -torch.inf), torch.zeros_like(ll)),
-        torch.where(d, torch.log(pd) + ll, torch.log1p(-pd)),
-    )
+    pd = _mode_pd(sensor, config, r1.x, r1.P)
+    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
     Dk, Lk = net.constraint(state.segment.clamp(min=0))
     xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
     Pk = Ak @ P_upd @ Ak.transpose(-1, -2)
@@ -1175,6 +1228,7 @@ def vsimm_oosm(
     x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
     P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
     new = state._replace(mu=mu, x=x_new, P=P_new)
-    return new, VSIMMUpdate(
-        torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE)), mode_ll
-    )
+    ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
+    if too_old == "drop":
+        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
+    return new, VSIMMUpdate(ll_out, mode_ll)

@@ -196,6 +196,15 @@ class TestMonteCarlo:
         assert target_metrics(truth, tracks, length="sum")[1].length_ratio == pytest.approx(0.8)
         assert target_metrics(truth, tracks)[1].n_tracks == 2
 
+    def test_sum_length_not_clipped_for_duplicates(self):
+        """Documented: two overlapping tracks over the whole life give sum = 2, mean = max = 1."""
+        truth = {1: line(0.0)}
+        t, p = truth[1].times, truth[1].positions
+        tracks = {"a": EstimatedTrack(t, p, [1] * 11), "b": EstimatedTrack(t, p, [1] * 11)}
+        assert target_metrics(truth, tracks, length="sum")[1].length_ratio == pytest.approx(2.0)
+        assert target_metrics(truth, tracks)[1].length_ratio == pytest.approx(1.0)
+        assert target_metrics(truth, tracks, length="max")[1].length_ratio == pytest.approx(1.0)
+
     def test_track_outside_lifetime_clipped(self):
         truth = {1: line(0.0)}
         t = np.arange(-5.0, 16.0)

@@ -1,4 +1,5 @@
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -237,3 +238,34 @@ def test_errors():
     imm_step(*args, F, Q, torch.zeros(2, 2), torch.tensor(H_POS), torch.tensor(R))
     for u, v in zip(a, args):
         assert torch.equal(torch.as_tensor(u), torch.as_tensor(v))
+
+
+def test_pd_mode_log_likelihoods_default_and_stop_detectable_against_loop():
+    """Findings 1 and 5: default ``stop_mode=None`` (as imm_step); 24.31 only without a view
+    of stopped targets; per-mode PD; checked against the equations written as loops."""
+    g = torch.Generator().manual_seed(0)
+    ll = torch.randn(6, 3, generator=g, dtype=torch.float64)
+    det = torch.tensor([True, False, True, False, True, True])
+    sd = torch.tensor([False, False, True, True, True, False])
+    pd = torch.rand(6, 3, generator=g, dtype=torch.float64) * 0.9 + 0.05
+    # default: every mode moving
+    got = pd_mode_log_likelihoods(ll, det, 0.8)
+    for n in range(6):
+        for i in range(3):
+            want = math.log(0.8) + float(ll[n, i]) if det[n] else math.log(0.2)
+            assert float(got[n, i]) == pytest.approx(want, rel=1e-12)
+    got = pd_mode_log_likelihoods(ll, det, pd, stop_mode=1, stop_detectable=sd)
+    for n in range(6):
+        for i in range(3):
+            p = float(pd[n, i])
+            moving = p * math.exp(float(ll[n, i])) if det[n] else 1 - p
+            if i == 1 and not sd[n]:
+                lam = 0.0 if det[n] else 1.0  # 24.31: delta_{m_j, 0}
+            else:
+                lam = moving  # 24.30 (and the stop mode of a sensor that sees stops)
+            want = math.log(lam) if lam > 0 else -math.inf
+            assert float(got[n, i]) == pytest.approx(want, rel=1e-12)
+    with pytest.raises(ValueError, match="`stop_detectable`"):
+        pd_mode_log_likelihoods(ll, det, 0.8, stop_mode=0, stop_detectable=torch.ones(2) > 0)
+    with pytest.raises(ValueError, match="`pd`"):
+        pd_mode_log_likelihoods(ll, det, torch.full((6, 3), 1.5))

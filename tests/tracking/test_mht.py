@@ -471,3 +471,113 @@ class TestFilters:
         torch.testing.assert_close(after["mu"][:, 0], cbar[:, 0] / expected.exp())
         upd, _ = f.update(s, torch.ones(2, 2, dtype=torch.float64), torch.eye(2).repeat(2, 1, 1))
         assert float(upd["mu"][:, 0].abs().max()) == 0.0
+
+
+class TestReviewFixes:
+    """Findings 1 and 4 of the tracking review (stop model, declared type, missed_pd, SPRT)."""
+
+    @staticmethod
+    def _imm(**kw) -> IMMFilter:
+        return IMMFilter(
+            [stop_model, partial(constant_velocity, sigma_a=0.5)],
+            [[0.9, 0.1], [0.1, 0.9]],
+            initial_mu=[0.98, 0.02],
+            stop_mode=0,
+            **kw,
+        )
+
+    def test_imm_filter_stop_mode_seen_by_imagery(self) -> None:
+        R = torch.eye(2, dtype=torch.float64).expand(1, 2, 2)
+        z = torch.zeros(1, 2, dtype=torch.float64)
+        out = {}
+        for sd in (False, True):
+            f = self._imm(stop_detectable=sd)
+            pred = f.predict(f.initiate(z, R), 1.0)
+            new, ll = f.update(pred, z, R)
+            # reference: 24.30-24.32 with PD factored out, straight from the equations
+            lik = [
+                math.exp(float(_gauss(pred["x"][0, i], pred["P"][0, i], z[0], R[0])))
+                for i in range(2)
+            ]
+            cbar = pred["mu"][0].tolist()
+            lam = [lik[0] if sd else 0.0, lik[1]]
+            tot = sum(a * b for a, b in zip(lam, cbar))
+            assert float(ll[0]) == pytest.approx(math.log(tot), rel=1e-12)
+            np.testing.assert_allclose(
+                new["mu"][0].numpy(), [a * b / tot for a, b in zip(lam, cbar)]
+            )
+            _, lm = f.miss(pred, 0.9)
+            lam_miss = [0.1 if sd else 1.0, 0.1]
+            assert float(lm[0]) == pytest.approx(
+                math.log(sum(a * b for a, b in zip(lam_miss, cbar))), rel=1e-12
+            )
+            out[sd] = float(new["mu"][0, 0])
+        assert out[False] == 0.0 and out[True] > 0.9  # a stopped track stays stopped on video
+
+    def test_step_sets_stop_detectable(self) -> None:
+        f = self._imm()
+        mht = MHT(f, R=torch.eye(2))
+        mht.step(torch.zeros(1, 2), stop_detectable=True)
+        assert f.stop_detectable is True
+        with pytest.raises(ValueError, match="`stop_detectable`"):
+            MHT(R=torch.eye(2)).step(torch.zeros(1, 2), stop_detectable=True)
+
+    def test_declared_type_uses_type_likelihood_with_mapping(self) -> None:
+        from hocnet.tracking.belief import pcr5, pignistic, type_likelihood
+
+        # common frame {t0, t1, t2}; a GMTI-like sensor with classes {t0, t1} -> 0, {t2} -> 1
+        mapping = [0, 0, 1]
+        b1 = torch.zeros(1, 8, dtype=torch.float64)
+        b1[0, 0b011], b1[0, 0b111] = 0.9, 0.1  # declares GMTI class 0 = {t0, t1}
+        kw = dict(R=torch.eye(2), pd=0.9, lambda_fa=1e-2, lambda_nt=1e-3, merge_scans=0)
+        fixed = MHT(CVKalmanFilter(0.0, 1.0), type_term="declared", **kw)
+        legacy = MHT(CVKalmanFilter(0.0, 1.0), type_term="declared", **kw)
+        without = MHT(CVKalmanFilter(0.0, 1.0), type_term=None, **kw)
+        for k in range(2):
+            z = torch.tensor([[float(k), 0.0]])
+            fixed.step(z, bba=b1, declared=torch.tensor([0]), mapping=mapping)
+            legacy.step(z, bba=b1)
+            without.step(z, bba=b1)
+
+        def score(m: MHT) -> float:
+            return next(lf.score for lf in m._leaves if lf.history == (0, 0))
+
+        upd = pcr5(b1, b1)
+        want = math.log(float(type_likelihood(upd, torch.tensor([0]), mapping)[0]))
+        assert score(fixed) - score(without) == pytest.approx(want, rel=1e-12)
+        # the former reading (argmax of the report's BetP, a single fine class) is smaller
+        old = math.log(float(pignistic(upd)[0, 0]))
+        assert score(legacy) - score(without) == pytest.approx(old, rel=1e-12)
+        assert want > old + 0.5
+        with pytest.raises(ValueError, match="`declared`"):
+            fixed.step(torch.zeros(1, 2), declared=torch.tensor([0]))
+
+    def test_missed_pd_scores_every_miss_log_one_minus_pd(self) -> None:
+        kw = dict(R=torch.eye(2), pd=0.9, merge_scans=0)
+        a = MHT(self._imm(), missed_pd=0.9, **kw)
+        b = MHT(self._imm(), **kw)
+        for m in (a, b):
+            m.step(torch.zeros(1, 2), time=0.0)
+            m.step(torch.zeros(0, 2), time=1.0)
+        (la,), (lb,) = a._leaves, b._leaves
+        assert la.score == pytest.approx(a.l_init + math.log(0.1), rel=1e-12)
+        assert lb.score > la.score + 1.0  # the stop mode explains the miss
+        with pytest.raises(ValueError, match="`missed_pd`"):
+            MHT(missed_pd=1.0)
+
+    def test_default_sprt_survives_one_miss_after_birth(self) -> None:
+        mht = MHT(R=torch.eye(2))  # default densities, PD, alpha, beta
+        assert mht.l_init > mht.log_a  # a new track starts inside the SPRT's continuation band
+        mht.step(torch.zeros(1, 2), time=0.0)
+        mht.step(torch.zeros(0, 2), time=1.0)
+        assert mht.n_leaves == 1 and mht._leaves[0].status == "tentative"
+        mht.step(torch.zeros(0, 2), time=2.0)
+        assert mht.n_leaves == 0  # two misses after birth delete
+
+
+def _gauss(x: torch.Tensor, P: torch.Tensor, z: torch.Tensor, R: torch.Tensor) -> float:
+    nu = (z - H @ x).numpy()
+    S = (H @ P @ H.T + R).numpy()
+    return -0.5 * (
+        nu @ np.linalg.solve(S, nu) + math.log(np.linalg.det(S)) + 2 * math.log(2 * math.pi)
+    )

@@ -104,6 +104,25 @@ def test_on_segment_probability_matches_scipy():
         )
 
 
+def test_on_segment_probability_zero_variance_is_the_indicator():
+    """Finding 2: one documented behaviour at zero along-road variance (it raised before; the
+    VS-IMM's copy used the indicator): the limit sigma -> 0, 1 inside [0, l] and 0 outside."""
+    from hocnet.tracking.road import on_segment_probability_from_moments
+
+    p0, p1 = torch.zeros(2), torch.tensor([100.0, 0.0])
+    x = torch.tensor([[50.0, 0, 0, 0], [150.0, 0, 0, 0], [-1.0, 0, 0, 0]], dtype=torch.float64)
+    P = torch.diag(torch.tensor([0.0, 1.0, 4.0, 1.0], dtype=torch.float64)).expand(3, 4, 4)
+    assert on_segment_probability(x, P, p0, p1).tolist() == [1.0, 0.0, 0.0]
+    # continuity: a tiny variance gives the same values
+    tiny = on_segment_probability(x, P + 1e-12 * torch.eye(4), p0, p1)
+    np.testing.assert_allclose(tiny.numpy(), [1.0, 0.0, 0.0], atol=1e-12)
+    along = torch.tensor([50.0, 150.0, -1.0], dtype=torch.float64)
+    got = on_segment_probability_from_moments(along, torch.zeros(3), torch.tensor(100.0))
+    assert got.tolist() == [1.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="`P`: expected a non-negative position variance"):
+        on_segment_probability(x, -P - torch.eye(4), p0, p1)
+
+
 def test_projection_is_the_constrained_maximiser():
     rng = np.random.default_rng(3)
     p0, p1 = random_segments(rng, 5)

@@ -92,7 +92,7 @@ def test_gmti_linearize_and_mdv():
     x = torch.tensor([[1000.0, 10.0, 2000.0, -3.0], [0.0, 0.3, 0.0, 0.2]], dtype=torch.float64)
     z = s.measure(x) + torch.tensor([30.0, -20.0, 0.5], dtype=torch.float64)
     hx, H, R = s.linearize(x, z)
-    torch.testing.assert_close(H, gmti_aekf_matrix(z[:, :2], torch.tensor(SENSOR)))
+    torch.testing.assert_close(H, gmti_aekf_matrix(z[:, :2], torch.tensor(SENSOR), ground=True))
     torch.testing.assert_close(hx, (H @ x.unsqueeze(-1)).squeeze(-1))
     hx_p, _, _ = s.linearize(x, z, reference="prediction")
     torch.testing.assert_close(hx_p, s.measure(x))
@@ -105,7 +105,7 @@ def test_gmti_linearize_and_mdv():
     P = torch.diag(torch.tensor([400.0, 1.0, 400.0, 1.0], dtype=torch.float64)).expand(2, 4, 4)
     pe = s.expected_detection_probability(x, P)
     for k in range(2):
-        h3 = gmti_aekf_matrix(x[k], torch.tensor(SENSOR))[2].numpy()
+        h3 = gmti_aekf_matrix(x[k], torch.tensor(SENSOR), ground=True)[2].numpy()
         m, sd = float(h3 @ x[k].numpy()), math.sqrt(float(h3 @ P[k].numpy() @ h3))
         ref = 0.9 * (1 - (norm.cdf((1 - m) / sd) - norm.cdf((-1 - m) / sd)))
         assert float(pe[k]) == pytest.approx(ref, abs=1e-12)
@@ -134,3 +134,45 @@ def test_video_and_factory_and_errors():
         gmti_report_to_tcf(torch.tensor([100.0, 0.0, 0.0]), torch.tensor(SENSOR), 1.0, 1.0, 1.0)
     with pytest.raises(ValueError, match="`pd`"):
         VideoSensor(pd=1.5)
+
+
+def test_gmti_range_rate_geometry_matches_simulator():
+    """Default ``range_rate="ground"`` is 24.18 as printed and as the scenario simulates it."""
+    from hocnet.tracking.scenario import gmti_range_rate
+
+    rng = np.random.default_rng(5)
+    x = torch.tensor(random_states(rng, 8))
+    pos, vel = x[:, [0, 2]].numpy(), x[:, [1, 3]].numpy()
+    want = gmti_range_rate(SENSOR[:2], pos, vel)
+    got = GMTISensor(SENSOR).measure(x)[:, 2].numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    slant = GMTISensor(SENSOR, range_rate="slant").measure(x)[:, 2].numpy()
+    g = np.linalg.norm(pos - np.array(SENSOR[:2]), axis=-1)
+    np.testing.assert_allclose(slant, want * g / np.sqrt(g * g + SENSOR[2] ** 2), rtol=1e-12)
+    assert np.abs(slant - want).max() > 1e-4  # the two readings differ
+    with pytest.raises(ValueError, match="`range_rate`"):
+        GMTISensor(SENSOR, range_rate="oblique")
+
+
+def test_video_coverage_and_stop_detectability():
+    from hocnet.tracking.sensors import disc_coverage, rectangle_coverage, stop_detectable
+
+    x = torch.tensor([[0.0, 1, 0, 0], [900.0, 0, 0, 0], [1500.0, 0, 0, 0]], dtype=torch.float64)
+    assert VideoSensor(pd=0.9).detection_probability(x).tolist() == [0.9, 0.9, 0.9]
+    ugs = VideoSensor(pd=0.8, name="ugs", coverage=disc_coverage((0.0, 0.0), 1000.0))
+    assert ugs.detection_probability(x).tolist() == [0.8, 0.8, 0.0]
+    assert ugs.expected_detection_probability(x, torch.eye(4).expand(3, 4, 4)).tolist() == [
+        0.8,
+        0.8,
+        0.0,
+    ]
+    uav = VideoSensor(
+        coverage=rectangle_coverage([[-10.0, -10.0, 10.0, 10.0], [1400, -1, 1600, 1]])
+    )
+    assert uav.detection_probability(x).tolist() == [0.9, 0.0, 0.9]
+    uav2 = VideoSensor(coverage=lambda p: p[..., 0] > 1000)
+    assert uav2.detection_probability(x).tolist() == [0.0, 0.0, 0.9]
+    with pytest.raises(TypeError, match="`coverage`"):
+        VideoSensor(coverage=3.0)
+    assert stop_detectable(VideoSensor()) and not stop_detectable(GMTISensor(SENSOR))
+    assert stop_detectable(GMTISensor(SENSOR, mdv=0.0))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from datetime import datetime, timedelta
@@ -9,6 +10,8 @@ from datetime import datetime, timedelta
 import numpy as np
 import pytest
 import torch
+
+from hocnet.tracking.sprt import sprt_thresholds
 
 pytest.importorskip("stonesoup")
 
@@ -107,15 +110,21 @@ class TestIMMAgainstImmStep:
             _assert_close(st.log_likelihood, ref.log_likelihood[0])
             m, xs, Ps = ref.mu, ref.x, ref.P
 
+    @pytest.mark.parametrize("sees_stop", [False, True])
     @pytest.mark.parametrize("seed", [0, 3])
-    def test_stop_model_pd_and_missed_detections(self, seed):
+    def test_stop_model_pd_and_missed_detections(self, seed, sees_stop):
         rng = np.random.default_rng(seed)
         dt = 1.0
         models = [StopModel(), ConstantVelocity2D(sigma_a=0.05), ConstantVelocity2D(sigma_a=0.8)]
         trans = np.array([[0.8, 0.1, 0.1], [0.05, 0.9, 0.05], [0.1, 0.1, 0.8]])
         predictor = IMMPredictor(transition_models=models, mode_transition=trans)
         R = 16.0 * np.eye(2)
-        updater = IMMUpdater(measurement_model=LinearGaussian(4, (0, 2), R), pd=0.85, stop_mode=0)
+        updater = IMMUpdater(  # None: the default for a position model, which sees stops
+            measurement_model=LinearGaussian(4, (0, 2), R),
+            pd=0.85,
+            stop_mode=0,
+            stop_detectable=None if sees_stop else False,
+        )
         mu = np.array([0.2, 0.5, 0.3])
         x = np.tile([0.0, 3.0, 0.0, 1.0], (3, 1)) + rng.normal(size=(3, 4))
         P = np.tile(np.diag([50.0, 4.0, 50.0, 4.0]), (3, 1, 1))
@@ -130,7 +139,7 @@ class TestIMMAgainstImmStep:
         for z, det, st in zip(zs, dets, states):
             ref = imm_step(
                 m, xs, Ps, trans, F, Q, torch.tensor(z)[None], H_POS, R,
-                detected=torch.tensor([det]), pd=0.85, stop_mode=0,
+                detected=torch.tensor([det]), pd=0.85, stop_mode=0, stop_detectable=sees_stop,
             )  # fmt: skip
             assert isinstance(st, IMMStateUpdate if det else IMMStatePrediction)
             _assert_close(st.mode_probabilities, ref.mu[0])
@@ -140,8 +149,9 @@ class TestIMMAgainstImmStep:
             _assert_close(st.covar, ref.P_comb[0])
             _assert_close(st.log_likelihood, ref.log_likelihood[0])
             m, xs, Ps = ref.mu, ref.x, ref.P
-        # a miss moves probability to the stop model
-        assert states[1].mode_probabilities[0] > states[0].mode_probabilities[0]
+        # a miss moves probability to the stop model only when the sensor cannot see stops
+        if not sees_stop:
+            assert states[1].mode_probabilities[0] > states[0].mode_probabilities[0]
 
     def test_road_models_unrelaxed_and_relaxed(self):
         p0, p1 = np.array([0.0, 0.0]), np.array([300.0, 100.0])
@@ -256,6 +266,7 @@ class TestIMMAgainstImmStep:
                         sensor_position=sensor.position,
                         noise_covar=sensor.covariance(z).numpy(),
                         reference=z[:2].tolist(),
+                        ground=sensor.range_rate == "ground",
                     )
                 else:
                     mm = LinearGaussian(4, (0, 2), sensor.covariance(z).numpy())
@@ -468,7 +479,8 @@ def _tracker(model, fa, missed_pd=None):
         transition_models=models,
         mode_transition=[[0.8, 0.1, 0.1], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]],
     )
-    updater = IMMUpdater(measurement_model=model, pd=0.9, stop_mode=0)
+    # the printed 24.31 (a GMTI-like sensor that cannot see a stopped target)
+    updater = IMMUpdater(measurement_model=model, pd=0.9, stop_mode=0, stop_detectable=False)
     hyp = IMMHypothesiser(
         predictor=predictor, updater=updater, false_alarm_density=fa, gate_threshold=13.8
     )
@@ -605,8 +617,16 @@ class TestTrackScore:
             )
 
         assert not d.check_for_deletion(Track([s0, miss(0.9)]))
-        # score falls below ln A = ln(0.01 / 0.99) after enough misses
-        assert d.check_for_deletion(Track([s0] + [miss(0.1)] * 2))
+        # one rule with the MHT: deleted when L <= max L - drop, drop = ln(upper / lower)
+        lower, upper = sprt_thresholds(1e-3, 1e-3)
+        assert d.lower == lower and d.drop == pytest.approx(upper - lower)
+        n = math.ceil(d.drop / -math.log(0.1))  # misses of ln 0.1 needed to fall by drop
+        assert not d.check_for_deletion(Track([s0] + [miss(0.1)] * (n - 1)))
+        assert d.check_for_deletion(Track([s0] + [miss(0.1)] * n))
+        # the score ln lower alone no longer deletes (the MHT applies it to tentative tracks)
+        assert track_score(Track([s0] + [miss(0.1)] * 2), fa, nt) <= lower + 2.31
+        with pytest.raises(ValueError, match="alpha \\+ beta < 1"):
+            SPRTDeleter(false_alarm_density=fa, new_target_density=nt, alpha=0.6, beta=0.5)
 
 
 def test_hocnet_tracking_does_not_import_stonesoup():

@@ -70,7 +70,8 @@ def ref_gmti(sensor, z):
     dx, dy = z[0] - xc, z[1] - yc
     g = math.hypot(dx, dy)
     rho = math.sqrt(g * g + zc * zc)
-    H = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, dx / rho, 0, dy / rho]], dtype=float)
+    den = g if sensor.range_rate == "ground" else rho  # 24.18 on the ground (default) or slant
+    H = np.array([[1, 0, 0, 0], [0, 0, 1, 0], [0, dx / den, 0, dy / den]], dtype=float)
     c, s = dx / g, dy / g
     J = np.array([[rho / g * c, -g * s], [rho / g * s, g * c]])
     R = np.zeros((3, 3))
@@ -143,7 +144,8 @@ def ref_step(net, cfg, state, t, z, det, sensor):
             if cfg.use_mdv and sensor.name == "gmti":
                 xc, yc, zc = sensor.position
                 dx, dy = xp[0] - xc, xp[2] - yc
-                rho = math.sqrt(dx * dx + dy * dy + zc * zc)
+                h2 = 0.0 if sensor.range_rate == "ground" else zc * zc
+                rho = math.sqrt(dx * dx + dy * dy + h2)
                 h3 = np.array([0, dx / rho, 0, dy / rho])
                 m, s = float(h3 @ xp), math.sqrt(float(h3 @ Pp @ h3))
                 if s > 0:
@@ -154,7 +156,7 @@ def ref_step(net, cfg, state, t, z, det, sensor):
             else:
                 pd = sensor.pd
             pd = min(max(pd, 1e-12), 1.0)
-            if kinds[j] == "stop":
+            if kinds[j] == "stop" and sensor.name == "gmti":  # 24.31: the MDV hides a stop
                 lam = 0.0 if det[b] else 1.0
             else:
                 lam = pd * math.exp(ll) if det[b] else 1 - pd
@@ -603,7 +605,8 @@ def ref_oosm(net, cfg, s, tau, z, sensor):
                 K = Pn @ D.T @ np.linalg.pinv(D @ Pn @ D.T, rcond=1e-9, hermitian=True)
                 A = np.eye(4) - K @ D
                 xn, Pn = xn - K @ (D @ xn - L), A @ Pn @ A.T
-            lams.append(0.0 if kind == "stop" else sensor.pd * math.exp(ll))
+            stop_hidden = kind == "stop" and sensor.name == "gmti"  # 24.31 only with an MDV
+            lams.append(0.0 if stop_hidden else sensor.pd * math.exp(ll))
             xs.append(xn)
             Ps.append(Pn)
         w = np.array(lams) * s.mu[b].numpy()
@@ -639,3 +642,95 @@ def test_vsimm_oosm_matches_loop_reference(sensor_name):
         np.testing.assert_allclose(new.P[b].numpy(), Pr, rtol=1e-7, atol=1e-6)
         np.testing.assert_allclose(new.mu[b].numpy(), mur, rtol=1e-8, atol=1e-12)
         assert float(out.log_likelihood[b]) == pytest.approx(llr, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("sensor_name", ["video", "ugs", "gmti"])
+def test_stopped_track_seen_by_imagery_stays_stopped(sensor_name):
+    """Finding 1: 24.31 (Lambda_0 = delta) only for a sensor with an MDV.
+
+    Before the fix a stopped track mu = [.98, .01, .01] seen by a video sensor at its
+    position lost its stop mode entirely (mu_0 -> 0); now video / UGS score the stop mode
+    PD p(z | M0), while a GMTI detection still rules the stop mode out (the printed 24.31).
+    """
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+    cfg = VSIMMConfig()
+    x0 = torch.tensor([[500.0, 0.0, 0.0, 0.0]], dtype=torch.float64)
+    P0 = torch.diag(torch.tensor([25.0, 0.01, 25.0, 0.01], dtype=torch.float64))
+    mu0 = torch.tensor([0.98, 0.01, 0.01], dtype=torch.float64)
+    s = vsimm_init(net, x0, P0, cfg, mu0=mu0)
+    if sensor_name == "gmti":
+        sensor = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+        z = sensor.measure(x0)
+    else:
+        sensor = VideoSensor(10.0, 0.9, name=sensor_name)
+        z = x0[:, [0, 2]].clone()
+    new, out = vsimm_step(s, net, cfg, 10.0, z, sensor)
+    if sensor_name == "gmti":
+        assert float(new.mu[0, 0]) == 0.0
+    else:
+        assert float(new.mu[0, 0]) > 0.9
+    # association likelihoods use the same kernel
+    pred = vsimm_predict(s, net, cfg, 10.0)
+    a = vsimm_association_log_likelihood(pred, z, sensor, cfg)
+    torch.testing.assert_close(a.log_likelihood[:, 0], out.log_likelihood)
+
+
+def test_sprt_decide_reject_best_option():
+    """Finding 7: 24.40 as printed stalls with three hypotheses; ``reject="best"`` does not."""
+    from hocnet.tracking.vsimm import sprt_decide
+
+    mu = torch.tensor([[0.98, 0.019, 0.001]], dtype=torch.float64)
+    acc, rej = sprt_decide(mu, 99.0, 1 / 99)
+    assert acc.tolist() == [[False, False, False]]  # .98 / .019 < 99
+    # the third is dominated by the best (.001 / .98 <= 1/99) but not by the second
+    # (.001 / .019 > 1/99): the printed rule rejects nothing, the test stalls
+    assert rej.tolist() == [[False, False, False]]
+    acc_b, rej_b = sprt_decide(mu, 99.0, 1 / 99, reject="best")
+    assert acc_b.tolist() == acc.tolist()
+    assert rej_b.tolist() == [[False, False, True]]
+
+    # loop reference of the two rules on random probabilities (some invalid hypotheses)
+    g = torch.Generator().manual_seed(3)
+    mu = torch.rand(50, 4, generator=g, dtype=torch.float64) ** 4
+    valid = torch.rand(50, 4, generator=g) > 0.2
+    for rule in ("all", "best"):
+        _, rej = sprt_decide(mu, 20.0, 0.05, valid, reject=rule)
+        for t in range(50):
+            for h in range(4):
+                others = [k for k in range(4) if k != h and valid[t, k]]
+                ratios = [float(mu[t, h] / mu[t, k]) for k in others]
+                if rule == "all":
+                    want = all(r <= 0.05 for r in ratios)
+                else:
+                    want = any(r <= 0.05 for r in ratios)
+                want = want and bool(valid[t, h]) and bool(others)
+                assert bool(rej[t, h]) == want, (rule, t, h)
+    with pytest.raises(ValueError, match="`reject`"):
+        sprt_decide(mu, 20.0, 0.05, reject="some")
+
+
+def test_vsimm_oosm_too_old_drop_policy():
+    """Finding 9: reports older than the one-step lag are dropped and counted with "drop"."""
+    from hocnet.tracking.vsimm import VSIMMOOSMUpdate
+
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+    cfg, video = VSIMMConfig(), VideoSensor(10.0)
+    x0 = torch.tensor([[0.0, 10.0, 0.0, 0.0], [5.0, 9.0, 0.0, 0.0]], dtype=torch.float64)
+    s = vsimm_init(net, x0, 100 * torch.eye(4), cfg)
+    s, _ = vsimm_step(s, net, cfg, 10.0, torch.tensor([[100.0, 0.0], [96.0, 0.0]]), video)
+    s, _ = vsimm_step(s, net, cfg, 20.0, torch.tensor([[200.0, 0.0], [187.0, 0.0]]), video)
+    z = torch.tensor([[150.0, 0.0], [50.0, 0.0]], dtype=torch.float64)
+    t = torch.tensor([15.0, 5.0], dtype=torch.float64)  # row 1 is two steps old
+    with pytest.raises(ValueError, match="one-step lag"):
+        vsimm_oosm(s, z, t, video, net, cfg)
+    new, out = vsimm_oosm(s, z, t, video, net, cfg, too_old="drop")
+    assert isinstance(out, VSIMMOOSMUpdate) and out.dropped.tolist() == [False, True]
+    # row 0 as if alone (in-lag), row 1 untouched
+    ref, ref_out = vsimm_oosm(s.select([0]), z[:1], t[:1], video, net, cfg)
+    torch.testing.assert_close(new.x[:1], ref.x)
+    torch.testing.assert_close(new.mu[:1], ref.mu)
+    torch.testing.assert_close(out.log_likelihood[:1], ref_out.log_likelihood)
+    assert torch.equal(new.x[1], s.x[1]) and torch.equal(new.mu[1], s.mu[1])
+    assert float(out.log_likelihood[1]) == 0.0
+    with pytest.raises(ValueError, match="`too_old`"):
+        vsimm_oosm(s, z, t, video, net, cfg, too_old="keep")
