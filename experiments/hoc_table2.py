@@ -45,10 +45,12 @@ CONFIGS = {
     "mhoc + greedy": {"identify": "greedy"},
     "chain + paper": {"support": "chain"},
     "chain + greedy (old default)": {"support": "chain", "identify": "greedy"},
+    "one sequence per point (shared_points=False, the previous default)": {"shared_points": False},
     "combine=mean, span 1, dedupe=1 (earlier default)": {
         "combine": "mean",
         "score_span": 1,
         "dedupe": 1,
+        "shared_points": False,
     },
     "combine=min, span 2, dedupe=1": {"dedupe": 1},
     "combine=min, span 1 (eq. 8-9 as printed)": {"combine": "min", "score_span": 1},
@@ -59,7 +61,9 @@ CONFIGS = {
 
 ``"paper"`` is ``detect``'s defaults: MHOC image, section III-B identification, point score
 ``combine="min"`` on moves averaged over ``score_span=2`` scans (the whole five-point sequence,
-our reading; :mod:`hocnet.hoc.identify`, "Point score"). ``combine="sum"`` and ``"movement"``
+our reading; :mod:`hocnet.hoc.identify`, "Point score") and several five-point sequences per
+image point (``shared_points=True``, our reading; step 2 of the module notes; the previous
+default ``shared_points=False`` is a row of its own). ``combine="sum"`` and ``"movement"``
 remain options of ``detect`` (measured earlier: sum below mean, movement equal to min).
 """
 
@@ -273,7 +277,8 @@ def run(
         f"- Seeds: {seed_values[0]} .. {seed_values[-1]} (`paper_scene('table2', density, "
         "seed=seed)`); the same scenes for both orders.",
         "- Detector: `hocnet.hoc.detect(cube, order=k, v=4, delta=pi/4)` (its defaults: point "
-        "score `combine='min'`, `score_span=2`), track threshold 2.5, tracks of at least 2k + 1 "
+        "score `combine='min'`, `score_span=2`, several five-point sequences per image point "
+        "`shared_points=True`), track threshold 2.5, tracks of at least 2k + 1 "
         "points.",
         "- *After HOC* = the detector's support, the MHOC image (forward OR backward Y^(k), [LA98] "
         "section III-B; order 3 covers only scans 1-4 and 7-10 of 10, hence its lost points); "

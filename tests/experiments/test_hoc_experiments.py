@@ -154,3 +154,92 @@ class TestFig5:
         rows = check_outputs("hoc-fig5", module.run(out_dir=tmp_path), tmp_path)
         assert len(rows) == 2 * 20 * 4
         assert all(r["stream_equals_batch"] == "1" for r in rows)
+
+
+# ----------------------------------------------------------------------------- printed values
+
+
+def paper_columns(name: str, seeds: list[int]) -> dict[float, tuple[float, float]]:
+    """Our MHOC and identification clutter rejection (%) per density, mean over ``seeds``.
+
+    The experiment's headline configuration: its scene (Table II: ``table2``; Table III:
+    ``table3-paper``, the paper's random rotation), its densities, ``detect`` at order 2 with
+    ``CONFIGS["paper"]`` (the detector's defaults) and v = 4, delta = pi/4.
+    """
+    import math
+
+    from hocnet import metrics
+    from hocnet.data.binary import paper_scene
+    from hocnet.hoc import detect
+
+    module = load(name)
+    scene_name = "table2" if name == "hoc-table2" else "table3-paper"
+    out = {}
+    for density in module.DENSITIES:
+        hoc, ident = [], []
+        for seed in seeds:
+            scene = paper_scene(scene_name, density, seed=seed)
+            result = detect(scene.cube, order=2, v=4, delta=math.pi / 4, **module.CONFIGS["paper"])
+            truth = scene.target_mask
+            hoc.append(metrics.clutter_rejection(scene.cube, result.support, truth))
+            ident.append(metrics.clutter_rejection(scene.cube, result.cleaned, truth))
+            assert metrics.target_points_lost(scene.cube, result.cleaned, truth) == 0
+        out[density] = (100 * sum(hoc) / len(hoc), 100 * sum(ident) / len(ident))
+    return out
+
+
+CLAIMED = {
+    # (experiment, column): the densities where our mean over 20 scenes is within 1 point of
+    # the printed value (full runs, experiments/results/hoc-table2.md / hoc-table3.md). Not
+    # claimed: Table II MHOC at 2.0 % (ours 79.4 %, printed 75.44 %: its own counts give
+    # 75.44 %, the gap is open), reported in the results files only.
+    ("hoc-table2", "hoc"): (0.008, 0.011, 0.014, 0.017),
+    ("hoc-table2", "id"): (0.008, 0.011, 0.014, 0.017, 0.020),
+    ("hoc-table3", "hoc"): (0.008, 0.014, 0.020),
+    ("hoc-table3", "id"): (0.008, 0.014, 0.020),
+}
+
+FULL_STD = {
+    # scene-to-scene standard deviation (points) of each column in the full runs (20 scenes;
+    # experiments/results/hoc-table2.md, hoc-table3.md, headline k = 2 rows)
+    ("hoc-table2", "hoc"): {0.008: 0.13, 0.011: 0.25, 0.014: 0.41, 0.017: 0.53, 0.020: 0.71},
+    ("hoc-table2", "id"): {0.008: 0.03, 0.011: 0.05, 0.014: 0.07, 0.017: 0.12, 0.020: 0.21},
+    ("hoc-table3", "hoc"): {0.008: 1.57, 0.014: 2.44, 0.020: 4.53},
+    ("hoc-table3", "id"): {0.008: 0.74, 0.014: 0.86, 0.020: 1.71},
+}
+
+FAST_SEEDS = {"hoc-table2": 2, "hoc-table3": 4}
+"""Scenes per density of the fast test (the first seeds of the full run)."""
+
+
+def check_claims(name: str, ours: dict, tolerance) -> None:
+    module = load(name)
+    for column, printed in (("hoc", module.PAPER_HOC), ("id", module.PAPER_ID)):
+        for density in CLAIMED[(name, column)]:
+            value = ours[density][0 if column == "hoc" else 1]
+            tol = tolerance(name, column, density)
+            assert abs(value - printed[density]) <= tol, (column, density, value, tol)
+
+
+class TestPrintedValues:
+    """Tables II and III of [LA98]: our columns against the printed ones ("within a point")."""
+
+    @pytest.mark.parametrize("name", ["hoc-table2", "hoc-table3"])
+    def test_reduced_seeds(self, name):
+        # the mean of n scenes scatters around the 20-scene mean by std / sqrt(n): allow the
+        # claimed 1 point plus 3 standard errors (std measured in the full run)
+        n = FAST_SEEDS[name]
+        module = load(name)
+        ours = paper_columns(name, [module.SEED_BASE + i for i in range(n)])
+
+        def tolerance(name, column, density):
+            return 1.0 + 3 * FULL_STD[(name, column)][density] / n**0.5
+
+        check_claims(name, ours, tolerance)
+
+    @pytest.mark.slow
+    @pytest.mark.parametrize("name", ["hoc-table2", "hoc-table3"])
+    def test_full_configuration(self, name):
+        module = load(name)
+        ours = paper_columns(name, [module.SEED_BASE + i for i in range(20)])
+        check_claims(name, ours, lambda *_: 1.0)
