@@ -39,7 +39,7 @@ import sys
 from collections.abc import Sequence
 
 import hocnet
-from hocnet.cli import demo, detect, reproduce, train
+from hocnet.cli import demo, detect, reproduce, track, train
 
 # Re-exported for tests and for users of the former single-module ``hocnet.cli``.
 from hocnet.cli._common import (  # noqa: F401
@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"{PROG} {hocnet.__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    for module in (demo, detect, train, reproduce):
+    for module in (demo, detect, train, reproduce, track):
         module.add_parser(commands)
     return parser
 

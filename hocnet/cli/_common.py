@@ -359,6 +359,7 @@ _FLAGS: dict[str, dict[str, str]] = {
     },
     "demo": {"seed": "--seed", "density": "--density", "order": "--order"},
     "reproduce": {"seeds": "--seeds", "quick": "--quick", "out_dir": "--out"},
+    "track": {**_FLAGS_COMMON, "path": "SEQ", "cube": "SEQ", "frames": "SEQ", "x": "SEQ"},
 }
 
 

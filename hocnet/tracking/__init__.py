@@ -11,9 +11,12 @@ UAV video / UGS reports; :mod:`hocnet.tracking.scenario`) and the per-target met
 Second increment: the road network (:class:`~hocnet.tracking.road.RoadNetwork`), the GMTI and
 video measurement models (:mod:`hocnet.tracking.sensors`), the variable-structure IMM on roads
 with the junction SPRT (:mod:`hocnet.tracking.vsimm`) and out-of-sequence measurements by
-one-step-lag retrodiction (:mod:`hocnet.tracking.oosm`).
+one-step-lag retrodiction (:mod:`hocnet.tracking.oosm`). Data association: Murty's
+k-best assignment (:mod:`hocnet.tracking.assignment`) and the track-oriented structured-branching
+MHT with LLR track scores and SPRT track status (:mod:`hocnet.tracking.mht`).
 """
 
+from hocnet.tracking.assignment import Assignment, brute_force_assignments, k_best_assignments
 from hocnet.tracking.belief import (
     conjunctive,
     dempster,
@@ -65,6 +68,14 @@ from hocnet.tracking.oosm import (
     oosm_retrodict,
     project_retrodiction,
 )
+from hocnet.tracking.mht import (
+    MHT,
+    CVKalmanFilter,
+    IMMFilter,
+    MHTTrack,
+    MotionFilter,
+    sprt_thresholds,
+)
 from hocnet.tracking.road import (
     RoadLocation,
     RoadNetwork,
@@ -88,6 +99,37 @@ from hocnet.tracking.scenario import (
     pd_road_network,
     pd_scenario,
     plot_scenario,
+)
+
+from hocnet.tracking.sensors import (
+    SENSOR_NAMES,
+    GMTISensor,
+    VideoSensor,
+    check_measurements,
+    gmti_aekf_matrix,
+    gmti_jacobian,
+    gmti_measure,
+    gmti_report_to_tcf,
+    gmti_tcf_to_report,
+    make_sensor,
+)
+from hocnet.tracking.vsimm import (
+    VSIMMAssociation,
+    VSIMMConfig,
+    VSIMMPrediction,
+    VSIMMState,
+    VSIMMUpdate,
+    section_probabilities,
+    section_transition,
+    sprt_decide,
+    vsimm_association_log_likelihood,
+    vsimm_expand_sections,
+    vsimm_init,
+    vsimm_oosm,
+    vsimm_predict,
+    vsimm_section_sprt,
+    vsimm_step,
+    vsimm_update,
 )
 
 __all__ = [
@@ -116,6 +158,14 @@ __all__ = [
     "assign_tracks",
     "check_measurements",
     "check_oosm_time",
+    "MHT",
+    "Assignment",
+    "CVKalmanFilter",
+    "IMMFilter",
+    "IMMStep",
+    "MHTTrack",
+    "MotionFilter",
+    "brute_force_assignments",
     "conjunctive",
     "constant_velocity",
     "cv_gamma",
@@ -139,6 +189,7 @@ __all__ = [
     "imm_step",
     "imm_track_log_likelihood",
     "innovation_memory",
+    "k_best_assignments",
     "kalman_predict",
     "kalman_update",
     "mahalanobis2",
