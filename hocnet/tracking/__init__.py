@@ -57,6 +57,14 @@ from hocnet.tracking.kalman import (
     mahalanobis2,
     stop_model,
 )
+from hocnet.tracking.mht import (
+    MHT,
+    CVKalmanFilter,
+    IMMFilter,
+    MHTTrack,
+    MotionFilter,
+    sprt_thresholds,
+)
 from hocnet.tracking.oosm import (
     Retrodiction,
     check_oosm_time,
@@ -67,14 +75,6 @@ from hocnet.tracking.oosm import (
     oosm_apply,
     oosm_retrodict,
     project_retrodiction,
-)
-from hocnet.tracking.mht import (
-    MHT,
-    CVKalmanFilter,
-    IMMFilter,
-    MHTTrack,
-    MotionFilter,
-    sprt_thresholds,
 )
 from hocnet.tracking.road import (
     RoadLocation,
@@ -100,7 +100,6 @@ from hocnet.tracking.scenario import (
     pd_scenario,
     plot_scenario,
 )
-
 from hocnet.tracking.sensors import (
     SENSOR_NAMES,
     GMTISensor,
@@ -134,12 +133,18 @@ from hocnet.tracking.vsimm import (
 
 __all__ = [
     "GMTI_CLASSES",
+    "MHT",
     "SENSOR_NAMES",
     "VIDEO_CLASSES",
+    "Assignment",
+    "CVKalmanFilter",
     "EstimatedTrack",
     "GMTIConfig",
     "GMTISensor",
+    "IMMFilter",
     "IMMStep",
+    "MHTTrack",
+    "MotionFilter",
     "PDScenario",
     "Report",
     "Retrodiction",
@@ -156,16 +161,9 @@ __all__ = [
     "VideoConfig",
     "VideoSensor",
     "assign_tracks",
+    "brute_force_assignments",
     "check_measurements",
     "check_oosm_time",
-    "MHT",
-    "Assignment",
-    "CVKalmanFilter",
-    "IMMFilter",
-    "IMMStep",
-    "MHTTrack",
-    "MotionFilter",
-    "brute_force_assignments",
     "conjunctive",
     "constant_velocity",
     "cv_gamma",
