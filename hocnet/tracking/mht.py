@@ -930,7 +930,7 @@ class MHT:
                 i = pos[u]
                 leaf = self._leaves[i]
                 if i not in alive and leaf.status == "confirmed":
-                    self._finished[leaf.family] = self._report(i, 1.0, status="deleted")
+                    (self._finished[leaf.family],) = self._reports([i], [1.0], status="deleted")
 
     # ---------------------------------------------------------------- pruning
     def _prune_and_split(self) -> None:
@@ -1084,25 +1084,36 @@ class MHT:
         self._clusters = out
 
     # ---------------------------------------------------------------- output
-    def _report(self, i: int, probability: float, status: str | None = None) -> MHTTrack:
-        leaf = self._leaves[i]
-        x, P = self.filter.mean_cov(_take(self._states, slice(i, i + 1)))
-        return MHTTrack(
-            id=leaf.family,
-            state=x[0].clone(),
-            covariance=P[0].clone(),
-            score=leaf.score,
-            status=status or leaf.status,
-            birth=leaf.birth,
-            measurements=list(leaf.history),
-            probability=probability,
-            type_bba=None if self._bba is None else self._bba[i].clone(),
-        )
+    def _reports(
+        self, index: list[int], probability: list[float], status: str | None = None
+    ) -> list[MHTTrack]:
+        """Reports of the leaves ``index`` (one batched ``mean_cov`` call)."""
+        if not index:
+            return []
+        x, P = self.filter.mean_cov(_take(self._states, torch.tensor(index, dtype=torch.long)))
+        out = []
+        for n, (i, p) in enumerate(zip(index, probability)):
+            leaf = self._leaves[i]
+            out.append(
+                MHTTrack(
+                    id=leaf.family,
+                    state=x[n].clone(),
+                    covariance=P[n].clone(),
+                    score=leaf.score,
+                    status=status or leaf.status,
+                    birth=leaf.birth,
+                    measurements=list(leaf.history),
+                    probability=p,
+                    type_bba=None if self._bba is None else self._bba[i].clone(),
+                )
+            )
+        return out
 
     def tracks(self, *, include_tentative: bool = False) -> list[MHTTrack]:
         """Tracks of the best hypothesis of every cluster (confirmed ones by default), by id."""
         pos = {leaf.uid: i for i, leaf in enumerate(self._leaves)}
-        out = []
+        index: list[int] = []
+        probability: list[float] = []
         for cl in self._clusters:
             if not cl.hyps:
                 continue
@@ -1115,7 +1126,9 @@ class MHT:
             for u in cl.hyps[0][1]:
                 i = pos[u]
                 if include_tentative or self._leaves[i].status == "confirmed":
-                    out.append(self._report(i, marginal[u]))
+                    index.append(i)
+                    probability.append(marginal[u])
+        out = self._reports(index, probability)
         out.sort(key=lambda t: t.id)
         return out
 
