@@ -1,0 +1,791 @@
+"""Glue of the [PD] 24.6 experiment: the VS-IMMC inside the SB-MHT, reports -> scans, type tracks.
+
+Three pieces that connect modules written separately:
+
+- :class:`VSIMMRoadFilter`, a :class:`~hocnet.tracking.mht.MotionFilter` running the VS-IMM on
+  roads of :mod:`hocnet.tracking.vsimm` (stop model M0 and the road-constrained models, variable
+  structure by the predicted position, PD- and MDV-aware likelihoods 24.29-24.32) for the
+  track-oriented MHT of :mod:`hocnet.tracking.mht`, with the GMTI (AEKF, 24.17-24.20), video and
+  UGS (24.23-24.24) measurement models and the out-of-sequence update on the road of
+  :func:`~hocnet.tracking.vsimm.vsimm_oosm` (24.4.5) for the delayed video / UGS reports.
+- :func:`report_scans`: the reports of :func:`~hocnet.tracking.scenario.pd_scenario` (arrival
+  order) grouped into MHT scans, with the measurement vectors, covariances and type bbas.
+- :func:`run_pd_tracker`: one run of the VS-IMMC SB-MHT over a scenario, without or with the PCR5
+  target-type tracker (24.44-24.48), returning the confirmed tracks as
+  :class:`~hocnet.tracking.evaluation.EstimatedTrack` for the metrics of 24.6.3.
+
+Our readings and choices (the chapter leaves them to its references):
+
+- **One MHT for three sensors.** The MHT has one measurement size; the filter's is 3 (GMTI
+  ``[x, y, range_rate]``); a video / UGS report ``[x, y]`` is padded with a zero third component
+  of unit variance that the filter's predicted measurement matches exactly (zero innovation), so
+  gating uses the 2-D distance (with the 3-degree-of-freedom threshold: a slightly wider gate)
+  and the update uses the 2-D model.
+- **Per-sensor PD and clutter in the score (24.42).** The MHT adds ``ln PD - ln lambda_fa`` of
+  its own constructor to every detection; the filter returns the VS-IMM's PD-aware ``ln Lambda``
+  (24.32, which already contains the sensor's PD and, for the GMTI, the MDV notch) minus
+  ``ln PD_mht`` plus ``ln(lambda_mht / lambda_sensor)``, so that the increment is
+  ``ln(Lambda / lambda_fa(sensor))``. GMTI: ``lambda_fa`` = 1e-8 m^-2 (the chapter) divided by
+  the false-alarm range-rate span (58 m/s), a density in ``(x, y, range_rate)``; video / UGS
+  (no false alarm): a nominal 1e-8 m^-2 (ours).
+- **Missed detections.** GMTI: the VS-IMM miss of 24.30-24.31 (stop model likelihood 1, moving
+  ``1 - PD_i``, the MDV notch included). Video: ``ln(1 - PD)`` when the track's position is in
+  the UAV footprint at the report time, 0 outside (the tracker knows where the camera looks), no
+  mode update. UGS: 0 (a UGS reports one target per 4 s, its silence says nothing about a track).
+- **Out-of-sequence reports.** Delayed reports form scans at the MHT's current time (``dt = 0``);
+  each row (leaf) whose estimate is newer than the report is updated by
+  :func:`~hocnet.tracking.vsimm.vsimm_oosm` (Bar-Shalom's one-step-lag A1 on the road), a row
+  older than the report (e.g. born from an earlier delayed report) is predicted to the report
+  time and updated in sequence. Gating of an OOSM row uses the combined estimate extrapolated
+  back to the report time with the larger mode noise (an approximation: gating only; the score
+  uses the exact OOSM likelihood). A report older than a row's one-step lag is not associated
+  with that row (it can still start a track); :attr:`VSIMMRoadFilter.out_of_lag` counts them.
+- **Road sections.** Each leaf runs one VS-IMM over the whole network (section ``-1``): every
+  mode's active segment is the segment nearest to its predicted state (24.4.3), relaxed near
+  segment ends (24.9-24.12). The junction hypotheses of 24.38-24.40 are not expanded inside the
+  MHT (its leaves branch on measurements only); the road section of a leaf's most probable
+  road mode is exposed as ``"section"`` for the MHT's modified N-scan pruning (24.4.4 step 5).
+- **Track initiation** on one report: position from the report; for a GMTI report the speed
+  along the nearest road from the range-rate ``s = rho_dot / (u . l)`` (``u`` road direction,
+  ``l`` line of sight) when ``|u . l| >= 0.2``, with standard deviation
+  ``init_speed_std_rr``; otherwise speed 0 with ``init_speed_std``.
+- **Robustness (ours).** Blown-up mode estimates (non-finite, a variance above 1e9 or a mode
+  more than 1 km from its prediction; seen for the stop mode, whose update with a GMTI detection
+  has likelihood 0 but whose road projection returned variances of 1e17) are replaced by the
+  prediction; covariances are symmetrised with negative eigenvalues clipped; an OOSM update
+  that fails (non positive definite retrodiction, seen with several delayed reports in one
+  interval) keeps the state. :attr:`VSIMMRoadFilter.sanitized` and ``oosm_failures`` count them.
+- **Types.** All type reports are mapped to the video frame (8 classes, 256 subsets) by the
+  refinement of 24.5.3 (:data:`~hocnet.tracking.scenario.VIDEO_TO_GMTI`): a GMTI declaration
+  ``c`` puts ``P{c}`` on the set of video classes of GMTI class ``c``, the rest on the whole
+  frame. The delay of the video types is ignored, as in the chapter. The declared type of a track
+  at each sample is the maximum of BetP (24.45-24.47); when several classes tie (a track seen
+  only by the GMTI: six wheeled classes share BetP) the choice is uniform among them ("the choice
+  on the target type is arbitrary", 24.6.3).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from hocnet.tracking.evaluation import FALSE_ALARM, NO_MEASUREMENT, NO_TYPE, EstimatedTrack
+from hocnet.tracking.kalman import DTYPE, gaussian_log_likelihood
+from hocnet.tracking.mht import MHT
+from hocnet.tracking.road import RoadNetwork
+from hocnet.tracking.scenario import (
+    GMTI_CLASSES,
+    VIDEO_CLASSES,
+    VIDEO_TO_GMTI,
+    PDScenario,
+    Report,
+    footprint_at,
+)
+from hocnet.tracking.sensors import GMTISensor, VideoSensor
+from hocnet.tracking.vsimm import (
+    VSIMMConfig,
+    VSIMMState,
+    _mode_F,
+    vsimm_init,
+    vsimm_oosm,
+    vsimm_predict,
+    vsimm_update,
+)
+
+__all__ = [
+    "PDTrackerConfig",
+    "Scan",
+    "TrackerRun",
+    "VSIMMRoadFilter",
+    "gmti_bba_on_video_frame",
+    "report_scans",
+    "run_pd_tracker",
+]
+
+_VS_KEYS = VSIMMState._fields  # mu, x, P, segment, section, track, mu_section, t, t_prev, ...
+_FLAGS = ("retro", "lag_ok")
+_PRED_KEYS = ("p_cbar", "p_x", "p_P", "p_segment", "p_on", "p_accel", "p_t")
+
+
+def _psd(P: torch.Tensor) -> torch.Tensor:
+    """Symmetric part of ``P`` with negative eigenvalues clipped to 0 (round-off repair)."""
+    P = 0.5 * (P + P.transpose(-1, -2))
+    if not P.numel():
+        return P
+    ev, V = torch.linalg.eigh(P)
+    if bool((ev >= 0).all()):
+        return P
+    return (V * ev.clamp(min=0.0).unsqueeze(-2)) @ V.transpose(-1, -2)
+
+
+@dataclass(frozen=True)
+class PDTrackerConfig:
+    """Parameters of the VS-IMMC SB-MHT of the experiment (see :func:`run_pd_tracker`).
+
+    Attributes:
+        road_sigmas: along / across acceleration deviations of M1, M2 (m/s^2; the chapter).
+        trans: ``(3, 3)`` mode transition matrix (M0, M1, M2), ``trans[i, j] = P(i -> j)``.
+        mu0: mode probabilities of a new track.
+        init_speed_std: speed deviation of a new track without range-rate (m/s).
+        init_speed_std_rr: speed deviation of a track started on a GMTI report (m/s).
+        pd: the MHT's nominal PD (its ``ln PD`` is cancelled by the filter; see the module).
+        lambda_fa_gmti: GMTI false-alarm density (m^-2 per scan; the chapter's 1e-8).
+        fa_range_rate_span: width of the false-alarm range-rate support (m/s).
+        lambda_fa_imint: nominal clutter density of video / UGS reports (m^-2).
+        lambda_nt: new-target density (m^-2 per scan).
+        gate_probability: chi-square gate mass.
+        alpha, beta: SPRT error probabilities of the track status.
+        n_hypotheses: global hypotheses per cluster (k-best, ``NHypo``).
+        n_scan: N-scan pruning depth.
+        merge_scans: merging depth.
+        hypothesis_ratio: ratio pruning of the hypotheses.
+        type_term: the MHT's reading of 24.48 (``"estimate"`` = max BetP, the chapter's text).
+        segment_by_measurement: at a detection, take as active segment of each road mode the
+            segment nearest to the measurement when it touches the predicted one (our
+            addition, off by default: with the GMTI's 50 m cross-range error it pulled tracks
+            onto the wrong branch at junctions).
+        max_coast: a track without a detection for longer than this (s) gets ``coast_penalty``
+            subtracted from every GMTI missed-detection increment (ours: without it a track left
+            behind at a junction falls into the stop model, whose miss likelihood is 1 (24.31),
+            and is never deleted).
+        coast_penalty: see ``max_coast``.
+
+    ``merge_scans`` defaults to 0: the MHT's merging groups leaves of *different* families with
+    the same recent measurements and emptied the hypothesis list of the convoy's cluster during an
+    overtaking (all its tracks deleted at once); reported, merging left off here.
+    """
+
+    road_sigmas: tuple[tuple[float, float], ...] = ((0.05, 0.05), (0.8, 0.4))
+    trans: tuple[tuple[float, ...], ...] = (
+        (0.90, 0.05, 0.05),
+        (0.05, 0.90, 0.05),
+        (0.05, 0.10, 0.85),
+    )
+    mu0: tuple[float, ...] = (0.1, 0.45, 0.45)
+    init_speed_std: float = 12.0
+    init_speed_std_rr: float = 3.0
+    pd: float = 0.9
+    lambda_fa_gmti: float = 1e-8
+    fa_range_rate_span: float = 58.0
+    lambda_fa_imint: float = 1e-8
+    lambda_nt: float = 1e-10
+    gate_probability: float = 0.999
+    alpha: float = 1e-3
+    beta: float = 0.1
+    n_hypotheses: int = 10
+    n_scan: int = 3
+    merge_scans: int = 0
+    hypothesis_ratio: float = 1e-4
+    type_term: str = "estimate"
+    segment_by_measurement: bool = False
+    max_coast: float = 60.0
+    coast_penalty: float = 20.0
+    vsimm: VSIMMConfig = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(
+            self, "vsimm", VSIMMConfig(road_sigmas=self.road_sigmas, trans=self.trans)
+        )
+
+    @property
+    def lambda_fa(self) -> float:
+        """The MHT's clutter density: GMTI, per m^2 and m/s of range-rate."""
+        return self.lambda_fa_gmti / self.fa_range_rate_span
+
+
+@dataclass
+class Scan:
+    """One MHT scan: reports of one sensor kind at one measurement time, arriving together.
+
+    Attributes:
+        kind: ``"gmti"``, ``"video"`` or ``"ugs"``.
+        time: measurement time (s).
+        arrival: arrival time (s).
+        reports: the reports, in the order of ``z``.
+        z: ``(M, 3)`` float64 measurements (video / UGS padded with 0).
+        R: ``(M, 3, 3)`` float64 covariances (video / UGS padded with 1).
+        bba: ``(M, 256)`` type bbas on the video frame.
+    """
+
+    kind: str
+    time: float
+    arrival: float
+    reports: list[Report]
+    z: torch.Tensor
+    R: torch.Tensor
+    bba: torch.Tensor
+
+
+def gmti_bba_on_video_frame(declared: int, p: float) -> torch.Tensor:
+    """Observed bba of a GMTI declaration mapped to the video frame (24.5.3, our refinement).
+
+    ``m(A_c) = p`` with ``A_c`` the video classes of GMTI class ``c``, ``m(Theta) = 1 - p``.
+
+    Examples:
+        >>> m = gmti_bba_on_video_frame(1, 0.7)  # wheeled vehicle: 6 video classes
+        >>> int(torch.nonzero(m)[0]), float(m[-1])
+        (63, 0.30000000000000004)
+    """
+    if not 0 <= declared < len(GMTI_CLASSES):
+        raise ValueError(f"`declared`: expected a GMTI class index, got {declared}")
+    mask = sum(1 << i for i, g in enumerate(VIDEO_TO_GMTI) if g == declared)
+    m = torch.zeros(1 << len(VIDEO_CLASSES), dtype=DTYPE)
+    m[mask] += p
+    m[-1] += 1.0 - p
+    return m
+
+
+def _report_bba(r: Report) -> torch.Tensor:
+    if r.frame == "gmti":
+        return gmti_bba_on_video_frame(r.declared, r.p_declared)
+    return r.bba()
+
+
+def report_scans(reports: Sequence[Report], gmti: GMTISensor) -> list[Scan]:
+    """Group reports (in arrival order) into scans: same kind, time and arrival, consecutive.
+
+    GMTI covariances are recomputed by ``gmti.covariance`` (the filter's model).
+
+    Examples:
+        >>> from hocnet.tracking.scenario import pd_scenario
+        >>> sc = pd_scenario(seed=0, duration=60.0)
+        >>> scans = report_scans(sc.reports, GMTISensor(sc.gmti.position))
+        >>> n = sum(len(s.reports) for s in scans)
+        >>> scans[0].kind, scans[0].z.shape[1], n == len(sc.reports)
+        ('gmti', 3, True)
+    """
+    groups: list[list[Report]] = []
+    for r in reports:
+        if groups and (
+            groups[-1][0].kind == r.kind
+            and groups[-1][0].time == r.time
+            and groups[-1][0].arrival == r.arrival
+        ):
+            groups[-1].append(r)
+        else:
+            groups.append([r])
+    scans = []
+    for g in groups:
+        M = len(g)
+        z = torch.zeros(M, 3, dtype=DTYPE)
+        R = torch.eye(3, dtype=DTYPE).repeat(M, 1, 1)
+        if g[0].kind == "gmti":
+            z[:] = torch.as_tensor(np.stack([r.z for r in g]), dtype=DTYPE)
+            R[:] = gmti.covariance(z)
+        else:
+            z[:, :2] = torch.as_tensor(np.stack([r.z for r in g]), dtype=DTYPE)
+            R[:, :2, :2] = torch.as_tensor(np.stack([r.R for r in g]), dtype=DTYPE)
+        bba = torch.stack([_report_bba(r) for r in g])
+        scans.append(Scan(g[0].kind, g[0].time, g[0].arrival, g, z, R, bba))
+    return scans
+
+
+class VSIMMRoadFilter:
+    """The VS-IMM on roads as a :class:`~hocnet.tracking.mht.MotionFilter` (see the module).
+
+    The MHT calls ``predict / innovation / update / miss`` with batched state dicts; the scan's
+    sensor and measurement time are set by :meth:`set_scan` before each ``MHT.step``. The state
+    dict holds the :class:`~hocnet.tracking.vsimm.VSIMMState` fields (the VS-IMM section
+    hypothesis under ``"vs_section"``), the prediction of the current scan (``"p_*"``), the flags
+    ``"retro"`` (row updated out of sequence) and ``"lag_ok"``, and ``"section"`` (road section
+    of the most probable road mode, for the MHT's N-scan). :meth:`mean_cov` returns the combined
+    state with the estimate time appended: ``[x, vx, y, vy, t]`` (``(K, 5)``).
+
+    Args:
+        net: road network.
+        config: :class:`PDTrackerConfig`.
+        gmti: the GMTI sensor model.
+        video: the UAV video sensor model.
+        ugs: the UGS sensor model.
+        footprints: UAV footprint schedule (for the video miss probability).
+    """
+
+    meas_dim = 3
+
+    def __init__(
+        self,
+        net: RoadNetwork,
+        config: PDTrackerConfig,
+        gmti: GMTISensor,
+        video: VideoSensor,
+        ugs: VideoSensor,
+        footprints: Sequence[tuple[float, float, float, float, float, float]],
+    ) -> None:
+        self.net = net
+        self.cfg = config
+        self.vcfg = config.vsimm
+        self.sensors = {"gmti": gmti, "video": video, "ugs": ugs}
+        self.footprints = tuple(footprints)
+        self.kind = "gmti"
+        self.time = 0.0
+        self.out_of_lag = 0
+        self.oosm_failures = 0
+        self.sanitized = 0
+        self.max_jump = 1000.0
+        self._stop = self.vcfg.kinds.index("stop") if "stop" in self.vcfg.kinds else None
+        self.segment_by_measurement = config.segment_by_measurement
+        n = net.num_segments
+        adj = torch.eye(n, dtype=torch.bool)
+        for a in range(n):
+            for b in net.segment_neighbours(a):
+                adj[a, b] = True
+        self._adjacent = adj
+        sa, _, _ = self.vcfg.sigma_tensors()
+        self._sigma_max = float(sa.max())
+        self._lambda = {
+            "gmti": config.lambda_fa,
+            "video": config.lambda_fa_imint,
+            "ugs": config.lambda_fa_imint,
+        }
+
+    def set_scan(self, kind: str, time: float) -> None:
+        """Sensor kind and measurement time of the next ``MHT.step``."""
+        self.kind = kind
+        self.time = float(time)
+
+    # ------------------------------------------------------------------ conversions
+    def _vs(self, s: dict[str, torch.Tensor]) -> VSIMMState:
+        return VSIMMState(*(s["vs_section" if k == "section" else k] for k in _VS_KEYS))
+
+    def _dict(self, vs: VSIMMState) -> dict[str, torch.Tensor]:
+        d = {("vs_section" if k == "section" else k): v for k, v in zip(_VS_KEYS, vs)}
+        K = vs.mu.shape[0]
+        if K:
+            road = torch.tensor([k != "stop" for k in self.vcfg.kinds])
+            mu = torch.where(road, vs.mu, torch.zeros_like(vs.mu))
+            best = mu.argmax(-1)
+            seg = vs.segment.gather(1, best[:, None])[:, 0].clamp(min=0)
+            d["section"] = self.net.segment_section[seg]
+        else:
+            d["section"] = torch.zeros(0, dtype=torch.int64)
+        return d
+
+    @staticmethod
+    def _take(s: dict[str, torch.Tensor], rows: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {k: v[rows] for k, v in s.items()}
+
+    # ------------------------------------------------------------------ protocol
+    def initiate(self, z: torch.Tensor, R: torch.Tensor) -> dict[str, torch.Tensor]:
+        """New tracks on reports ``z (K, 3)`` at the scan time (module docstring)."""
+        K = z.shape[0]
+        x0 = torch.zeros(K, 4, dtype=DTYPE)
+        x0[:, 0], x0[:, 2] = z[:, 0], z[:, 1]
+        P0 = torch.zeros(K, 4, 4, dtype=DTYPE)
+        idx = torch.tensor([0, 2])
+        P0[:, idx[:, None], idx[None, :]] = R[:, :2, :2]
+        sd = torch.full((K,), self.cfg.init_speed_std, dtype=DTYPE)
+        if K:
+            loc = self.net.locate(z[:, :2])
+            u = self.net.direction[loc.segment]
+            if self.kind == "gmti":
+                pos = torch.tensor(self.sensors["gmti"].position, dtype=DTYPE)
+                los = torch.cat([z[:, :2] - pos[:2], -pos[2:].expand(K, 1)], -1)
+                los = los / torch.linalg.vector_norm(los, dim=-1, keepdim=True)
+                c = (u * los[:, :2]).sum(-1)
+                ok = c.abs() >= 0.2
+                s = torch.where(ok, z[:, 2] / torch.where(ok, c, torch.ones_like(c)), 0.0)
+                x0[:, 1], x0[:, 3] = s * u[:, 0], s * u[:, 1]
+                sd = torch.where(ok, self.cfg.init_speed_std_rr, sd)
+            # speed deviation along the road, a little across
+            uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+            Pv = sd.view(-1, 1, 1) ** 2 * uu + torch.eye(2, dtype=DTYPE) * 1.0
+            iv = torch.tensor([1, 3])
+            P0[:, iv[:, None], iv[None, :]] = Pv
+        vs = vsimm_init(
+            self.net,
+            x0,
+            P0,
+            self.vcfg,
+            self.time,
+            section=torch.full((K,), -1, dtype=torch.int64),
+            mu0=torch.tensor(self.cfg.mu0, dtype=DTYPE),
+        )
+        d = self._dict(vs)
+        d["t_det"] = torch.full((K,), self.time, dtype=DTYPE)
+        return self._with_pred(d)
+
+    def _with_pred(self, d: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Add empty prediction fields (copies of the state) so that every dict has all keys."""
+        K = d["mu"].shape[0]
+        d = dict(d)
+        d["p_cbar"], d["p_x"], d["p_P"] = d["mu"], d["x"], d["P"]
+        d["p_segment"] = d["segment"]
+        d["p_on"] = torch.ones_like(d["mu"])
+        d["p_accel"] = d["accel_cov"]
+        d["p_t"] = d["t"]
+        d["retro"] = torch.zeros(K, dtype=torch.bool)
+        d["lag_ok"] = torch.ones(K, dtype=torch.bool)
+        return d
+
+    def predict(self, states: dict[str, torch.Tensor], dt: float) -> dict[str, torch.Tensor]:
+        """Predict the rows older than the scan time to it; mark the newer ones as OOSM rows."""
+        s = dict(states)
+        t = s["t"]
+        retro = t > self.time + 1e-9
+        s["retro"] = retro
+        s["lag_ok"] = ~retro | (s["t_prev"] <= self.time + 1e-9)
+        fwd = torch.nonzero(~retro).flatten()
+        if len(fwd):
+            vs = self._vs(self._take(s, fwd))
+            pred = vsimm_predict(vs, self.net, self.vcfg, self.time)
+            pred = pred._replace(P=_psd(pred.P))
+            for k, v in zip(_PRED_KEYS, pred):
+                s[k] = s[k].clone()
+                s[k][fwd] = v
+        return s
+
+    def _retro_estimate(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Combined estimate extrapolated back to the scan time (gating of OOSM rows)."""
+        from hocnet.tracking.imm import _combine
+
+        x, P = _combine(s["mu"], s["x"], s["P"])
+        lag = s["t"] - self.time
+        F, G = _mode_F(("road",), -lag)
+        F, G = F[:, 0], G[:, 0]
+        q = (self._sigma_max**2) * torch.eye(2, dtype=DTYPE)
+        xr = (F @ x.unsqueeze(-1)).squeeze(-1)
+        Pr = F @ P @ F.transpose(-1, -2) + G @ q @ G.transpose(-1, -2)
+        return xr, Pr
+
+    def _predicted_combined(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        from hocnet.tracking.imm import _combine
+
+        xp, Pp = _combine(s["p_cbar"], s["p_x"], s["p_P"])
+        retro = s["retro"]
+        if bool(retro.any()):
+            xr, Pr = self._retro_estimate(s)
+            xp = torch.where(retro[:, None], xr, xp)
+            Pp = torch.where(retro[:, None, None], Pr, Pp)
+        return xp, Pp
+
+    def innovation(self, states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Predicted measurement ``(K, 3)`` and ``H P H'`` ``(K, 3, 3)`` of the combined state."""
+        xp, Pp = self._predicted_combined(states)
+        K = xp.shape[0]
+        if self.kind == "gmti":
+            sensor = self.sensors["gmti"]
+            zp = sensor.measure(xp)
+            H = sensor.linearize(xp, zp, reference="prediction")[1]
+            hph = H @ Pp @ H.transpose(-1, -2)
+        else:
+            zp = torch.zeros(K, 3, dtype=DTYPE)
+            zp[:, :2] = xp[:, [0, 2]]
+            hph = torch.zeros(K, 3, 3, dtype=DTYPE)
+            hph[:, :2, :2] = Pp[:, [0, 2]][:, :, [0, 2]]
+            hph[:, 2, 2] = 1.0
+        bad = ~states["lag_ok"]
+        self.out_of_lag += int(bad.sum())
+        if bool(bad.any()):
+            zp = torch.where(bad[:, None], torch.full_like(zp, 1e12), zp)
+        return zp, 0.5 * (hph + hph.transpose(-1, -2))
+
+    def _vs_pred(self, s: dict[str, torch.Tensor]) -> Any:
+        from hocnet.tracking.vsimm import VSIMMPrediction
+
+        return VSIMMPrediction(*(s[k] for k in _PRED_KEYS))
+
+    def update(
+        self, states: dict[str, torch.Tensor], z: torch.Tensor, R: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """VS-IMM update (in sequence) or OOSM update (newer rows); ``ln Lambda`` corrected."""
+        K = z.shape[0]
+        sensor = self.sensors[self.kind]
+        zz = z if self.kind == "gmti" else z[:, :2]
+        retro = states["retro"]
+        ll = torch.zeros(K, dtype=DTYPE)
+        parts: list[tuple[torch.Tensor, dict[str, torch.Tensor]]] = []
+        fwd = torch.nonzero(~retro).flatten()
+        if len(fwd):
+            s = self._take(states, fwd)
+            if self.segment_by_measurement:
+                s = self._measurement_segments(s, zz[fwd])
+            new, out = vsimm_update(
+                self._vs(s), self._vs_pred(s), zz[fwd], sensor, self.net, self.vcfg
+            )
+            ll[fwd] = out.log_likelihood
+            parts.append((fwd, self._sanitize(self._dict(new), s["p_x"], s["p_P"], detection=True)))
+        back = torch.nonzero(retro).flatten()
+        if len(back):
+            s = self._take(states, back)
+            new_d, ll_b = self._oosm(s, zz[back], sensor)
+            ll[back] = ll_b
+            parts.append((back, new_d))
+        merged = self._merge(K, [(r, {**d, "t_det": states["t_det"][r]}) for r, d in parts])
+        merged["t_det"] = merged["t_det"].clamp(min=self.time)
+        corr = -math.log(self.cfg.pd) + math.log(self.cfg.lambda_fa / self._lambda[self.kind])
+        return self._with_pred(merged), ll + corr
+
+    def _oosm(
+        self, s: dict[str, torch.Tensor], z: torch.Tensor, sensor: Any
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """:func:`vsimm_oosm` on rows ``s``, with a fallback.
+
+        A row whose OOSM innovation covariance or updated covariance is not positive
+        (semi-)definite keeps its state and gets the likelihood of the extrapolated estimate
+        (counted in :attr:`oosm_failures`).
+        """
+        try:
+            new, out = vsimm_oosm(self._vs(s), z, self.time, sensor, self.net, self.vcfg)
+            ev = torch.linalg.eigvalsh(new.P)
+            scale = new.P.diagonal(dim1=-2, dim2=-1).sum(-1).clamp(min=1.0)
+            if bool((ev.min(-1).values < -1e-6 * scale).any()):
+                raise ValueError("retrodicted covariance not positive semi-definite")
+            return self._sanitize(self._dict(new), s["x"], s["P"]), out.log_likelihood
+        except ValueError:
+            if z.shape[0] == 1:
+                self.oosm_failures += 1
+                xr, Pr = self._retro_estimate(s)
+                hx, H, R = sensor.linearize(xr, z)
+                S = H @ Pr @ H.transpose(-1, -2) + R
+                ll = gaussian_log_likelihood(z - hx, S) + math.log(max(float(sensor.pd), 1e-12))
+                keep = {
+                    k: v
+                    for k, v in s.items()
+                    if not k.startswith("p_") and k not in (*_FLAGS, "t_det")
+                }
+                return keep, ll
+            parts = [
+                self._oosm(self._take(s, torch.tensor([i])), z[i : i + 1], sensor)
+                for i in range(z.shape[0])
+            ]
+            rows = [(torch.tensor([i]), d) for i, (d, _) in enumerate(parts)]
+            return self._merge(z.shape[0], rows), torch.cat([v for _, v in parts])
+
+    def _measurement_segments(
+        self, s: dict[str, torch.Tensor], z: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """Active segment of each road mode from the measurement (option, off by default).
+
+        The segment nearest to the measurement when it touches the predicted one (tried at
+        junctions; see :class:`PDTrackerConfig`).
+        """
+        seg_z = self.net.locate(z[:, :2]).segment  # (B,)
+        seg = s["p_segment"]
+        ok = self._adjacent[seg.clamp(min=0), seg_z.unsqueeze(-1).expand_as(seg)] & (seg >= 0)
+        s = dict(s)
+        s["p_segment"] = torch.where(ok, seg_z.unsqueeze(-1), seg)
+        return s
+
+    def _sanitize(
+        self,
+        d: dict[str, torch.Tensor],
+        x_fb: torch.Tensor,
+        P_fb: torch.Tensor,
+        *,
+        detection: bool = False,
+    ) -> dict[str, torch.Tensor]:
+        """Replace blown-up mode estimates (non-finite, or a variance above 1e9) by a fallback.
+
+        Seen with the stop mode under a GMTI detection (its likelihood is 0, 24.31, but the
+        projection of its update on the road returned variances of 1e17); the estimate of a mode
+        of probability 0 is arbitrary, so the prediction is used. Counted in
+        :attr:`sanitized`.
+        """
+        x, P = d["x"], d["P"]
+        bad = (
+            ~torch.isfinite(x).all(-1)
+            | ~torch.isfinite(P).all(-1).all(-1)
+            | (P.diagonal(dim1=-2, dim2=-1).abs().amax(-1) > 1e9)
+            | ((x - x_fb)[..., [0, 2]].norm(dim=-1) > self.max_jump)
+        )
+        if detection and self._stop is not None:
+            bad[:, self._stop] = False
+            x = x.clone()
+            P = P.clone()
+            x[:, self._stop] = x_fb[:, self._stop]  # likelihood 0 (24.31): keep the prediction
+            P[:, self._stop] = P_fb[:, self._stop]
+        d = dict(d)
+        if bool(bad.any()):
+            self.sanitized += int(bad.sum())
+            x = torch.where(bad[..., None], x_fb, x)
+            P = torch.where(bad[..., None, None], P_fb, P)
+        d["x"], d["P"] = x, _psd(P)
+        return d
+
+    @staticmethod
+    def _merge(
+        K: int, parts: list[tuple[torch.Tensor, dict[str, torch.Tensor]]]
+    ) -> dict[str, torch.Tensor]:
+        keys = parts[0][1].keys()
+        out = {}
+        for k in keys:
+            ref = parts[0][1][k]
+            v = torch.zeros((K, *ref.shape[1:]), dtype=ref.dtype)
+            for rows, d in parts:
+                v[rows] = d[k]
+            out[k] = v
+        return out
+
+    def miss(
+        self, states: dict[str, torch.Tensor], pd: float
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Missed detection: VS-IMM miss for the GMTI, coverage PD for video, none for UGS."""
+        K = states["mu"].shape[0]
+        if self.kind == "gmti" and K:
+            new, out = vsimm_update(
+                self._vs(states),
+                self._vs_pred(states),
+                torch.full((K, 3), float("nan"), dtype=DTYPE),
+                self.sensors["gmti"],
+                self.net,
+                self.vcfg,
+                detected=torch.zeros(K, dtype=torch.bool),
+            )
+            new_d = self._sanitize(self._dict(new), states["p_x"], states["p_P"])
+            new_d["t_det"] = states["t_det"]
+            coast = (self.time - states["t_det"]) > self.cfg.max_coast
+            return self._with_pred(new_d), out.log_likelihood - self.cfg.coast_penalty * coast
+        keep = self._with_pred(
+            {k: v for k, v in states.items() if not k.startswith("p_") and k not in _FLAGS}
+        )
+        log_miss = torch.zeros(K, dtype=DTYPE)
+        if self.kind == "video" and K:
+            fp = footprint_at(self.time, self.footprints)
+            if fp is not None:
+                xp, _ = self._predicted_combined(states)
+                cx, cy, w, h = fp
+                inside = ((xp[:, 0] - cx).abs() <= w / 2) & ((xp[:, 2] - cy).abs() <= h / 2)
+                pdv = float(self.sensors["video"].pd)
+                log_miss = torch.where(inside & states["lag_ok"], math.log1p(-pdv), 0.0).to(DTYPE)
+        return keep, log_miss
+
+    def mean_cov(self, states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Combined estimate with its time appended ``(K, 5)`` and covariance ``(K, 5, 5)``."""
+        from hocnet.tracking.imm import _combine
+
+        x, P = _combine(states["mu"], states["x"], states["P"])
+        K = x.shape[0]
+        x5 = torch.cat([x, states["t"].view(K, 1)], -1)
+        P5 = torch.zeros(K, 5, 5, dtype=DTYPE)
+        P5[:, :4, :4] = P
+        return x5, P5
+
+
+@dataclass
+class TrackerRun:
+    """Output of :func:`run_pd_tracker`.
+
+    Attributes:
+        tracks: ``{track_id: EstimatedTrack}`` confirmed tracks (samples while confirmed).
+        n_scans: scans processed.
+        out_of_lag: (row, OOSM scan) pairs not associated (report older than the row's lag).
+        max_leaves: largest number of leaf tracks held at once.
+        sanitized: mode estimates replaced by their prediction (module docstring).
+        oosm_failures: OOSM updates that fell back to the extrapolated estimate.
+    """
+
+    tracks: dict[int, EstimatedTrack]
+    n_scans: int
+    out_of_lag: int
+    max_leaves: int
+    sanitized: int = 0
+    oosm_failures: int = 0
+
+
+def _declared_type(bba: torch.Tensor | None, rng: np.random.Generator) -> int:
+    if bba is None:
+        return NO_TYPE
+    from hocnet.tracking.belief import pignistic
+
+    p = pignistic(bba).numpy()
+    ties = np.flatnonzero(p >= p.max() - 1e-12)
+    return int(ties[0] if len(ties) == 1 else rng.choice(ties))
+
+
+def run_pd_tracker(
+    scenario: PDScenario,
+    *,
+    type_tracking: bool,
+    config: PDTrackerConfig | None = None,
+    seed: int = 0,
+) -> TrackerRun:
+    """One run of the VS-IMMC SB-MHT over a scenario, without or with the PCR5 type tracker.
+
+    Args:
+        scenario: from :func:`~hocnet.tracking.scenario.pd_scenario`.
+        type_tracking: feed the type bbas to the MHT (PCR5 per track, 24.44; ``ln BetP`` in the
+            score, 24.48) and declare a type per sample (24.45-24.47).
+        config: :class:`PDTrackerConfig` (default values).
+        seed: seed of the tie-breaking of the type decision.
+
+    Returns:
+        :class:`TrackerRun`. A track's samples are taken after every scan in which it is
+        confirmed in the best hypothesis, at the time of its estimate; its ``truth_ids`` come
+        from its final measurement history (``FALSE_ALARM`` for a clutter report).
+
+    Examples:
+        >>> from hocnet.tracking.scenario import pd_scenario
+        >>> out = run_pd_tracker(pd_scenario(seed=0, duration=120.0), type_tracking=True)
+        >>> len(out.tracks) > 0
+        True
+    """
+    cfg = PDTrackerConfig() if config is None else config
+    net = RoadNetwork.from_geojson(scenario.network)
+    g = scenario.gmti
+    gmti = GMTISensor(
+        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
+    )
+    video = VideoSensor(scenario.video.sigma, pd=scenario.video.pd, name="video")
+    ugs = VideoSensor(scenario.ugs.sigma, pd=scenario.ugs.pd, name="ugs")
+    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, scenario.video.footprints)
+    mht = MHT(
+        filt,
+        pd=cfg.pd,
+        lambda_fa=cfg.lambda_fa,
+        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
+        gate_probability=cfg.gate_probability,
+        alpha=cfg.alpha,
+        beta=cfg.beta,
+        n_hypotheses=cfg.n_hypotheses,
+        hypothesis_ratio=cfg.hypothesis_ratio,
+        n_scan=cfg.n_scan,
+        merge_scans=cfg.merge_scans,
+        type_term=cfg.type_term if type_tracking else None,
+    )
+    rng = np.random.default_rng(seed)
+    scans = report_scans(scenario.reports, gmti)
+    samples: dict[int, list[tuple[float, float, float, int, int]]] = {}
+    last: dict[int, Any] = {}
+    max_leaves = 0
+    mht_time = None
+    for scan in scans:
+        t_mht = scan.time if mht_time is None else max(mht_time, scan.time)
+        filt.set_scan(scan.kind, scan.time)
+        confirmed = mht.step(scan.z, time=t_mht, R=scan.R, bba=scan.bba if type_tracking else None)
+        mht_time = t_mht
+        max_leaves = max(max_leaves, mht.n_leaves)
+        for trk in confirmed:
+            st = trk.state
+            t = float(st[4])
+            typ = _declared_type(trk.type_bba, rng) if type_tracking else NO_TYPE
+            samples.setdefault(trk.id, []).append(
+                (t, float(st[0]), float(st[2]), mht.scan - 1, typ)
+            )
+            last[trk.id] = trk
+    for trk in mht.all_tracks():
+        last.setdefault(trk.id, trk)
+    tracks: dict[int, EstimatedTrack] = {}
+    for tid, smp in samples.items():
+        trk = last[tid]
+        smp.sort(key=lambda v: v[0])
+        times, ids, pos, types = [], [], [], []
+        for t, x, y, k, typ in smp:
+            times.append(t)
+            i = k - trk.birth
+            j = trk.measurements[i] if 0 <= i < len(trk.measurements) else -1
+            if j >= 0:
+                tgt = scans[k].reports[j].target_id
+                ids.append(FALSE_ALARM if tgt is None else int(tgt))
+            else:
+                ids.append(NO_MEASUREMENT)
+            pos.append((x, y))
+            types.append(typ)
+        tracks[tid] = EstimatedTrack(times, pos, ids, types)
+    return TrackerRun(
+        tracks, len(scans), filt.out_of_lag, max_leaves, filt.sanitized, filt.oosm_failures
+    )

@@ -1,0 +1,128 @@
+"""Tests of hocnet/tracking/pipeline.py (the glue of the [PD] 24.6 experiment)."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from hocnet.tracking.belief import pignistic
+from hocnet.tracking.evaluation import assign_tracks, target_metrics
+from hocnet.tracking.pipeline import (
+    PDTrackerConfig,
+    VSIMMRoadFilter,
+    gmti_bba_on_video_frame,
+    report_scans,
+    run_pd_tracker,
+)
+from hocnet.tracking.road import RoadNetwork
+from hocnet.tracking.scenario import VIDEO_TO_GMTI, pd_scenario
+from hocnet.tracking.sensors import GMTISensor, VideoSensor
+
+
+@pytest.fixture(scope="module")
+def short():
+    return pd_scenario(seed=3, duration=150.0)
+
+
+def test_gmti_bba_refines_onto_the_video_frame():
+    for c in range(3):
+        m = gmti_bba_on_video_frame(c, 0.8)
+        assert math.isclose(float(m.sum()), 1.0)
+        members = [i for i, g in enumerate(VIDEO_TO_GMTI) if g == c]
+        betp = pignistic(m)
+        # BetP spreads 0.8 over the refined set and 0.2 over all 8 classes (24.47)
+        for i in range(8):
+            want = (0.8 / len(members) if i in members else 0.0) + 0.2 / 8
+            assert math.isclose(float(betp[i]), want, abs_tol=1e-12)
+    with pytest.raises(ValueError, match="declared"):
+        gmti_bba_on_video_frame(3, 0.5)
+
+
+def test_report_scans_group_every_report_once(short):
+    scans = report_scans(short.reports, GMTISensor(short.gmti.position))
+    flat = [r for s in scans for r in s.reports]
+    assert flat == short.reports
+    for s in scans:
+        assert len({(r.kind, r.time, r.arrival) for r in s.reports}) == 1
+        assert s.z.shape == (len(s.reports), 3) and s.bba.shape == (len(s.reports), 256)
+        if s.kind != "gmti":  # padded third component: zero value, unit variance
+            assert bool((s.z[:, 2] == 0).all()) and bool((s.R[:, 2, 2] == 1).all())
+
+
+def _filter(net, kind, time):
+    f = VSIMMRoadFilter(
+        net,
+        PDTrackerConfig(),
+        GMTISensor((-50_000.0, -60_000.0, 4000.0)),
+        VideoSensor(10.0, name="video"),
+        VideoSensor(10.0, pd=1.0, name="ugs"),
+        [(0.0, 1e9, 0.0, 0.0, 1e5, 1e5)],
+    )
+    f.set_scan(kind, time)
+    return f
+
+
+def test_video_gating_distance_is_the_2d_one():
+    net = RoadNetwork([[[0.0, 0.0], [2000.0, 0.0]]])
+    f = _filter(net, "video", 0.0)
+    z = torch.tensor([[500.0, 0.0, 0.0]], dtype=torch.float64)
+    R = torch.eye(3, dtype=torch.float64)[None].clone()
+    R[0, 0, 0] = R[0, 1, 1] = 100.0
+    s = f.initiate(z, R)
+    f.set_scan("video", 10.0)
+    pred = f.predict(s, 10.0)
+    zp, hph = f.innovation(pred)
+    z2 = torch.tensor([[560.0, 7.0, 0.0]], dtype=torch.float64)
+    d = z2 - zp
+    S = hph + R
+    d2_3 = float(d[0] @ torch.linalg.solve(S[0], d[0]))
+    d2_2 = float(d[0, :2] @ torch.linalg.solve(S[0, :2, :2], d[0, :2]))
+    assert math.isclose(d2_3, d2_2, rel_tol=1e-12)
+
+
+def test_score_increment_is_ln_lambda_over_clutter_density():
+    # the filter returns ln Lambda - ln PD_mht + ln(lambda_mht / lambda_sensor), so that the
+    # MHT's increment ln PD_mht + ll - ln lambda_mht is ln(Lambda / lambda_sensor) (24.42)
+    net = RoadNetwork([[[0.0, 0.0], [2000.0, 0.0]]])
+    cfg = PDTrackerConfig()
+    f = _filter(net, "video", 0.0)
+    R = torch.eye(3, dtype=torch.float64)[None].clone()
+    R[0, 0, 0] = R[0, 1, 1] = 100.0
+    s = f.initiate(torch.tensor([[500.0, 0.0, 0.0]], dtype=torch.float64), R)
+    f.set_scan("video", 10.0)
+    pred = f.predict(s, 10.0)
+    _, ll = f.update(pred, torch.tensor([[520.0, 3.0, 0.0]], dtype=torch.float64), R)
+    from hocnet.tracking.vsimm import vsimm_update
+
+    _, out = vsimm_update(
+        f._vs(pred),
+        f._vs_pred(pred),
+        torch.tensor([[520.0, 3.0]], dtype=torch.float64),
+        f.sensors["video"],
+        net,
+        f.vcfg,
+    )
+    increment = math.log(cfg.pd) + float(ll[0]) - math.log(cfg.lambda_fa)
+    want = float(out.log_likelihood[0]) - math.log(cfg.lambda_fa_imint)
+    assert math.isclose(increment, want, rel_tol=1e-12)
+
+
+def test_short_run_tracks_the_convoy_purely(short):
+    out = run_pd_tracker(short, type_tracking=True)
+    assert out.tracks and out.n_scans > 10
+    asg = assign_tracks(out.tracks)
+    m = target_metrics(short.truth, out.tracks)
+    # the convoy 3, 7 (and 8 on the northern byway) are alone or 10 s apart in 150 s
+    for tid in (3, 8):
+        assert tid in asg.values()
+        assert m[tid].track_purity >= 0.9
+        assert m[tid].armse < 60.0
+    for trk in out.tracks.values():
+        assert bool(np.all(np.diff(trk.times) >= 0))
+        assert bool(((trk.types >= -1) & (trk.types < 8)).all())
+
+
+def test_without_type_tracking_no_types(short):
+    out = run_pd_tracker(short, type_tracking=False)
+    assert all(bool((t.types == -1).all()) for t in out.tracks.values())
