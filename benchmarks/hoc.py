@@ -447,7 +447,7 @@ def run_stream_config(
         window=STREAM_WINDOW, stride=STREAM_STRIDE, order=order, support=support
     )
     spent: list[float] = []
-    identify = hoc_stream._identify
+    identify = hoc_stream._identify_window
 
     def timed_identify(*args, **kwargs):  # the identification share of a push
         t0 = time.perf_counter()
@@ -455,7 +455,7 @@ def run_stream_config(
         spent.append(time.perf_counter() - t0)
         return out
 
-    hoc_stream._identify = timed_identify
+    hoc_stream._identify_window = timed_identify
     try:
         for t in range(STREAM_WINDOW - 1):  # fill the window (no result yet)
             det.push(scans[t])
@@ -468,7 +468,7 @@ def run_stream_config(
             identify_s.append(sum(spent))
             outs.append(out)
     finally:
-        hoc_stream._identify = identify
+        hoc_stream._identify_window = identify
     # the first push of the loop completes the first window: it is measured like the others
     batch_s, equal = [], 0
     for out in outs:
@@ -568,7 +568,7 @@ def stream_markdown(rows: list[StreamRow], header: list[str]) -> str:
 def stream_main(args: argparse.Namespace) -> int:
     """The streaming rows: run, print, write ``hoc_stream.md`` / ``.csv``."""
     shape = QUICK_STREAM_SENSOR if args.quick else STREAM_SENSOR
-    pushes = QUICK_STREAM_PUSHES if args.quick else STREAM_PUSHES
+    pushes = args.pushes or (QUICK_STREAM_PUSHES if args.quick else STREAM_PUSHES)
     densities = args.densities or STREAM_DENSITIES
     orders = args.orders or STREAM_ORDERS
     out = args.out or RESULTS / ("hoc_stream_quick" if args.quick else "hoc_stream")
@@ -679,6 +679,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         type=_csv_of(str),
         default=STREAM_SUPPORTS,
         help="with --stream: comma-separated StreamingDetector supports (default mhoc,chain)",
+    )
+    p.add_argument(
+        "--pushes",
+        type=int,
+        help=f"with --stream: measured pushes per configuration (default {STREAM_PUSHES})",
     )
     p.add_argument("--sizes", type=_csv_of(_parse_size), help="comma-separated TxHxW")
     p.add_argument("--densities", type=_csv_of(float), help="comma-separated clutter densities")

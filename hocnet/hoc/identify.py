@@ -114,6 +114,7 @@ from typing import Any, Literal
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
+from hocnet.hoc._incremental import enumerate_paths_vectorised
 from hocnet.hoc.functional import (
     Method,
     _allowed_cached,
@@ -129,7 +130,6 @@ from hocnet.hoc.scoring import (
     DEFAULT_SCORE_SPAN,
     DEFAULT_THRESHOLD,
     point_score,
-    track_point_scores,
 )
 
 __all__ = [
@@ -477,7 +477,25 @@ def _enumerate_paths(
     s: torch.Tensor,
     max_candidates: int,
 ) -> tuple[list[list[int]], bool]:
-    """Maximal chains of accepted triples, as lists of triple indices (capped)."""
+    """Maximal chains of accepted triples, as lists of triple indices (capped).
+
+    Below the cap the vectorised form (:func:`~hocnet.hoc._incremental.enumerate_paths_vectorised`,
+    same chains, same order) does the work; at the cap, the depth-first loop below.
+    """
+    fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
+    if fast is not None:
+        return fast, False
+    return _enumerate_paths_loop(accepted, a_in, a_out, s, max_candidates)
+
+
+def _enumerate_paths_loop(
+    accepted: torch.Tensor,
+    a_in: torch.Tensor,
+    a_out: torch.Tensor,
+    s: torch.Tensor,
+    max_candidates: int,
+) -> tuple[list[list[int]], bool]:
+    """:func:`_enumerate_paths` as a depth-first loop (the reference, and the capped case)."""
     idx = accepted.nonzero().squeeze(1).tolist()
     ain, aout, sl = a_in.tolist(), a_out.tolist(), s.tolist()
     succ: dict[int, list[int]] = {}
@@ -544,17 +562,8 @@ def _select_tracks(
     first) nor in ``cleaned`` already. With ``dedupe`` (per candidate point: in the MHOC image),
     a near-duplicate of a kept track is dropped too (:func:`_is_near_duplicate`).
     """
-    a, b, c, sl = p0.tolist(), p1.tolist(), p2.tolist(), s.tolist()
     cands = []
-    for path in paths:
-        pts = [a[path[0]], b[path[0]]] + [c[k] for k in path]
-        if len(pts) < min_points:
-            continue
-        if track_kw is None:
-            pscores = [sl[k] for k in path]
-        else:  # the track rescored as a whole sequence (``score_span`` / ``track_combine``)
-            pscores = track_point_scores(coords[torch.tensor(pts)], **track_kw).tolist()
-        score = float(torch.tensor(pscores, dtype=torch.float64).mean())  # interior points
+    for score, pts, pscores in _score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw):
         if score < threshold:
             continue
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
@@ -566,22 +575,79 @@ def _select_tracks(
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
     xy = coords.tolist() if dedupe is not None else []
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
+    kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
         if dedupe is not None:
-            if _is_near_duplicate(pts, kept_scans, scan_of, dedupe, xy, dedupe_scans, covered):
+            # only kept tracks sharing a point can be near-duplicated (the others differ at
+            # every scan): the same answer as asking all of them
+            near = sorted({i for q in pts for i in kept_at.get(q, ())})
+            others = [kept_scans[i] for i in near]
+            if _is_near_duplicate(pts, others, scan_of, dedupe, xy, dedupe_scans, covered):
                 continue
+            for q in pts:
+                kept_at.setdefault(q, []).append(len(kept_scans))
             kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
         # Track objects only for the kept candidates (the others cost no tensor work)
-        track, _ = _make_track(pts, pscores, coords, batch)
+        track, _ = _make_track(pts, pscores.tolist(), coords, batch)
         track.score = score
         tracks.append((track, pts))
     if tracks:
         kept = torch.tensor([q for _, pts in tracks for q in pts])
         cleaned[flat[kept]] = True
     return tracks
+
+
+def _score_paths(
+    paths: list[list[int]],
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    s: torch.Tensor,
+    coords: torch.Tensor,
+    min_points: int,
+    track_kw: dict[str, Any] | None,
+) -> list[tuple[float, list[int], torch.Tensor]]:
+    """Points, interior point scores and mean score of every candidate path, in path order.
+
+    Paths shorter than ``min_points`` points are left out. The vectorised form of scoring each
+    path on its own (:func:`~hocnet.hoc.scoring.track_point_scores` of its points, or its
+    triple scores when ``track_kw`` is ``None``, then their mean): paths of equal length are
+    scored together, with the same element-wise operations and one row mean per path, so the
+    values are the same bits (tested against the per-path loop).
+    """
+    out: list[tuple[float, list[int], torch.Tensor] | None] = [None] * len(paths)
+    by_len: dict[int, list[int]] = {}
+    for i, path in enumerate(paths):
+        if len(path) + 2 >= min_points:
+            by_len.setdefault(len(path), []).append(i)
+    xy = coords.to(torch.float64) if track_kw is not None else coords
+    for n_tr, rows in by_len.items():
+        tri = torch.tensor([paths[i] for i in rows], dtype=torch.long).reshape(len(rows), n_tr)
+        pts = torch.cat([p0[tri[:, :1]], p1[tri[:, :1]], p2[tri]], dim=1)  # (R, n_tr + 2)
+        if track_kw is None:
+            pscores = s[tri]
+        else:  # the track rescored as a whole sequence (``score_span`` / ``track_combine``)
+            n = n_tr + 2
+            span = track_kw["span"]
+            kw = {key: val for key, val in track_kw.items() if key != "span"}
+            p = xy[pts]  # (R, n, 3)
+            i = torch.arange(1, n - 1)
+            s1 = torch.clamp(i, max=span)
+            s2 = torch.clamp(n - 1 - i, max=span)
+            m1 = (p[:, i] - p[:, i - s1]) / s1.to(torch.float64)[None, :, None]
+            m2 = (p[:, i + s2] - p[:, i]) / s2.to(torch.float64)[None, :, None]
+            pscores = torch.as_tensor(
+                point_score(m1[..., 2], m1[..., 1], m2[..., 2], m2[..., 1], **kw),
+                dtype=torch.float64,
+            )
+        means = pscores.mean(dim=1).tolist()  # the interior points
+        pts_l = pts.tolist()
+        for r, i in enumerate(rows):
+            out[i] = (means[r], pts_l[r], pscores[r])
+    return [item for item in out if item is not None]
 
 
 def _is_near_duplicate(
@@ -850,11 +916,20 @@ def _identify_sequences(
     case1: bool = False,
     dedupe: bool | int = False,
     track_kw: dict[str, Any] | None = None,
+    triples: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
-    """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene."""
+    """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene.
+
+    ``triples``: the ``(flat, p0, p1, p2)`` of ``_sparse_triples(support[None], ...)``, forward,
+    when the caller has them already (the streaming detector builds them from its cached links);
+    ``None``: computed here.
+    """
     n_t, h, w = support.shape
-    allowed = _allowed_cached(v, delta, "cpu")
-    flat, p0, p1, p2 = _sparse_triples(support[None], allowed, v, 1)
+    if triples is None:
+        allowed = _allowed_cached(v, delta, "cpu")
+        flat, p0, p1, p2 = _sparse_triples(support[None], allowed, v, 1)
+    else:
+        flat, p0, p1, p2 = triples
     coords = torch.stack([flat // (h * w), (flat // w) % h, flat % w], dim=1)
     scores_cube = torch.full((n_t * h * w,), math.nan, dtype=torch.float64)
     cleaned = torch.zeros(n_t * h * w, dtype=torch.bool)
