@@ -250,7 +250,24 @@ def _fill_scores(
 
 
 def _group_best(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
-    """Index of the largest ``key`` in each group (first in input order on ties), -1 if empty."""
+    """Index of the largest ``key`` in each group (first in input order on ties), -1 if empty.
+
+    Two scatter reductions (the group maximum, then the first index reaching it), linear in the
+    input; with NaN keys, the sorting form (:func:`_group_best_sorted`, the reference).
+    """
+    if groups.numel() == 0 or not key.is_floating_point() or bool(key.isnan().any()):
+        return _group_best_sorted(groups, key, n_groups)
+    best = torch.full((n_groups,), -math.inf, dtype=key.dtype)
+    best.scatter_reduce_(0, groups, key, reduce="amax")
+    hit = (key == best[groups]).nonzero().squeeze(1)
+    n = groups.numel()
+    first = torch.full((n_groups,), n, dtype=torch.long)
+    first.scatter_reduce_(0, groups[hit], hit, reduce="amin")
+    return torch.where(first < n, first, -1)
+
+
+def _group_best_sorted(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """:func:`_group_best` by two stable sorts (the reference; any key dtype, NaN last)."""
     out = torch.full((n_groups,), -1, dtype=torch.long)
     if groups.numel() == 0:
         return out
@@ -800,19 +817,24 @@ def _best_paths(
     bw, bptr = sweep(a_out, a_in)  # continue with a triple ending on my in-edge
     lb = torch.arange(L).view(1, L, 1)
     lf = torch.arange(L).view(1, 1, L)
-    total = bw[:, :, None] + fw[:, None, :] - w.view(k, 1, 1)  # (K, L, L)
+    # only the triples through a point of ``points`` can be its best (their relative order
+    # kept, so ties go as over all triples): the (K, L, L) table on those rows only
+    sub = (points[p0] | points[p1] | points[p2]).nonzero().squeeze(1)
+    ks = sub.numel()
+    total = bw[sub][:, :, None] + fw[sub][:, None, :] - w[sub].view(ks, 1, 1)  # (Ks, L, L)
     length = lb + lf + 3
     total = torch.where(length >= min_points, total, neg)
-    flat_best, arg = total.reshape(k, -1).max(dim=1)
+    flat_best, arg = total.reshape(ks, -1).max(dim=1)
     # best chain per point: over the triples that contain it
-    members = torch.cat([p0, p1, p2])
+    members = torch.cat([p0[sub], p1[sub], p2[sub]])
     values = flat_best.repeat(3)
     owner = _group_best(members, values, n)
-    chosen = owner[points & (owner >= 0)] % k
-    chosen = torch.unique(chosen[flat_best[chosen] >= -1e-9])
-    if chosen.numel() == 0:
+    local = owner[points & (owner >= 0)] % max(ks, 1)
+    local = torch.unique(local[flat_best[local] >= -1e-9])
+    if local.numel() == 0:
         return []
-    nb, nf = arg[chosen] // L, arg[chosen] % L
+    chosen = sub[local]
+    nb, nf = arg[local] // L, arg[local] % L
     # walk the pointers of all chosen chains at once, one step per column
     back = _walk(bptr, chosen, nb)
     fwd = _walk(fptr, chosen, nf)
