@@ -608,7 +608,7 @@ def _select_tracks(
             kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
         # Track objects only for the kept candidates (the others cost no tensor work)
-        track, _ = _make_track(pts, pscores.tolist(), coords, batch)
+        track, _ = _make_track(pts, pscores, coords, batch)
         track.score = score
         tracks.append((track, pts))
     if tracks:
@@ -626,7 +626,7 @@ def _score_paths(
     coords: torch.Tensor,
     min_points: int,
     track_kw: dict[str, Any] | None,
-) -> list[tuple[float, list[int], torch.Tensor]]:
+) -> list[tuple[float, list[int], list[float]]]:
     """Points, interior point scores and mean score of every candidate path, in path order.
 
     Paths shorter than ``min_points`` points are left out. The vectorised form of scoring each
@@ -635,35 +635,45 @@ def _score_paths(
     scored together, with the same element-wise operations and one row mean per path, so the
     values are the same bits (tested against the per-path loop).
     """
-    out: list[tuple[float, list[int], torch.Tensor] | None] = [None] * len(paths)
+    out: list[tuple[float, list[int], list[float]] | None] = [None] * len(paths)
     by_len: dict[int, list[int]] = {}
     for i, path in enumerate(paths):
         if len(path) + 2 >= min_points:
             by_len.setdefault(len(path), []).append(i)
     xy = coords.to(torch.float64) if track_kw is not None else coords
+    groups = []
+    moves: list[tuple[torch.Tensor, torch.Tensor]] = []
     for n_tr, rows in by_len.items():
         tri = torch.tensor([paths[i] for i in rows], dtype=torch.long).reshape(len(rows), n_tr)
         pts = torch.cat([p0[tri[:, :1]], p1[tri[:, :1]], p2[tri]], dim=1)  # (R, n_tr + 2)
-        if track_kw is None:
-            pscores = s[tri]
-        else:  # the track rescored as a whole sequence (``score_span`` / ``track_combine``)
+        groups.append((rows, tri, pts))
+        if track_kw is not None:  # the moves of each interior point over ``span`` scans
             n = n_tr + 2
             span = track_kw["span"]
-            kw = {key: val for key, val in track_kw.items() if key != "span"}
             p = xy[pts]  # (R, n, 3)
             i = torch.arange(1, n - 1)
             s1 = torch.clamp(i, max=span)
             s2 = torch.clamp(n - 1 - i, max=span)
             m1 = (p[:, i] - p[:, i - s1]) / s1.to(torch.float64)[None, :, None]
             m2 = (p[:, i + s2] - p[:, i]) / s2.to(torch.float64)[None, :, None]
-            pscores = torch.as_tensor(
-                point_score(m1[..., 2], m1[..., 1], m2[..., 2], m2[..., 1], **kw),
-                dtype=torch.float64,
-            )
+            moves.append((m1.reshape(-1, 3), m2.reshape(-1, 3)))
+    if track_kw is not None and moves:  # the track rescored as a whole sequence, one call
+        kw = {key: val for key, val in track_kw.items() if key != "span"}
+        m1 = torch.cat([m for m, _ in moves])
+        m2 = torch.cat([m for _, m in moves])
+        flat_scores = torch.as_tensor(
+            point_score(m1[:, 2], m1[:, 1], m2[:, 2], m2[:, 1], **kw), dtype=torch.float64
+        )
+        parts = flat_scores.split([m.shape[0] for m, _ in moves])
+    for g, (rows, tri, pts) in enumerate(groups):
+        if track_kw is None:
+            pscores = s[tri]
+        else:
+            pscores = parts[g].reshape(tri.shape)
         means = pscores.mean(dim=1).tolist()  # the interior points
-        pts_l = pts.tolist()
+        pts_l, ps_l = pts.tolist(), pscores.tolist()
         for r, i in enumerate(rows):
-            out[i] = (means[r], pts_l[r], pscores[r])
+            out[i] = (means[r], pts_l[r], ps_l[r])
     return [item for item in out if item is not None]
 
 

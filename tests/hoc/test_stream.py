@@ -531,7 +531,7 @@ class TestLatencyPathsEqualBatch:
                 else:
                     ps = track_point_scores(coords[torch.tensor(pts)], **track_kw).tolist()
                 want.append((float(torch.tensor(ps, dtype=torch.float64).mean()), pts, ps))
-            assert [(m, p, ps.tolist()) for m, p, ps in got] == want  # the same bits
+            assert got == want  # the same bits
 
     def test_point_score_same_bits_batched_or_alone(self):
         """Scoring many moves in one call equals scoring them a few at a time, bit for bit.
