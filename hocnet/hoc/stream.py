@@ -36,15 +36,19 @@ Entries of scans that have left the window are dropped. With ``method="conv"`` t
 entries and trees come from the connectionist layer on the 3 (trees: ``2k + 1``) scans involved,
 and no links or triples are kept.
 
-Track identification (section III-B) is one call of the identification of
-:func:`~hocnet.hoc.identify.detect` on the window's candidate points (image plus the points its
-top-layer moves name, ``support="mhoc"``) or its chain support; it is not incremental and it
-still fills window-sized arrays (the float64 ``scores`` cube of the result, the padded index
-volume of the triple search), then works on the point lists. Measured on a 640 x 512 sensor
-(``benchmarks/results/hoc_stream.md``) identification is most of a push: at 2 % clutter, order 2,
-thousands of candidate tracks per window go through its per-track Python loops. A window denser
-than the modified HOC's bound (:func:`~hocnet.hoc.functional.density_bound`) is flagged and not
-identified, as in ``detect``.
+Track identification (section III-B) runs once per window, as in ``detect``, on the window's
+candidate points (image plus the points its top-layer moves name, ``support="mhoc"``) or its
+chain support. Its decisions (each image point's best five-point sequence, near-duplicates,
+track ends) are taken over the whole window, so it is not incremental; but it starts from what
+the cache holds: the candidate triples are the cached links of successive scans restricted to
+the window's candidates and joined scan by scan (:meth:`StreamingDetector._window_triples`;
+the batch call builds a padded index volume of the window and scans the cube for that), and its
+per-candidate loops are vectorised (:mod:`hocnet.hoc._incremental`; shared with ``detect``).
+What still scales with the window's area: the float64 ``scores`` cube of the result (26 MB,
+NaN-filled, for 10 x 512 x 640) and the bool cubes of the result. Python's cyclic garbage
+collector is paused during a push (:func:`_gc_paused`). Measured on a 640 x 512 sensor:
+``benchmarks/results/hoc_stream.md``. A window denser than the modified HOC's bound
+(:func:`~hocnet.hoc.functional.density_bound`) is flagged and not identified, as in ``detect``.
 """
 
 from __future__ import annotations
@@ -261,8 +265,11 @@ def _gc_paused() -> Iterator[None]:
 
     A push allocates and frees many small Python lists (candidate tracks, their points); the
     allocations trigger collections whose full (oldest-generation) passes walk every live
-    Python object of the process, ~50 ms with torch and numpy loaded (measured on a 640 x 512
-    window at 1 % clutter: identification 97 -> 52 ms with the collector paused). The push's
+    Python object of the process, tens of milliseconds with torch and numpy loaded (measured,
+    identification of one 640 x 512 window at 1 % clutter, order 2, in a script whose full
+    collections fell inside the call: 106 -> 52 ms with the collector paused; with the earlier
+    per-path loops at 2 %, median 2090 -> 1814 ms; no change where no full collection falls
+    inside a push). The push's
     own objects hold no reference cycles and are freed by reference counting when it returns,
     so pausing changes no result and leaves no garbage behind. The collector is resumed (if it
     was enabled) when the push returns or raises. Like :mod:`timeit`, which pauses it too.
@@ -330,8 +337,8 @@ class StreamingDetector:
     (``support``, ``identify``, ``combine``, ...). A push costs one neighbour look-up between
     the previous and the new scan, the ``2k`` layer entries it makes evaluable and one marking
     tree per direction (see the module notes for what is cached; none of this depends on
-    ``window``), then, when a result is due, the window's candidate points and one track
-    identification on them (not incremental).
+    ``window``), then, when a result is due, the window's candidate points, their triples from
+    the cached links and one track identification on them (per window, see the module notes).
 
     Args:
         window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
