@@ -142,6 +142,7 @@ from typing import Any, Literal
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
+from hocnet.hoc._incremental import enumerate_paths_vectorised
 from hocnet.hoc.functional import (
     Method,
     _allowed_cached,
@@ -157,7 +158,6 @@ from hocnet.hoc.scoring import (
     DEFAULT_SCORE_SPAN,
     DEFAULT_THRESHOLD,
     point_score,
-    track_point_scores,
 )
 
 __all__ = [
@@ -290,7 +290,24 @@ def _fill_scores(
 
 
 def _group_best(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
-    """Index of the largest ``key`` in each group (first in input order on ties), -1 if empty."""
+    """Index of the largest ``key`` in each group (first in input order on ties), -1 if empty.
+
+    Two scatter reductions (the group maximum, then the first index reaching it), linear in the
+    input; with NaN keys, the sorting form (:func:`_group_best_sorted`, the reference).
+    """
+    if groups.numel() == 0 or not key.is_floating_point() or bool(key.isnan().any()):
+        return _group_best_sorted(groups, key, n_groups)
+    best = torch.full((n_groups,), -math.inf, dtype=key.dtype)
+    best.scatter_reduce_(0, groups, key, reduce="amax")
+    hit = (key == best[groups]).nonzero().squeeze(1)
+    n = groups.numel()
+    first = torch.full((n_groups,), n, dtype=torch.long)
+    first.scatter_reduce_(0, groups[hit], hit, reduce="amin")
+    return torch.where(first < n, first, -1)
+
+
+def _group_best_sorted(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """:func:`_group_best` by two stable sorts (the reference; any key dtype, NaN last)."""
     out = torch.full((n_groups,), -1, dtype=torch.long)
     if groups.numel() == 0:
         return out
@@ -576,7 +593,25 @@ def _enumerate_paths(
     s: torch.Tensor,
     max_candidates: int,
 ) -> tuple[list[list[int]], bool]:
-    """Maximal chains of accepted triples, as lists of triple indices (capped)."""
+    """Maximal chains of accepted triples, as lists of triple indices (capped).
+
+    Below the cap the vectorised form (:func:`~hocnet.hoc._incremental.enumerate_paths_vectorised`,
+    same chains, same order) does the work; at the cap, the depth-first loop below.
+    """
+    fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
+    if fast is not None:
+        return fast, False
+    return _enumerate_paths_loop(accepted, a_in, a_out, s, max_candidates)
+
+
+def _enumerate_paths_loop(
+    accepted: torch.Tensor,
+    a_in: torch.Tensor,
+    a_out: torch.Tensor,
+    s: torch.Tensor,
+    max_candidates: int,
+) -> tuple[list[list[int]], bool]:
+    """:func:`_enumerate_paths` as a depth-first loop (the reference, and the capped case)."""
     idx = accepted.nonzero().squeeze(1).tolist()
     ain, aout, sl = a_in.tolist(), a_out.tolist(), s.tolist()
     succ: dict[int, list[int]] = {}
@@ -645,17 +680,8 @@ def _select_tracks(
     a near-duplicate of a kept track is dropped too (:func:`_is_near_duplicate`; ``explained``:
     points on other kept tracks do not count as differing).
     """
-    a, b, c, sl = p0.tolist(), p1.tolist(), p2.tolist(), s.tolist()
     cands = []
-    for path in paths:
-        pts = [a[path[0]], b[path[0]]] + [c[k] for k in path]
-        if len(pts) < min_points:
-            continue
-        if track_kw is None:
-            pscores = [sl[k] for k in path]
-        else:  # the track rescored as a whole sequence (``score_span`` / ``track_combine``)
-            pscores = track_point_scores(coords[torch.tensor(pts)], **track_kw).tolist()
-        score = float(torch.tensor(pscores, dtype=torch.float64).mean())  # interior points
+    for score, pts, pscores in _score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw):
         if score < threshold:
             continue
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
@@ -667,14 +693,25 @@ def _select_tracks(
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
     xy = coords.tolist() if dedupe is not None else []
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
+    kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
         if dedupe is not None:
+            # without ``explained`` only kept tracks sharing a point can be near-duplicated (the
+            # others differ at every scan): the same answer as asking all of them; with it, a
+            # candidate's covered points are not differences, so every kept track is asked
+            if explained:
+                others = kept_scans
+            else:
+                near = sorted({i for q in pts for i in kept_at.get(q, ())})
+                others = [kept_scans[i] for i in near]
             if _is_near_duplicate(
-                pts, kept_scans, scan_of, dedupe, xy, dedupe_scans, covered, explained
+                pts, others, scan_of, dedupe, xy, dedupe_scans, covered, explained
             ):
                 continue
+            for q in pts:
+                kept_at.setdefault(q, []).append(len(kept_scans))
             kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
         # Track objects only for the kept candidates (the others cost no tensor work)
@@ -685,6 +722,66 @@ def _select_tracks(
         kept = torch.tensor([q for _, pts in tracks for q in pts])
         cleaned[flat[kept]] = True
     return tracks
+
+
+def _score_paths(
+    paths: list[list[int]],
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    s: torch.Tensor,
+    coords: torch.Tensor,
+    min_points: int,
+    track_kw: dict[str, Any] | None,
+) -> list[tuple[float, list[int], list[float]]]:
+    """Points, interior point scores and mean score of every candidate path, in path order.
+
+    Paths shorter than ``min_points`` points are left out. The vectorised form of scoring each
+    path on its own (:func:`~hocnet.hoc.scoring.track_point_scores` of its points, or its
+    triple scores when ``track_kw`` is ``None``, then their mean): paths of equal length are
+    scored together, with the same element-wise operations and one row mean per path, so the
+    values are the same bits (tested against the per-path loop).
+    """
+    out: list[tuple[float, list[int], list[float]] | None] = [None] * len(paths)
+    by_len: dict[int, list[int]] = {}
+    for i, path in enumerate(paths):
+        if len(path) + 2 >= min_points:
+            by_len.setdefault(len(path), []).append(i)
+    xy = coords.to(torch.float64) if track_kw is not None else coords
+    groups = []
+    moves: list[tuple[torch.Tensor, torch.Tensor]] = []
+    for n_tr, rows in by_len.items():
+        tri = torch.tensor([paths[i] for i in rows], dtype=torch.long).reshape(len(rows), n_tr)
+        pts = torch.cat([p0[tri[:, :1]], p1[tri[:, :1]], p2[tri]], dim=1)  # (R, n_tr + 2)
+        groups.append((rows, tri, pts))
+        if track_kw is not None:  # the moves of each interior point over ``span`` scans
+            n = n_tr + 2
+            span = track_kw["span"]
+            p = xy[pts]  # (R, n, 3)
+            i = torch.arange(1, n - 1)
+            s1 = torch.clamp(i, max=span)
+            s2 = torch.clamp(n - 1 - i, max=span)
+            m1 = (p[:, i] - p[:, i - s1]) / s1.to(torch.float64)[None, :, None]
+            m2 = (p[:, i + s2] - p[:, i]) / s2.to(torch.float64)[None, :, None]
+            moves.append((m1.reshape(-1, 3), m2.reshape(-1, 3)))
+    if track_kw is not None and moves:  # the track rescored as a whole sequence, one call
+        kw = {key: val for key, val in track_kw.items() if key != "span"}
+        m1 = torch.cat([m for m, _ in moves])
+        m2 = torch.cat([m for _, m in moves])
+        flat_scores = torch.as_tensor(
+            point_score(m1[:, 2], m1[:, 1], m2[:, 2], m2[:, 1], **kw), dtype=torch.float64
+        )
+        parts = flat_scores.split([m.shape[0] for m, _ in moves])
+    for g, (rows, tri, pts) in enumerate(groups):
+        if track_kw is None:
+            pscores = s[tri]
+        else:
+            pscores = parts[g].reshape(tri.shape)
+        means = pscores.mean(dim=1).tolist()  # the interior points
+        pts_l, ps_l = pts.tolist(), pscores.tolist()
+        for r, i in enumerate(rows):
+            out[i] = (means[r], pts_l[r], ps_l[r])
+    return [item for item in out if item is not None]
 
 
 def _is_near_duplicate(
@@ -843,19 +940,24 @@ def _best_paths(
     bw, bptr = sweep(a_out, a_in)  # continue with a triple ending on my in-edge
     lb = torch.arange(L).view(1, L, 1)
     lf = torch.arange(L).view(1, 1, L)
-    total = bw[:, :, None] + fw[:, None, :] - w.view(k, 1, 1)  # (K, L, L)
+    # only the triples through a point of ``points`` can be its best (their relative order
+    # kept, so ties go as over all triples): the (K, L, L) table on those rows only
+    sub = (points[p0] | points[p1] | points[p2]).nonzero().squeeze(1)
+    ks = sub.numel()
+    total = bw[sub][:, :, None] + fw[sub][:, None, :] - w[sub].view(ks, 1, 1)  # (Ks, L, L)
     length = lb + lf + 3
     total = torch.where(length >= min_points, total, neg)
-    flat_best, arg = total.reshape(k, -1).max(dim=1)
+    flat_best, arg = total.reshape(ks, -1).max(dim=1)
     # best chain per point: over the triples that contain it
-    members = torch.cat([p0, p1, p2])
+    members = torch.cat([p0[sub], p1[sub], p2[sub]])
     values = flat_best.repeat(3)
     owner = _group_best(members, values, n)
-    chosen = owner[points & (owner >= 0)] % k
-    chosen = torch.unique(chosen[flat_best[chosen] >= -1e-9])
-    if chosen.numel() == 0:
+    local = owner[points & (owner >= 0)] % max(ks, 1)
+    local = torch.unique(local[flat_best[local] >= -1e-9])
+    if local.numel() == 0:
         return []
-    nb, nf = arg[chosen] // L, arg[chosen] % L
+    chosen = sub[local]
+    nb, nf = arg[local] // L, arg[local] % L
     # walk the pointers of all chosen chains at once, one step per column
     back = _walk(bptr, chosen, nb)
     fwd = _walk(fptr, chosen, nf)
@@ -960,11 +1062,20 @@ def _identify_sequences(
     dedupe: bool | int = False,
     track_kw: dict[str, Any] | None = None,
     shared_points: bool = False,
+    triples: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
-    """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene."""
+    """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene.
+
+    ``triples``: the ``(flat, p0, p1, p2)`` of ``_sparse_triples(support[None], ...)``, forward,
+    when the caller has them already (the streaming detector builds them from its cached links);
+    ``None``: computed here.
+    """
     n_t, h, w = support.shape
-    allowed = _allowed_cached(v, delta, "cpu")
-    flat, p0, p1, p2 = _sparse_triples(support[None], allowed, v, 1)
+    if triples is None:
+        allowed = _allowed_cached(v, delta, "cpu")
+        flat, p0, p1, p2 = _sparse_triples(support[None], allowed, v, 1)
+    else:
+        flat, p0, p1, p2 = triples
     coords = torch.stack([flat // (h * w), (flat // w) % h, flat % w], dim=1)
     scores_cube = torch.full((n_t * h * w,), math.nan, dtype=torch.float64)
     cleaned = torch.zeros(n_t * h * w, dtype=torch.bool)

@@ -36,21 +36,28 @@ Entries of scans that have left the window are dropped. With ``method="conv"`` t
 entries and trees come from the connectionist layer on the 3 (trees: ``2k + 1``) scans involved,
 and no links or triples are kept.
 
-Track identification (section III-B) is one call of the identification of
-:func:`~hocnet.hoc.identify.detect` on the window's candidate points (image plus the points its
-top-layer moves name, ``support="mhoc"``) or its chain support; it is not incremental and it
-still fills window-sized arrays (the float64 ``scores`` cube of the result, the padded index
-volume of the triple search), then works on the point lists. Measured on a 640 x 512 sensor
-(``benchmarks/results/hoc_stream.md``) identification is most of a push: at 2 % clutter, order 2,
-thousands of candidate tracks per window go through its per-track Python loops. A window denser
-than the modified HOC's bound (:func:`~hocnet.hoc.functional.density_bound`) is flagged and not
-identified, as in ``detect``.
+Track identification (section III-B) runs once per window, as in ``detect``, on the window's
+candidate points (image plus the points its top-layer moves name, ``support="mhoc"``) or its
+chain support. Its decisions (each image point's best five-point sequence, near-duplicates,
+track ends) are taken over the whole window, so it is not incremental; but it starts from what
+the cache holds: the candidate triples are the cached links of successive scans restricted to
+the window's candidates and joined scan by scan (:meth:`StreamingDetector._window_triples`;
+the batch call builds a padded index volume of the window and scans the cube for that), and its
+per-candidate loops are vectorised (:mod:`hocnet.hoc._incremental`; shared with ``detect``).
+What still scales with the window's area: the float64 ``scores`` cube of the result (26 MB,
+NaN-filled, for 10 x 512 x 640) and the bool cubes of the result. Python's cyclic garbage
+collector is paused during a push (:func:`_gc_paused`). Measured on a 640 x 512 sensor:
+``benchmarks/results/hoc_stream.md``. A window denser than the modified HOC's bound
+(:func:`~hocnet.hoc.functional.density_bound`) is flagged and not identified, as in ``detect``.
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -60,12 +67,16 @@ from hocnet._check import as_cube, check_choice, check_int, check_number
 from hocnet.hoc.functional import density_bound, hoc_layer, support_from_levels
 from hocnet.hoc.identify import (
     DEFAULT_DEDUPE,
+    DEFAULT_SHARED_POINTS,
     MAX_CANDIDATES,
     HOCResult,
     Identify,
     Track,
     _dedupe_scans,
     _identify,
+    _identify_sequences,
+    _score_kwargs,
+    _track_kwargs,
 )
 from hocnet.hoc.kernels import allowed_moves, get_direction_mask_kernels, get_shift_kernels
 from hocnet.hoc.scoring import COMBINE, DEFAULT_COMBINE, DEFAULT_SCORE_SPAN, DEFAULT_THRESHOLD
@@ -249,6 +260,69 @@ class _Direction:
                 del cache[t]
 
 
+@contextlib.contextmanager
+def _gc_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector for one push (our addition, latency only).
+
+    A push allocates and frees many small Python lists (candidate tracks, their points); the
+    allocations trigger collections whose full (oldest-generation) passes walk every live
+    Python object of the process, tens of milliseconds with torch and numpy loaded (measured,
+    identification of one 640 x 512 window at 1 % clutter, order 2, in a script whose full
+    collections fell inside the call: 106 -> 52 ms with the collector paused; with the earlier
+    per-path loops at 2 %, median 2090 -> 1814 ms; no change where no full collection falls
+    inside a push). The push's
+    own objects hold no reference cycles and are freed by reference counting when it returns,
+    so pausing changes no result and leaves no garbage behind. The collector is resumed (if it
+    was enabled) when the push returns or raises. Like :mod:`timeit`, which pauses it too.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def _identify_window(
+    work: torch.Tensor,
+    roots: torch.Tensor | None,
+    triples: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None,
+    kwargs: dict[str, Any],
+) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
+    """Track identification of one ``(window, H, W)`` window, as :func:`detect` runs it.
+
+    With ``triples`` (``method="paper"`` / ``"assignment"``): the sequence identification of
+    :func:`~hocnet.hoc.identify.identify_tracks` on the window's candidate points, fed the
+    candidate triples the detector built from its cached links (no window-sized index volume);
+    else the whole :func:`~hocnet.hoc.identify.identify_tracks` call.
+    """
+    if triples is None:
+        return _identify(work, roots=roots, **kwargs)
+    kw = _score_kwargs(
+        kwargs["A1"], kwargs["alpha1"], kwargs["A2"], kwargs["alpha2"], kwargs["combine"]
+    )
+    tracks, scores, cleaned, capped = _identify_sequences(
+        work,
+        roots,
+        kwargs["v"],
+        kwargs["delta"],
+        kwargs["threshold"],
+        kwargs["min_points"],
+        kw,
+        0,
+        kwargs["method"],
+        kwargs["max_candidates"],
+        dedupe=kwargs["dedupe"],
+        track_kw=_track_kwargs(kw, kwargs["score_span"], None),
+        shared_points=kwargs["shared_points"],
+        triples=triples,
+    )
+    for i, track in enumerate(tracks, start=1):
+        track.id = i
+    return tracks, scores, cleaned, capped
+
+
 def _union(parts: list[torch.Tensor]) -> torch.Tensor:
     return torch.unique(torch.cat(parts)) if len(parts) > 1 else parts[0]
 
@@ -265,8 +339,8 @@ class StreamingDetector:
     (``support``, ``identify``, ``combine``, ...). A push costs one neighbour look-up between
     the previous and the new scan, the ``2k`` layer entries it makes evaluable and one marking
     tree per direction (see the module notes for what is cached; none of this depends on
-    ``window``), then, when a result is due, the window's candidate points and one track
-    identification on them (not incremental).
+    ``window``), then, when a result is due, the window's candidate points, their triples from
+    the cached links and one track identification on them (per window, see the module notes).
 
     Args:
         window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
@@ -297,6 +371,8 @@ class StreamingDetector:
             :func:`~hocnet.hoc.identify.identify_tracks`).
         score_span: scans a track's moves are averaged over when it is scored
             (:func:`~hocnet.hoc.scoring.track_point_scores`; as in
+            :func:`~hocnet.hoc.identify.detect`).
+        shared_points: several five-point sequences per image point at crossings (as in
             :func:`~hocnet.hoc.identify.detect`).
 
     Raises:
@@ -337,6 +413,7 @@ class StreamingDetector:
         max_candidates: int = MAX_CANDIDATES,
         dedupe: bool | int = DEFAULT_DEDUPE,
         score_span: int = DEFAULT_SCORE_SPAN,
+        shared_points: bool = DEFAULT_SHARED_POINTS,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
@@ -369,6 +446,7 @@ class StreamingDetector:
             "max_candidates": check_int("max_candidates", max_candidates, minimum=1),
             "dedupe": _dedupe_scans(dedupe),
             "score_span": check_int("score_span", score_span, minimum=1),
+            "shared_points": bool(shared_points),
         }
         self._bound = density_bound("modified", self.v, self.delta)
         self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers
@@ -537,6 +615,11 @@ class StreamingDetector:
                 one by one), is empty, holds values other than 0/1, or its size differs from the
                 first scan's. A refused scan leaves the detector unchanged.
         """
+        with _gc_paused():
+            return self._push(scan)
+
+    def _push(self, scan: torch.Tensor) -> StreamResult | None:
+        """:meth:`push` with the garbage collector paused."""
         points = self._frame(scan)
         n = self.pushed
         self.pushed += 1
@@ -553,6 +636,51 @@ class StreamingDetector:
         if self.pushed < self.window or (self.pushed - self.window) % self.stride:
             return None
         return self._emit()
+
+    def _window_points(self, start: int, trees: bool) -> list[torch.Tensor]:
+        """Per scan of the window starting at ``start``: sorted flat pixel indices.
+
+        The points of :meth:`_window_cube` with ``trees``, one tensor per scan, without the cube.
+        """
+        n, k = self.pushed - 1, self.order
+        parts: list[list[torch.Tensor]] = [[] for _ in range(self.window)]
+        for cache, roots in zip(
+            self._dirs, (range(start, n - 2 * k + 1), range(start + 2 * k, n + 1)), strict=True
+        ):
+            for r in roots:
+                if trees:
+                    for j, pts in enumerate(cache.trees.get(r, ())):
+                        parts[r + cache.s * j - start].append(pts)
+                else:
+                    parts[r - start].append(cache.levels[k].get(r, _EMPTY))
+        return [_union(p) if p else _EMPTY for p in parts]
+
+    def _window_triples(
+        self, start: int, points: list[torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(flat, p0, p1, p2)`` of the forward triples among the window's candidate points.
+
+        What ``functional._sparse_triples`` returns on the ``(window, H, W)`` cube of
+        ``points`` (same triples, same order: by first point, then first move, then second
+        move), built from the cached links of successive scans restricted to the candidates
+        and joined scan by scan (:meth:`_Grid.join`), without the cube's padded index volume.
+        """
+        h, w = self._shape
+        hw = h * w
+        fwd = self._dirs[0]
+        flat = torch.cat([p + t * hw for t, p in enumerate(points)])
+        pairs = [
+            self._grid.restrict(fwd.links.get(start + t, _NO_EDGES), points[t], points[t + 1])
+            for t in range(self.window - 1)
+        ]
+        p0s, p1s, p2s = [], [], []
+        for t in range(self.window - 2):
+            a, b, c = self._grid.join(pairs[t], pairs[t + 1], self._allowed)
+            p0s.append(a + t * hw)
+            p1s.append(b + (t + 1) * hw)
+            p2s.append(c + (t + 2) * hw)
+        p0, p1, p2 = (torch.searchsorted(flat, torch.cat(x)) for x in (p0s, p1s, p2s))
+        return flat, p0, p1, p2
 
     def _window_cube(self, start: int, trees: bool) -> torch.Tensor:
         """A ``(window, H, W)`` cube of the window starting at absolute scan ``start``.
@@ -580,6 +708,14 @@ class StreamingDetector:
             cube[torch.cat(parts)] = True
         return cube.reshape(self.window, h, w)
 
+    def _cube(self, points: list[torch.Tensor]) -> torch.Tensor:
+        """The ``(window, H, W)`` bool cube of per-scan flat pixel indices."""
+        h, w = self._shape
+        cube = torch.zeros(self.window, h * w, dtype=torch.bool)
+        for t, p in enumerate(points):
+            cube[t, p] = True
+        return cube.reshape(self.window, h, w)
+
     def _emit(self) -> StreamResult:
         """The window's result, as :func:`~hocnet.hoc.identify.detect` computes it."""
         start = self.pushed - self.window
@@ -594,12 +730,16 @@ class StreamingDetector:
             if self.support == "mhoc":
                 candidates = support.clone()
             work, roots = None, None
-        elif self.support == "chain":
-            support = work = self._window_cube(start, trees=True)
-            roots = None
         else:
-            support = roots = self._window_cube(start, trees=False)
-            candidates = work = self._window_cube(start, trees=True)
+            sparse = self.method != "conv" and self._identify_kwargs["method"] != "greedy"
+            points = self._window_points(start, trees=True)
+            if self.support == "chain":
+                support = work = self._cube(points)
+                roots = None
+            else:
+                support = roots = self._window_cube(start, trees=False)
+                candidates = work = self._cube(points)
+            triples = self._window_triples(start, points) if sparse else None
         notes = []
         if dense:
             notes.append(
@@ -611,7 +751,9 @@ class StreamingDetector:
             scores = torch.full(support.shape, math.nan, dtype=torch.float64)
             cleaned = torch.zeros_like(support)
         else:
-            tracks, scores, cleaned, capped = _identify(work, roots=roots, **self._identify_kwargs)
+            tracks, scores, cleaned, capped = _identify_window(
+                work, roots, triples, self._identify_kwargs
+            )
             if capped:
                 notes.append(
                     "track identification enumerated more than "
@@ -619,7 +761,7 @@ class StreamingDetector:
                     "chains followed their best continuation only"
                 )
         for note in notes:
-            warnings.warn(note, RuntimeWarning, stacklevel=3)
+            warnings.warn(note, RuntimeWarning, stacklevel=4)
         self._associate(tracks, start)
         result = HOCResult(
             support=support,

@@ -408,3 +408,165 @@ class TestErrors:
         with pytest.raises(ValueError, match="`scan`: expected shape"):
             det.push(torch.zeros(6, 7))
         assert det.pushed == 1
+
+
+# ----------------------------------------------------------------------------- latency work
+
+
+def _clutter_with_targets(n_t, h, w, density, seed):
+    """Uniform clutter plus three straight targets at non-integer speeds (1-3 px/scan)."""
+    gen = torch.Generator().manual_seed(seed)
+    cube = torch.rand(n_t, h, w, generator=gen) < density
+    for _ in range(3):
+        y0, x0 = (torch.rand(2, generator=gen) * torch.tensor([h, w])).tolist()
+        angle = float(torch.rand(1, generator=gen)) * 2 * math.pi
+        speed = 1.0 + 2.0 * float(torch.rand(1, generator=gen))
+        for t in range(n_t):
+            y = math.floor(y0 + t * speed * math.sin(angle) + 0.5) % h
+            x = math.floor(x0 + t * speed * math.cos(angle) + 0.5) % w
+            cube[t, y, x] = True
+    return cube
+
+
+class TestLatencyPathsEqualBatch:
+    """The streaming fast paths (window triples from cached links, vectorised identification
+    helpers) against batch ``detect`` and against the loops they replace."""
+
+    @pytest.mark.parametrize("density", [0.005, 0.015, 0.03])
+    @pytest.mark.parametrize("order", [2, 3])
+    @pytest.mark.parametrize("stride", [1, 2])
+    @pytest.mark.parametrize("support", ["mhoc", "chain"])
+    def test_random_scenes_every_window(self, density, order, stride, support):
+        seed = int(1000 * density) + 10 * order + stride
+        cube = _clutter_with_targets(13, 40, 56, density, seed)
+        det = StreamingDetector(window=10, stride=stride, order=order, support=support)
+        outs = _stream(det, cube)
+        assert len(outs) == 3 // stride + 1
+        for out in outs:
+            want = detect(cube[out.start : out.stop], order=order, support=support)
+            _assert_same(out.result, want)
+
+    @pytest.mark.parametrize("identify", ["assignment", "greedy"])
+    def test_other_identifications(self, identify):
+        cube = _clutter_with_targets(12, 40, 48, 0.015, 7)
+        det = StreamingDetector(window=9, stride=1, order=2, identify=identify, score_span=1)
+        for out in _stream(det, cube):
+            want = detect(cube[out.start : out.stop], identify=identify, score_span=1)
+            _assert_same(out.result, want)
+
+    @pytest.mark.parametrize("support", ["mhoc", "chain"])
+    def test_window_triples_equal_sparse_triples(self, support):
+        from hocnet.hoc.functional import _sparse_triples
+
+        cube = _clutter_with_targets(12, 36, 40, 0.03, 3)
+        det = StreamingDetector(window=8, stride=1, order=2, support=support)
+        checked = 0
+        for t in range(cube.shape[0]):
+            if det.push(cube[t]) is None:
+                continue
+            start = det.pushed - det.window
+            points = det._window_points(start, trees=True)
+            got = det._window_triples(start, points)
+            want = _sparse_triples(det._cube(points)[None], allowed_moves(4, DELTA), 4, 1)
+            for g, w in zip(got, want, strict=True):
+                assert torch.equal(g, w)
+            checked += int(got[1].numel() > 0)
+        assert checked > 0
+
+    @pytest.mark.parametrize("seed", range(40))
+    def test_enumerate_paths_vectorised_equals_loop(self, seed):
+        from hocnet.hoc._incremental import enumerate_paths_vectorised
+        from hocnet.hoc.identify import _enumerate_paths, _enumerate_paths_loop
+
+        gen = torch.Generator().manual_seed(seed)
+        k = int(torch.randint(0, 150, (1,), generator=gen))
+        a_in = torch.randint(0, 30, (k,), generator=gen)
+        a_out = a_in + torch.randint(1, 5, (k,), generator=gen)  # edge ids grow: a DAG
+        s = torch.randint(0, 4, (k,), generator=gen).double() / 2  # many ties
+        accepted = torch.rand(k, generator=gen) < 0.8
+        for cap in (3, 40, 20000):
+            want, capped = _enumerate_paths_loop(accepted, a_in, a_out, s, cap)
+            fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, cap)
+            if fast is None:  # at least `cap` chains: the loop's cap decides
+                assert capped
+            else:
+                assert not capped
+                assert fast == want
+            assert _enumerate_paths(accepted, a_in, a_out, s, cap) == (want, capped)
+
+    @pytest.mark.parametrize("span", [1, 2, 3])
+    @pytest.mark.parametrize("combine", ["min", "mean"])
+    def test_score_paths_equals_per_path_scores(self, span, combine):
+        from hocnet.hoc.identify import _score_paths
+        from hocnet.hoc.scoring import track_point_scores
+
+        gen = torch.Generator().manual_seed(span)
+        n = 60
+        coords = torch.stack(
+            [
+                torch.randint(0, 10, (n,), generator=gen),
+                torch.randint(0, 30, (n,), generator=gen),
+                torch.randint(0, 30, (n,), generator=gen),
+            ],
+            dim=1,
+        )
+        k = 80
+        p0, p1, p2 = (torch.randint(0, n, (k,), generator=gen) for _ in range(3))
+        s = torch.rand(k, generator=gen, dtype=torch.float64) * 4
+        paths = [
+            torch.randint(0, k, (int(torch.randint(1, 9, (1,), generator=gen)),), generator=gen)
+            for _ in range(50)
+        ]
+        paths = [p.tolist() for p in paths]
+        kw = {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": combine}
+        for track_kw in (None, {**kw, "span": span}):
+            got = _score_paths(paths, p0, p1, p2, s, coords, 4, track_kw)
+            want = []
+            for path in paths:
+                pts = [int(p0[path[0]]), int(p1[path[0]])] + [int(p2[j]) for j in path]
+                if len(pts) < 4:
+                    continue
+                if track_kw is None:
+                    ps = [float(s[j]) for j in path]
+                else:
+                    ps = track_point_scores(coords[torch.tensor(pts)], **track_kw).tolist()
+                want.append((float(torch.tensor(ps, dtype=torch.float64).mean()), pts, ps))
+            assert got == want  # the same bits
+
+    def test_point_score_same_bits_batched_or_alone(self):
+        """Scoring many moves in one call equals scoring them a few at a time, bit for bit.
+
+        The moves of ``score_span <= 2`` with ``v = 4``: components ``k / 2``, ``|k| <= 8``
+        (every pair of such moves); what lets :func:`_score_paths` batch the paths.
+        """
+        from hocnet.hoc.scoring import point_score
+
+        vals = torch.arange(-8, 9, dtype=torch.float64) / 2
+        g = torch.cartesian_prod(vals, vals, vals, vals)
+        for combine in ("min", "mean"):
+            batched = point_score(g[:, 0], g[:, 1], g[:, 2], g[:, 3], combine=combine)
+            alone = torch.cat(
+                [
+                    point_score(c[:, 0], c[:, 1], c[:, 2], c[:, 3], combine=combine)
+                    for c in g.split(7)
+                ]
+            )
+            assert torch.equal(batched, alone)
+
+    def test_push_restores_the_garbage_collector(self):
+        import gc
+
+        det = StreamingDetector(window=5, stride=1, order=2)
+        scan = torch.zeros(8, 8, dtype=torch.bool)
+        assert gc.isenabled()
+        det.push(scan)
+        assert gc.isenabled()
+        gc.disable()
+        try:
+            det.push(scan)
+            assert not gc.isenabled()
+        finally:
+            gc.enable()
+        with pytest.raises(ValueError, match="scan"):
+            det.push(torch.zeros(9, 9, dtype=torch.bool))
+        assert gc.isenabled()
