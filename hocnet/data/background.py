@@ -10,7 +10,7 @@ and keeps what moves relative to it.
 Two parts, each a functional core plus a thin ``nn.Module``:
 
 * **Registration.** :func:`estimate_shifts` finds the global shift between consecutive frames by
-  phase correlation (``torch.fft``) with a parabolic sub-pixel refinement of the correlation
+  phase correlation (``torch.fft``) with an upsampled-DFT sub-pixel refinement of the correlation
   peak, accepted only when the peak stands out of the correlation surface's noise (a CFAR
   test, :func:`shift_significance`; our addition), else the frame keeps a zero shift;
   :func:`shift_frames` moves frames by sub-pixel shifts (bilinear or Fourier);
