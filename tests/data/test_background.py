@@ -1,18 +1,22 @@
 import math
+from statistics import NormalDist
 
 import numpy as np
 import pytest
 import torch
 
 from hocnet.data.background import (
+    REGISTRATION_PFA,
     BackgroundRemoval,
     Registration,
     estimate_shifts,
     register,
     remove_background,
     shift_frames,
+    shift_significance,
     temporal_background,
 )
+from hocnet.data.infrared import IRTarget, simulate_ir
 
 # ----------------------------------------------------------------------------- loop references
 
@@ -116,6 +120,37 @@ def power_law_texture(h, w, seed):
     k[0, 0] = 1.0
     img = torch.fft.ifft2(spec / k).real
     return (img - img.mean()) / img.std()
+
+
+def expected_significance(a, b, taper=True, guard=2, train=6):
+    """Local peak-to-sidelobe ratio of the phase correlation of ``b`` against ``a``, by loops.
+
+    Written from the definition: r = IFFT(B conj(A) / |B conj(A)|) of the mean-removed
+    (Hann-tapered) frames; the training cells are those within ``train`` px of the arg-max per
+    axis (circularly; fewer on small frames) and outside the ``guard`` square (smaller on
+    small frames); ratio = (peak - their mean) / their unbiased std.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    h, w = a.shape
+    win = np.outer(np.hanning(h), np.hanning(w)) if taper else np.ones((h, w))
+    fa = np.fft.fft2((a - a.mean()) * win)
+    fb = np.fft.fft2((b - b.mean()) * win)
+    cross = fb * np.conj(fa)
+    mag = np.abs(cross)
+    cross = cross / np.where(mag > 0, mag, 1.0)
+    r = np.fft.ifft2(cross).real
+    iy, ix = np.unravel_index(int(np.argmax(r)), r.shape)
+    ry, rx = min(train, (h - 1) // 2), min(train, (w - 1) // 2)
+    g = min(guard, max(ry, rx) - 1)
+    cells = []
+    for dy in range(-ry, ry + 1):
+        for dx in range(-rx, rx + 1):
+            if abs(dy) > g or abs(dx) > g:
+                cells.append(r[(iy + dy) % h, (ix + dx) % w])
+    mean = sum(cells) / len(cells)
+    std = math.sqrt(sum((c - mean) ** 2 for c in cells) / (len(cells) - 1))
+    return (r[iy, ix] - mean) / std
 
 
 def fourier_shift(img, dx, dy):
@@ -311,6 +346,124 @@ class TestEstimateShifts:
         assert estimate_shifts(torch.zeros(0, 3, 8, 8)).shape == (0, 3, 2)
 
 
+class TestPeakTest:
+    """The peak test of ``estimate_shifts`` (a CFAR on the phase-correlation surface)."""
+
+    @pytest.mark.parametrize("seed", [0, 1, 2])
+    def test_still_clear_sky_with_dim_target(self, seed):
+        """Still camera, clear sky, 0.25 px jitter, one dim target: shifts stay within 1 px.
+
+        The user's report: white noise + a dim target, 48 x 48; without the test the
+        registration locked onto noise (shifts up to 12 px here, drift of tens of px).
+        """
+        target = IRTarget(10.0, 20.0, 0.5, 0.2, snr_db=6.0)
+        seq = simulate_ir((40, 48, 48), [target], clouds="clear", jitter=0.25, seed=seed)
+        got = estimate_shifts(seq.frames)
+        assert bool(torch.isfinite(got).all())
+        assert got.norm(dim=-1).max() <= 1.0
+        assert got.sum(dim=0).norm() <= 1.0  # no drift
+        old = estimate_shifts(seq.frames, pfa=None)  # the behaviour before the test
+        assert old.norm(dim=-1).max() > 3.0  # (so this test can fail)
+
+    def test_white_noise_rejected(self):
+        """Independent white-noise frames: no pair passes at the default pfa (1e-6).
+
+        Measured when written: 0 of 2000 pairs of 48 x 48 frames; ratios up to about 5.2
+        against the threshold 6.1.
+        """
+        g = torch.Generator().manual_seed(11)
+        frames = torch.randn(4, 51, 48, 48, generator=g)
+        assert estimate_shifts(frames).abs().max() == 0
+        ratio = shift_significance(frames)[:, 1:]
+        assert ratio.max() < 6.13 and ratio.min() > 1.0
+
+    @pytest.mark.parametrize("value", [0.0, 7.3, 1000.1, -3e5])
+    @pytest.mark.parametrize("shape", [(48, 48), (17, 30), (1, 9), (3, 3), (1, 1)])
+    def test_flat_frames_zero(self, value, shape):
+        frames = torch.full((5, *shape), value)
+        for pfa in (REGISTRATION_PFA, None):
+            got = estimate_shifts(frames, pfa=pfa)
+            assert got.tolist() == [[0.0, 0.0]] * 5
+        assert not shift_significance(frames).isnan().any()
+        result = register(frames)
+        assert not result.frames.isnan().any() and result.offsets.abs().max() == 0
+
+    @pytest.mark.parametrize("seed", [0, 1])
+    def test_textured_pan_recovered(self, seed):
+        """A textured scene panning by known sub-pixel steps (crops, noise): all accepted."""
+        g = torch.Generator().manual_seed(seed)
+        img = power_law_texture(128, 128, seed)
+        true = torch.rand(8, 2, generator=g, dtype=torch.float64) * 8 - 4
+        pos = true.cumsum(dim=0)
+        cube = torch.stack([img] + [fourier_shift(img, float(x), float(y)) for x, y in pos])
+        cube = cube[:, 32:96, 32:96] + 0.05 * torch.randn(9, 64, 64, generator=g)
+        got = estimate_shifts(cube)
+        assert (got[1:] - true).abs().max() < 0.1
+        torch.testing.assert_close(got, estimate_shifts(cube, pfa=None))
+        assert shift_significance(cube)[1:].min() > 20  # far above the threshold (6.2)
+
+    def test_noise_frame_in_a_pan_keeps_zero(self):
+        """A frame pair without common structure keeps a zero shift; the others are kept."""
+        img = power_law_texture(96, 96, 3)
+        cube = torch.stack([img.roll(n, dims=1) for n in range(5)])
+        cube[3] = torch.randn(96, 96, generator=torch.Generator().manual_seed(0))
+        got = estimate_shifts(cube, taper=False)
+        assert got[:, 1].abs().max() < 1e-6
+        assert got[:, 0].tolist() == pytest.approx([0.0, 1.0, 1.0, 0.0, 0.0], abs=1e-4)
+
+    @pytest.mark.parametrize("taper", [True, False])
+    @pytest.mark.parametrize("shape", [(12, 12), (20, 9), (5, 7), (1, 10)])
+    def test_significance_reference(self, taper, shape):
+        g = torch.Generator().manual_seed(4)
+        frames = torch.rand(3, *shape, generator=g, dtype=torch.float64)
+        frames[2] = frames[1].roll(1, dims=-1) + 0.3 * frames[2]
+        got = shift_significance(frames, taper=taper)
+        assert got[0] == 0
+        for n in (1, 2):
+            want = expected_significance(frames[n - 1], frames[n], taper=taper)
+            assert float(got[n]) == pytest.approx(want, rel=1e-6, abs=1e-9)
+
+    def test_threshold_rule(self):
+        """A shift is kept iff the ratio exceeds Phi^-1(1 - pfa / (H W))."""
+        g = torch.Generator().manual_seed(5)
+        img = torch.randn(32, 32, generator=g)
+        frames = torch.stack(
+            [img]
+            + [
+                img.roll(2, dims=0) + s * torch.randn(32, 32, generator=g)
+                for s in (0.5, 1.5, 3.0, 6.0)
+            ]
+        )
+        ratio = shift_significance(frames, taper=False)
+        free = estimate_shifts(frames, taper=False, pfa=None)
+        for pfa in (1e-2, 1e-6, 1e-12):
+            tau = NormalDist().inv_cdf(1 - pfa / (32 * 32))
+            got = estimate_shifts(frames, taper=False, pfa=pfa)
+            keep = (ratio > tau).unsqueeze(-1)
+            torch.testing.assert_close(got, torch.where(keep, free, torch.zeros_like(free)))
+        assert (ratio[1:] > 6.0).any() and (ratio[1:] < 6.0).any()  # both sides are exercised
+
+    def test_batched_and_empty(self):
+        frames = torch.randn(2, 4, 16, 16)
+        frames[1, 2] = frames[1, 1].roll(1, dims=0)
+        got = shift_significance(frames)
+        assert got.shape == (2, 4)
+        torch.testing.assert_close(got[1], shift_significance(frames[1]))
+        assert shift_significance(torch.zeros(0, 3, 8, 8)).shape == (0, 3)
+        assert shift_significance(torch.zeros(1, 8, 8)).tolist() == [0.0]
+
+    @pytest.mark.parametrize("pfa", [0.0, 1.0, -0.1, math.nan])
+    def test_pfa_errors(self, pfa):
+        with pytest.raises(ValueError, match="`pfa`"):
+            estimate_shifts(torch.zeros(2, 8, 8), pfa=pfa)
+        with pytest.raises(ValueError, match="`pfa`"):
+            Registration(pfa=pfa)
+
+    def test_pfa_type_error(self):
+        with pytest.raises(TypeError, match="`pfa`"):
+            estimate_shifts(torch.zeros(2, 8, 8), pfa="small")
+
+
 class TestRegister:
     def test_aligns_onto_first_frame(self):
         img = torch.rand(32, 32, generator=torch.Generator().manual_seed(0))
@@ -325,3 +478,6 @@ class TestRegister:
         want = register(frames, mode="fourier")
         torch.testing.assert_close(out.frames, want.frames)
         torch.testing.assert_close(out.shifts, want.shifts)
+        free = Registration(pfa=None)(frames)
+        torch.testing.assert_close(free.shifts, register(frames, pfa=None).shifts)
+        assert "pfa=None" in repr(Registration(pfa=None))
