@@ -20,13 +20,15 @@ Short forms kept from the earlier ``argparse`` front end: ``--max-epochs N``
 (``--trainer.max_epochs``), ``--out DIR`` (``--trainer.default_root_dir``), ``--seed N``
 (``--seed_everything``), ``--no-progress`` or ``-q`` (``--trainer.enable_progress_bar false``),
 and space-separated values of one option (``--data.shape 6 24 24``) are read as a list.
-The progress bar is off by default when stderr is not a terminal (logs, pipes).
+The progress bar is off by default when stderr is not a terminal (logs, pipes):
+``--trainer.enable_progress_bar`` is ``null`` (auto) unless given.
 
 Errors (our addition over ``LightningCLI``'s): every parse or value error is a :class:`ConfigError`
 of one line naming the flag (``--model.lr: expected a finite number, got nan``), raised before
-anything is written or the seed is set; ``--out`` must be a folder, ``--data.n_train`` and
-``--data.n_test`` at least 1, ``--trainer.max_epochs`` / ``--trainer.max_steps`` not 0. A run that
-fails while training removes the files it created (earlier runs' versions are kept).
+anything is written and before the line ``Seed set to N``; ``--out`` must be a folder,
+``--data.n_train`` and ``--data.n_test`` at least 1, ``--trainer.max_epochs`` / ``max_steps`` /
+``limit_train_batches`` not 0. A run that fails while training removes the files it created
+(earlier runs' versions are kept; an interrupted run keeps its checkpoints).
 Needs the ``learn`` extra (``lightning``, ``torchmetrics``, ``jsonargparse[signatures]``).
 """
 
@@ -319,13 +321,17 @@ class HocnetCLI(LightningCLI):
     def instantiate_trainer(self, **kwargs: Any) -> L.Trainer:
         """The trainer, with the CSV logger in place of ``logger=True``.
 
-        A ``ModelCheckpoint(save_last=True)`` is added unless ``--trainer.enable_checkpointing
-        false``, ``--trainer.fast_dev_run`` or a ``ModelCheckpoint`` in ``--trainer.callbacks``.
+        ``--trainer.enable_progress_bar null`` (the default) shows the progress bar only when
+        stderr is a terminal. A ``ModelCheckpoint(save_last=True)`` is added unless
+        ``--trainer.enable_checkpointing false``, ``--trainer.fast_dev_run`` or a
+        ``ModelCheckpoint`` in ``--trainer.callbacks``.
         """
         config = self._get(self.config_init, "trainer", default={})
         if config.get("logger") in (None, True):
             root = config.get("default_root_dir") or "."
             kwargs["logger"] = CSVLogger(str(root), name="logs")
+        if config.get("enable_progress_bar") is None:  # progress bars only on a terminal
+            kwargs["enable_progress_bar"] = _stderr_is_tty()
         callbacks = config.get("callbacks") or []
         callbacks = list(callbacks) if isinstance(callbacks, list | tuple) else [callbacks]
         wanted = config.get("enable_checkpointing") is not False and not config.get("fast_dev_run")
@@ -405,7 +411,7 @@ def build_cli(system: str, argv: Sequence[str]) -> HocnetCLI:
         "max_epochs": DEFAULT_EPOCHS[system],
         "default_root_dir": f"runs/{system}",
         "log_every_n_steps": 1,
-        "enable_progress_bar": _stderr_is_tty(),  # progress bars only on a terminal
+        "enable_progress_bar": None,  # null: only when stderr is a terminal (instantiate_trainer)
     }
     short_used = {
         _SHORT[a].removeprefix("--"): a.split("=")[0] for a in argv if a.split("=")[0] in _SHORT

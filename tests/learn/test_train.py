@@ -282,6 +282,7 @@ def test_datamodule_without_training_scenes_names_n_train():
 class TestProgressAndCheckpoints:
     @pytest.mark.parametrize(("tty", "argv", "bar"), [
         (False, [], False), (True, [], True), (True, ["-q"], False),
+        (True, ["--trainer.enable_progress_bar", "null"], True),
         (True, ["--no-progress"], False), (False, ["--trainer.enable_progress_bar", "true"], True),
     ])  # fmt: skip
     def test_progress_bar_only_on_a_terminal(self, tty, argv, bar, monkeypatch, tmp_path):
@@ -316,6 +317,8 @@ class TestCommand:
         assert main(["train", "dpa"]) == 2
         err = capsys.readouterr().err
         assert "pip install -e '.[learn]'" in err and "jsonargparse" in err
+        assert main(["train", "--help"]) == 0  # the usage needs no extra
+        assert "hocnet train dpa --help" in capsys.readouterr().out
 
     def test_bad_value_is_one_line(self, capsys):
         from hocnet.cli import main
