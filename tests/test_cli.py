@@ -1283,9 +1283,35 @@ class TestRealFrames:
 
 
 class TestTrain:
-    def test_help_lists_the_systems(self, capsys):
-        assert main(["train"]) == 0
-        assert "dpa" in capsys.readouterr().out
+    @pytest.mark.parametrize("flag", ["--help", "-h"])
+    def test_help_lists_the_systems(self, flag, capsys):
+        assert main(["train", flag]) == 0
+        out, err = capsys.readouterr()
+        assert "dpa" in out and "hoc" in out and "hocnet train dpa --help" in out and err == ""
+
+    @pytest.mark.parametrize("argv", [[], ["--model.lr", "1"], ["svm"]])
+    def test_missing_system_is_one_line(self, argv, capsys):
+        line = assert_one_line_error(capsys, main(["train", *argv]))
+        assert "train: expected a system dpa or hoc first" in line
+
+    @pytest.mark.parametrize(
+        ("argv", "message"),
+        [
+            (["--config", "nope.yaml"], "--config: file 'nope.yaml' does not exist"),
+            (["--model.lr", "nan"], "--model.lr: expected a finite number, got nan"),
+            (["--data.shape", "[8,32]"], "--data.shape: expected 3 values, got [8, 32]"),
+            (["--data.n_train", "0"], "--data.n_train: expected an integer >= 1"),
+            (["--max-epochs", "0"], "--max-epochs: expected at least 1"),
+            (["--out", "notes.txt"], "--out: 'notes.txt' is a file, expected a folder"),
+        ],
+    )
+    def test_errors_are_one_line(self, argv, message, tmp_path, monkeypatch, capsys):
+        pytest.importorskip("lightning")
+        monkeypatch.chdir(tmp_path)
+        (tmp_path / "notes.txt").write_text("mine")
+        line = assert_one_line_error(capsys, main(["train", "dpa", *argv]))
+        assert line.startswith(f"hocnet: error: train: {message}"), line
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]
 
     def test_tiny_dpa_run_writes_a_checkpoint(self, tmp_path, capsys):
         pytest.importorskip("lightning")

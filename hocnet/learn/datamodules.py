@@ -251,7 +251,14 @@ class _SceneDataModule(L.LightningDataModule):
         )
 
     def train_dataloader(self) -> DataLoader:
-        """Shuffled (seeded) training scenes."""
+        """Shuffled (seeded) training scenes.
+
+        Raises:
+            ValueError: ``n_train`` is 0 (a module with ``n_train=0`` serves val / test only).
+        """
+        first, stop = self.hparams["split_seeds"]["train"]
+        if stop == first:
+            raise ValueError("`n_train`: expected an integer >= 1 to train on, got 0")
         return self._loader("train", True)
 
     def val_dataloader(self) -> DataLoader:
