@@ -126,8 +126,11 @@ def _read_manifest(out: Path) -> dict[str, list[int]]:
         ...     _read_manifest(Path(tmp))
         {'a.npy': [3, 7]}
     """
+    path = out / MANIFEST
+    if not path.is_file():  # nor a FIFO or a device, which could block or never end
+        return {}
     try:
-        data = json.loads((out / MANIFEST).read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}
     if not isinstance(data, dict):
