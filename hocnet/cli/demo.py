@@ -257,7 +257,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(10 scans of 60 x 60 pixels, uniform clutter), run the modified HOC detector, and\n"
         "print true versus found tracks, clutter rejection, target points lost and runtime;\n"
         "then run the DPA of [NR08] on a simulated IR sequence with one dim target.\n"
-        "Writes DIR/demo_before_after.png, DIR/demo_3d.png and DIR/demo_dpa.png.",
+        "Writes DIR/demo_before_after.png, DIR/demo_3d.png and DIR/demo_dpa.png (a rerun\n"
+        "replaces them; a file of these names that hocnet did not write needs --force).",
         formatter_class=_Formatter,
     )
     demo.add_argument(
