@@ -2,9 +2,11 @@ import io
 import json
 import math
 import os
+import pickle
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ import torch
 
 import hocnet.cli as cli
 from hocnet.cli import main
+from hocnet.cli._common import MANIFEST
 from hocnet.data.binary import TargetSpec, paper_scene, simulate_binary
 from hocnet.data.io import load_tracks_json, save_cube
 from hocnet.hoc import HOCResult, detect
@@ -36,6 +39,13 @@ def assert_one_line_error(capsys, code: int, match: str | None = None) -> str:
     if match is not None:
         assert re.search(match, lines[0]), lines[0]
     return lines[0]
+
+
+def written(folder: Path) -> list[str]:
+    """The files hocnet wrote into ``folder``: its listing but the manifest, which lists them."""
+    names = sorted(p.name for p in folder.iterdir() if p.name != MANIFEST)
+    assert sorted(json.loads((folder / MANIFEST).read_text())) == names
+    return names
 
 
 def no_leftovers(folder: Path) -> list[str]:
@@ -65,7 +75,7 @@ class TestDemo:
         out = tmp_path / "demo"
         assert main(["demo", "--out", str(out)]) == 0
         stdout = capsys.readouterr().out
-        assert sorted(p.name for p in out.iterdir()) == [
+        assert written(out) == [
             "demo_3d.png",
             "demo_before_after.png",
             "demo_dpa.png",
@@ -131,7 +141,7 @@ class TestDetect:
         assert main(["detect", str(cube_file), "--method", "hoc", "--out", str(out)]) == 0
         stdout = capsys.readouterr().out
         expected = detect(scene.cube)
-        assert sorted(p.name for p in out.iterdir()) == [
+        assert written(out) == [
             "cleaned.npy",
             "detection.png",
             "detections.csv",
@@ -224,8 +234,9 @@ class TestDetect:
         out = tmp_path / "out"
         out.mkdir()
         (out / "notes.txt").write_text("keep me")
-        (out / "tracks.json").write_text("old")
-        assert main(["detect", str(cube_file), "--out", str(out), "--no-plot"]) == 0
+        (out / "tracks.json").write_text("old")  # the user's own: replaced with --force only
+        argv = ["detect", str(cube_file), "--out", str(out), "--no-plot"]
+        assert main([*argv, "--force"]) == 0
         assert (out / "notes.txt").read_text() == "keep me"
         assert load_tracks_json(out / "tracks.json")  # replaced by the new result
         assert no_leftovers(tmp_path) == []
@@ -404,7 +415,7 @@ class TestDetectDPA:
         code = main([*args, "--out", str(out)])
         assert code == 0
         assert "dpa: " in capsys.readouterr().out
-        assert sorted(p.name for p in out.iterdir()) == [
+        assert written(out) == [
             "asf.npy",
             "detection.png",
             "detections.csv",
@@ -763,9 +774,9 @@ class TestNoDataLoss:
 
     def test_failed_move_rolls_back(self, tmp_path, capsys, cube_file, monkeypatch):
         out = tmp_path / "out"
-        out.mkdir()
-        for name in ("tracks.json", "cleaned.npy", "support.npy"):
-            (out / name).write_text(f"old {name}")
+        # the files of an earlier run (hocnet's, so a rerun may replace them)
+        assert main(["detect", str(cube_file), "--out", str(out), "--no-plot", "--v", "3"]) == 0
+        capsys.readouterr()
         before = snapshot(tmp_path)
         real_replace = os.replace
         calls = []
@@ -834,6 +845,129 @@ class TestNoDataLoss:
         args = ["reproduce", "hoc-table2", "--quick", "--out", str(results)]
         assert main([*args, "--experiments-dir", str(experiments)]) == 0
         assert json.loads((results / "hoc-table2.md").read_text())["quick"] is True
+
+
+class TestOwnFiles:
+    """A user's own files in --out are never replaced without --force (the manifest)."""
+
+    REFUSED = r"--out: .* not written by hocnet \(or (was|were) changed since\); use --force"
+
+    @staticmethod
+    def argv(kind, cube_file, frames_file, out):
+        return {
+            "hoc": ["detect", str(cube_file), "--no-plot"],
+            "dpa": ["detect", str(frames_file), "--method", "dpa", "--no-plot"],
+            "demo": ["demo", "--no-dpa", "--density", "0.005"],
+        }[kind] + ["--out", str(out)]
+
+    @pytest.mark.parametrize(
+        ("kind", "own"),
+        [
+            ("hoc", ["tracks.json"]),
+            ("hoc", ["cleaned.npy", "detections.csv"]),
+            ("dpa", ["tracks.json", "detections.csv", "asf.npy"]),  # the new user's report
+            ("demo", ["demo_3d.png"]),
+        ],
+    )
+    def test_own_file_is_refused_and_nothing_is_written(
+        self, tmp_path, capsys, cube_file, frames_file, kind, own
+    ):
+        out = tmp_path / "own"
+        out.mkdir()
+        (out / "notes.txt").write_text("MINE")
+        for name in own:
+            (out / name).write_text("MINE\n")
+        before = snapshot(tmp_path)
+        code = main(self.argv(kind, cube_file, frames_file, out))
+        line = assert_one_line_error(capsys, code, self.REFUSED)
+        listed = re.findall(r"'([^']+)'", line.split(" not written")[0])
+        assert sorted(Path(p).name for p in listed) == sorted(own)  # every one, in one message
+        assert ("exists and was" in line) == (len(own) == 1)
+        assert snapshot(tmp_path) == before  # byte-identical, no manifest, no staging folder
+        # --force replaces them (and keeps the user's other files)
+        assert main([*self.argv(kind, cube_file, frames_file, out), "--force"]) == 0
+        printed = capsys.readouterr().out
+        assert MANIFEST not in printed and ".tmp" not in printed
+        assert all((out / name).read_bytes() != b"MINE\n" for name in own)
+        assert (out / "notes.txt").read_text() == "MINE"
+        assert set(own) <= set(json.loads((out / MANIFEST).read_text()))
+
+    @pytest.mark.parametrize("kind", ["hoc", "dpa", "demo"])
+    def test_rerun_into_the_same_folder(self, tmp_path, capsys, cube_file, frames_file, kind):
+        out = tmp_path / "out"
+        argv = self.argv(kind, cube_file, frames_file, out)
+        assert main(argv) == 0
+        first = written(out)
+        manifest = json.loads((out / MANIFEST).read_text())
+        assert manifest == {n: [(out / n).stat().st_size, (out / n).stat().st_mtime_ns]
+                            for n in first}  # fmt: skip
+        assert main(argv) == 0  # hocnet's own files: replaced
+        assert written(out) == first
+        printed = capsys.readouterr().out
+        assert MANIFEST not in printed and ".tmp" not in printed
+        assert no_leftovers(tmp_path) == []
+
+    def test_manifest_merges_runs_and_keeps_other_files(self, tmp_path, cube_file, frames_file):
+        out = tmp_path / "out"
+        assert main(self.argv("hoc", cube_file, frames_file, out)) == 0
+        assert main(self.argv("dpa", cube_file, frames_file, out)) == 0  # tracks.json again
+        assert written(out) == [
+            "asf.npy", "cleaned.npy", "detections.csv", "shifts.csv", "support.npy", "tracks.json"
+        ]  # fmt: skip
+        assert main(self.argv("hoc", cube_file, frames_file, out)) == 0
+
+    @pytest.mark.parametrize("edit", ["append", "touch", "symlink"])
+    def test_output_changed_by_the_user_is_refused(
+        self, tmp_path, capsys, cube_file, frames_file, edit
+    ):
+        out = tmp_path / "out"
+        argv = self.argv("hoc", cube_file, frames_file, out)
+        assert main(argv) == 0
+        capsys.readouterr()
+        path = out / "detections.csv"
+        if edit == "append":  # the same mtime would not do: the size differs
+            with open(path, "a") as handle:
+                handle.write("# my notes\n")
+        elif edit == "touch":  # same size, another modification time
+            st = path.stat()
+            os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+        else:
+            (tmp_path / "mine.csv").write_text("MINE")
+            path.unlink()
+            path.symlink_to(tmp_path / "mine.csv")
+        before = snapshot(tmp_path)
+        line = assert_one_line_error(capsys, main(argv), self.REFUSED)
+        assert f"'{path}' exists and was not written by hocnet" in line
+        assert snapshot(tmp_path) == before
+        assert main([*argv, "--force"]) == 0
+        if edit == "symlink":
+            assert not path.is_symlink() and (tmp_path / "mine.csv").read_text() == "MINE"
+
+    @pytest.mark.parametrize(
+        "manifest", ["{not json", "[1, 2]", '{"tracks.json": "x"}', '{"tracks.json": [1]}', ""]
+    )
+    def test_corrupt_manifest_is_empty(self, tmp_path, capsys, cube_file, frames_file, manifest):
+        out = tmp_path / "out"
+        argv = self.argv("hoc", cube_file, frames_file, out)
+        assert main(argv) == 0
+        capsys.readouterr()
+        (out / MANIFEST).write_text(manifest)
+        before = snapshot(tmp_path)
+        line = assert_one_line_error(capsys, main(argv), self.REFUSED)  # refused, no crash
+        assert "tracks.json" in line and "support.npy" in line
+        assert snapshot(tmp_path) == before
+        assert main([*argv, "--force"]) == 0  # --force writes a good manifest again
+        assert written(out) and main(argv) == 0
+
+    def test_manifest_that_cannot_be_written(self, tmp_path, capsys, cube_file, frames_file):
+        out = tmp_path / "out"
+        (out / MANIFEST).mkdir(parents=True)  # in the way: the outputs are still written
+        assert main(self.argv("hoc", cube_file, frames_file, out)) == 0
+        out_text, err = capsys.readouterr()
+        assert "warning: could not record the outputs" in err and "--force" in err
+        assert (out / "tracks.json").is_file() and MANIFEST not in out_text
+        code = main(self.argv("hoc", cube_file, frames_file, out))
+        assert_one_line_error(capsys, code, self.REFUSED)
 
 
 class TestClearMessages:
@@ -1000,7 +1134,7 @@ def _read_csv(path: Path) -> list[dict[str, str]]:
 
 
 def _digests(folder: Path) -> dict[str, bytes]:
-    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.name != MANIFEST}
 
 
 class TestRealFrames:
@@ -1012,7 +1146,7 @@ class TestRealFrames:
         assert main(["detect", str(folder), "--method", "dpa", "--out", str(out)]) == 0
         stdout = capsys.readouterr().out
         assert "registration:" in stdout and "shifts.csv" in stdout
-        assert sorted(p.name for p in out.iterdir()) == [
+        assert written(out) == [
             "asf.npy",
             "detection.png",
             "detections.csv",
@@ -1183,7 +1317,7 @@ class TestRealFrames:
         assert main([*args, "--out", str(out)]) == 0
         stdout = capsys.readouterr().out
         assert "binarised:" in stdout and "registration:" in stdout
-        assert sorted(p.name for p in out.iterdir()) == [
+        assert written(out) == [
             "binary.npy",
             "cleaned.npy",
             "detection.png",
@@ -1223,7 +1357,7 @@ class TestRealFrames:
         np.save(path, np.stack([_clip_arrays(n=8, seed=s) for s in (0, 1)]).astype(np.float32))
         out = tmp_path / "out"
         assert main(["detect", str(path), "--method", "dpa", "--no-plot", "--out", str(out)]) == 0
-        names = sorted(p.name for p in out.iterdir())
+        names = written(out)
         assert "detections_000.csv" in names and "detections_001.csv" in names
         assert "detections.csv" not in names
 
@@ -1453,11 +1587,23 @@ class TestWeights:
 
         evil = tmp_path / "evil.ckpt"
         torch.save({"state_dict": {}, "x": Evil()}, evil)
+        text = tmp_path / "fake.ckpt"
+        text.write_text("not a checkpoint\n")
+        pickled = tmp_path / "tuner.pkl"  # pickle protocol 4: torch warns about it
+        pickled.write_bytes(pickle.dumps(Evil(), protocol=4))
         cases = [
+            (
+                frames,
+                "dpa",
+                text,
+                [],
+                r"--weights: '.*fake\.ckpt' is not a checkpoint \(torch\.save",
+            ),
+            (frames, "dpa", pickled, [], r"--weights: refused .*tuner\.pkl.*untrusted pickle"),
             (frames, "dpa", tmp_path / "missing.ckpt", [], r"--weights: cannot read"),
             (cube, "hoc", ckpts["dpa"], [], r"--weights: expected a LearnedHOCSystem"),
             (frames, "dpa", ckpts["hoc"], [], r"--weights: expected a DPATuner"),
-            (frames, "dpa", cut, [], r"--weights: .*corrupted"),
+            (frames, "dpa", cut, [], r"--weights: .*corrupted\?\)$"),  # no unpickler detail
             (frames, "dpa", evil, [], r"--weights: refused .*untrusted pickle"),
             (frames, "dpa", ckpts["dpa"], ["--g", "0.5"], r"--g: set by the checkpoint"),
             (cube, "hoc", ckpts["hoc"], ["--order", "2"], r"--order: set by the checkpoint"),
@@ -1465,6 +1611,9 @@ class TestWeights:
         for i, (data, method, weights, extra, match) in enumerate(cases):
             out = tmp_path / f"out{i}"
             argv = ["detect", str(data), "--method", method, "--weights", str(weights)]
-            code = main([*argv, *extra, "--out", str(out), "-q"])
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                code = main([*argv, *extra, "--out", str(out), "-q"])
+            assert [str(w.message) for w in caught] == []  # nothing leaks before the error
             assert_one_line_error(capsys, code, match)
             assert not out.exists()

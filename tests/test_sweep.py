@@ -1,7 +1,12 @@
 import csv
 import importlib.util
+import json
 import math
+import os
+import re
+import socket
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -127,6 +132,64 @@ class TestEvaluateDPA:
         assert not (tmp_path / "s").exists()
 
 
+def _closed_port() -> int:
+    """A local TCP port where nothing listens (bound, then released)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+@needs_ray
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (["--num-cpus", "0"], r"--num-cpus: expected an integer >= 1, got 0"),
+        (["--cpus-per-trial", "0"], r"--cpus-per-trial: expected a number in \(0, inf\)"),
+        (["--max-concurrent", "0"], r"--max-concurrent: expected an integer >= 1, got 0"),
+        (["--address", "nohost"], r"--address: expected 'auto', HOST:PORT or ray://HOST:PORT"),
+        (["--address", "PORT"], r"--address: no Ray cluster reachable at 127\.0\.0\.1:\d+"),
+        (["--address", "ray://PORT"], r"--address: no Ray cluster reachable at ray://"),
+    ],
+)
+def test_bad_run_options_create_nothing(args, match, capsys, tmp_path):
+    """Every argument is checked (and --address probed) before --out is created."""
+    port = f"127.0.0.1:{_closed_port()}"
+    args = [a.replace("PORT", port) for a in args]
+    out = tmp_path / "a" / "sw6"
+    start = time.perf_counter()
+    code = main(["sweep", "dpa", *args, "--shape", "8", "45", "45", "--out", str(out)])
+    assert time.perf_counter() - start < 30  # not Ray's minutes of retries
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert re.search(match, err), err
+    assert list(tmp_path.iterdir()) == []
+
+
+@needs_ray
+@pytest.mark.parametrize("existing", [False, True])
+def test_failed_start_removes_what_it_made(existing, capsys, tmp_path, monkeypatch):
+    """Ray failing before the experiment exists: the folders made are removed, or in an
+    existing folder the sweep.json and the manifest written, and nothing else is touched."""
+    import hocnet.sweep
+    from hocnet.cli._common import MANIFEST
+
+    def no_cluster(*args, **kwargs):
+        assert (out / "sweep.json").is_file() and (out / MANIFEST).is_file()
+        raise ConnectionError("could not connect to the cluster")
+
+    monkeypatch.setattr(hocnet.sweep, "run_sweep", no_cluster)
+    out = tmp_path / "a" / "sw"
+    if existing:
+        out.mkdir(parents=True)
+        (out / "notes.txt").write_text("MINE")
+    code = main(["sweep", "dpa", *TINY_FLAGS, "--quiet", "--out", str(out)])
+    assert code == 2 and "could not connect" in capsys.readouterr().err
+    if existing:
+        assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
+    else:
+        assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.skipif(not HAS_RAY, reason="the ray check comes first")
 @pytest.mark.parametrize(
     ("args", "match"),
@@ -245,6 +308,20 @@ def test_2x2_grid_interrupted_then_resumed_on_the_cli(ray_instance, tmp_path, ca
     with pytest.raises(ValueError, match="expected an experiment folder to resume"):
         run_sweep(flaky, None, tmp_path / "none", settings=TINY, resume=True, quiet=True)
 
+    # resume rewrites results.csv only if hocnet wrote it and nobody changed it since
+    from hocnet.cli._common import MANIFEST
+
+    assert sorted(json.loads((out / MANIFEST).read_text())) == ["results.csv", "sweep.json"]
+    stat = (out / "results.csv").stat()
+    (out / "results.csv").write_bytes(before + b"my notes\n")
+    assert main(["sweep", "dpa", "--resume", "--quiet", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "results.csv' exists and was not written by hocnet" in err and "--resume" in err
+    assert (out / "results.csv").read_bytes() == before + b"my notes\n"
+    assert len(list(calls.iterdir())) == 4  # refused before Ray ran anything
+    (out / "results.csv").write_bytes(before)
+    os.utime(out / "results.csv", ns=(stat.st_atime_ns, stat.st_mtime_ns))  # as hocnet left it
+
     # resume (grid and scenes from sweep.json): only the interrupted trial runs again
     assert main(["sweep", "dpa", "--resume", "--quiet", "--out", str(out)]) == 0
     rows = _rows(out / "results.csv")
@@ -341,3 +418,38 @@ def test_train_sweep_on_ray(ray_instance, tmp_path):
     rows = _rows(out / "results.csv")
     assert [r["model.lr"] for r in rows] == ["0.01", "0.05"]
     assert all(r["status"] == "done" and math.isfinite(float(r["test/loss"])) for r in rows)
+
+
+@needs_ray
+def test_force_replaces_and_resume_rewrites_results(capsys, tmp_path, monkeypatch):
+    """--force replaces a sweep folder's files (even the user's own), the manifest then lets
+    --resume rewrite results.csv; Ray itself is replaced by a stub here."""
+    import hocnet.sweep
+    from hocnet.cli._common import MANIFEST
+    from hocnet.sweep import SweepResult
+
+    runs = []
+
+    def stub(trainable, space, path, *, resume=False, **kwargs):
+        runs.append(resume)
+        Path(path).mkdir(parents=True, exist_ok=True)
+        (Path(path) / "experiment_state-0.json").write_text("{}")
+        row = {"b": 0.8, "a_s": float(len(runs)), "trial_id": "t1", "status": "done"}
+        return SweepResult(rows=[row], path=Path(path), seconds=0.0)
+
+    monkeypatch.setattr(hocnet.sweep, "run_sweep", stub)
+    out = tmp_path / "sw"
+    out.mkdir()
+    for name in ("sweep.json", "results.csv"):
+        (out / name).write_text("MINE")
+    argv = ["sweep", "dpa", *TINY_FLAGS, "--quiet", "--out", str(out)]
+    assert main(argv) == 2 and "pass --resume" in capsys.readouterr().err
+    assert (out / "results.csv").read_text() == "MINE"
+    assert main([*argv, "--force"]) == 0
+    assert _rows(out / "results.csv")[0]["a_s"] == "1"
+    assert json.loads((out / "sweep.json").read_text())["kind"] == "dpa"
+    assert sorted(json.loads((out / MANIFEST).read_text())) == ["results.csv", "sweep.json"]
+    printed = capsys.readouterr().out
+    assert MANIFEST not in printed and ".tmp" not in printed
+    assert main(["sweep", "dpa", "--resume", "--quiet", "--out", str(out)]) == 0
+    assert _rows(out / "results.csv")[0]["a_s"] == "2" and runs == [False, True]

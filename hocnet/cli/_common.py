@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import os
 import re
 import shutil
@@ -99,14 +100,149 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+#: The record of what hocnet wrote into an output folder: ``{name: [size, mtime_ns]}``.
+MANIFEST = ".hocnet-outputs.json"
+
+#: The hint of the refusal to replace a file hocnet did not write (see :func:`_foreign_files`).
+FORCE_HINT = "use --force to replace {it}, or choose another --out"
+
+
+def _file_key(path: Path) -> list[int]:
+    """``[size, mtime_ns]`` of ``path`` itself (a symlink is not followed)."""
+    st = os.lstat(path)
+    return [int(st.st_size), int(st.st_mtime_ns)]
+
+
+def _read_manifest(out: Path) -> dict[str, list[int]]:
+    """The manifest of ``out`` (:data:`MANIFEST`); missing, unreadable or corrupt: empty.
+
+    An entry that is not ``name: [size, mtime_ns]`` (two integers) is ignored, so a damaged
+    manifest can only make hocnet refuse more, never replace a file it did not write.
+
+    Examples:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as tmp:
+        ...     _ = (Path(tmp) / MANIFEST).write_text('{"a.npy": [3, 7], "b": "x"}')
+        ...     _read_manifest(Path(tmp))
+        {'a.npy': [3, 7]}
+    """
+    path = out / MANIFEST
+    if not path.is_file():  # nor a FIFO or a device, which could block or never end
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(data, dict):
+        return {}
+    return {
+        name: [int(v) for v in value]
+        for name, value in data.items()
+        if isinstance(name, str)
+        and isinstance(value, list)
+        and len(value) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in value)
+    }
+
+
+def _write_manifest(out: Path, entries: dict[str, list[int]]) -> None:
+    """Replace the manifest of ``out`` atomically (a temporary file, then a rename)."""
+    tmp = out / f"{MANIFEST}.tmp-{uuid.uuid4().hex[:12]}"
+    try:
+        tmp.write_text(json.dumps(entries, indent=1, sort_keys=True) + "\n")
+        os.replace(tmp, out / MANIFEST)
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+def _record_outputs(out: Path, names: Sequence[str]) -> None:
+    """Add ``names`` (files just written into ``out``) to its manifest, atomically.
+
+    Earlier entries are kept while their files still exist. A manifest that cannot be written
+    costs only a refusal at the next run into ``out`` (which then needs ``--force``): it is said
+    on stderr and the command still succeeds.
+    """
+    entries = {n: k for n, k in _read_manifest(out).items() if (out / n).is_file()}
+    try:
+        for name in names:
+            entries[name] = _file_key(out / name)
+        _write_manifest(out, entries)
+    except OSError as err:
+        reason = err.strerror or _one_line(str(err))
+        print(
+            f"{PROG}: warning: could not record the outputs in '{out / MANIFEST}': {reason}; "
+            "a rerun into this folder will need --force",
+            file=sys.stderr,
+        )
+
+
+def _forget_outputs(out: Path, names: Sequence[str]) -> None:
+    """Drop ``names`` (files removed again) from the manifest of ``out``; an empty one goes."""
+    entries = _read_manifest(out)
+    if not entries and not (out / MANIFEST).is_file():
+        return
+    entries = {n: k for n, k in entries.items() if n not in names and (out / n).is_file()}
+    with contextlib.suppress(OSError):
+        if entries:
+            _write_manifest(out, entries)
+        else:
+            (out / MANIFEST).unlink()
+
+
+def _foreign_files(out: Path, names: Sequence[str]) -> list[str]:
+    """The ``names`` existing in ``out`` (file or symlink) that hocnet may not replace.
+
+    A file may be replaced only when the manifest of ``out`` lists it with its current size and
+    mtime_ns, i.e. hocnet wrote it and nobody changed it since.
+    """
+    manifest: dict[str, list[int]] | None = None
+    foreign = []
+    for name in names:
+        dest = out / name
+        if not (dest.exists() or dest.is_symlink()):
+            continue
+        if manifest is None:
+            manifest = _read_manifest(out)
+        try:
+            owned = not dest.is_symlink() and manifest.get(name) == _file_key(dest)
+        except OSError:
+            owned = False
+        if not owned:
+            foreign.append(name)
+    return foreign
+
+
+def _refuse_foreign(out: Path, names: Sequence[str], hint: str = FORCE_HINT) -> None:
+    """Raise the one-line :class:`CLIError` of :func:`_foreign_files` (all names at once)."""
+    foreign = _foreign_files(out, names)
+    if not foreign:
+        return
+    listed = ", ".join(f"'{out / name}'" for name in foreign)
+    one = len(foreign) == 1
+    raise CLIError(
+        f"--out: {listed} {'exists' if one else 'exist'} and {'was' if one else 'were'} not "
+        "written by hocnet (or "
+        + ("was" if one else "were")
+        + " changed since); "
+        + hint.format(it="it" if one else "them")
+    )
+
+
 def _check_destinations(
-    out: Path, names: Sequence[str], inputs: dict[str, Path] | None = None
+    out: Path,
+    names: Sequence[str],
+    inputs: dict[str, Path] | None = None,
+    *,
+    force: bool = False,
 ) -> None:
     """Check every destination ``out/name`` before anything is written.
 
     Refuses a destination that is an existing directory, or that is (after resolving real paths,
     symlinks and hard links) one of the ``inputs`` (label -> path, such as ``CUBE`` or
-    ``--target-free``): no output may ever replace an input file, whatever its name.
+    ``--target-free``): no output may ever replace an input file, whatever its name. Unless
+    ``force``, it also refuses an existing file (or symlink) that hocnet did not write or that
+    was changed since (:func:`_foreign_files`, the manifest :data:`MANIFEST` of ``out``).
     """
     out = _check_out_dir(out)
     for name in names:
@@ -122,6 +258,8 @@ def _check_destinations(
                     f"--out: writing '{dest}' would replace the input {label} '{source}'; "
                     "choose another --out"
                 )
+    if not force:
+        _refuse_foreign(out, names)
 
 
 def _write_error(dest: Path, staged: Path, err: BaseException) -> CLIError:
@@ -140,23 +278,30 @@ def _write_error(dest: Path, staged: Path, err: BaseException) -> CLIError:
 
 
 def _write_outputs(
-    out: Path, writers: dict[str, Writer], inputs: dict[str, Path] | None = None
+    out: Path,
+    writers: dict[str, Writer],
+    inputs: dict[str, Path] | None = None,
+    *,
+    force: bool = False,
 ) -> list[Path]:
-    """Write files into ``out`` all-or-nothing.
+    """Write files into ``out`` all-or-nothing, and record them in its manifest.
 
     Every destination is checked first (:func:`_check_destinations`: no directory in the way, no
-    input replaced, the folder writable). Then each writer is called with its path inside a
+    input replaced, the folder writable, and unless ``force`` no existing file that hocnet did
+    not write or that was changed since). Then each writer is called with its path inside a
     fresh staging directory: next to ``out`` when ``out`` does not exist yet (it is then renamed
     to ``out``), inside ``out`` otherwise (the same file system, so the renames are atomic). The
     staged files are moved into ``out`` one by one; files of the same names already there are
     first moved aside and put back if any step fails. On failure the staging directory and any
-    parent directories created for it are removed, and the error names the user's path.
+    parent directories created for it are removed, and the error names the user's path. After
+    success the written files are added to the manifest of ``out`` (:data:`MANIFEST`, with their
+    size and mtime_ns), which lets a later run replace them (:func:`_foreign_files`).
 
     Returns:
         The final paths, in the order of ``writers``.
     """
     out = _check_out_dir(out)
-    _check_destinations(out, list(writers), inputs)
+    _check_destinations(out, list(writers), inputs, force=force)
     created: Path | None = None
     for parent in [out.absolute(), *out.absolute().parents]:
         if parent.exists():
@@ -210,6 +355,7 @@ def _write_outputs(
         if created is not None:  # the parents made for the staging directory
             shutil.rmtree(created, ignore_errors=True)
         raise
+    _record_outputs(out, list(writers))
     return [out / name for name in writers]
 
 

@@ -164,7 +164,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     order = _check_int("--order", args.order, minimum=1)
     out = _check_out_dir(args.out)
     names = [] if args.no_plot else ["demo_before_after.png", "demo_3d.png", "demo_dpa.png"]
-    _check_destinations(out, names)
+    if args.no_dpa:
+        names = [n for n in names if n != "demo_dpa.png"]
+    _check_destinations(out, names, force=args.force)
 
     stages = _Stages(["scene", "hoc", "dpa", "write"], enabled=_show_progress(args))
     with stages:
@@ -240,7 +242,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             stages.next("dpa")
             _demo_dpa(seed, writers, plot=not args.no_plot)
         stages.next("write")
-        paths = _write_outputs(out, writers) if writers else []
+        paths = _write_outputs(out, writers, force=args.force) if writers else []
     for path in paths:
         print(f"wrote {path}")
     return 0
@@ -255,7 +257,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "(10 scans of 60 x 60 pixels, uniform clutter), run the modified HOC detector, and\n"
         "print true versus found tracks, clutter rejection, target points lost and runtime;\n"
         "then run the DPA of [NR08] on a simulated IR sequence with one dim target.\n"
-        "Writes DIR/demo_before_after.png, DIR/demo_3d.png and DIR/demo_dpa.png.",
+        "Writes DIR/demo_before_after.png, DIR/demo_3d.png and DIR/demo_dpa.png (a rerun\n"
+        "replaces them; a file of these names that hocnet did not write needs --force).",
         formatter_class=_Formatter,
     )
     demo.add_argument(
@@ -279,6 +282,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     demo.add_argument("--no-plot", action="store_true", help="print the summary only, no PNGs")
     demo.add_argument("--no-dpa", action="store_true", help="skip the DPA part of the demo")
+    demo.add_argument(
+        "--force", action="store_true", help="replace files in --out that hocnet did not write"
+    )
     demo.add_argument(
         "-q",
         "--quiet",

@@ -72,7 +72,13 @@ class Detection:
 
 @dataclass(frozen=True)
 class _Method:
-    """A detector the command line can run."""
+    """A detector the command line can run.
+
+    ``output_names`` are the files every run writes (batched or not); ``scene_outputs``: it
+    also writes ``detections.csv`` and ``detection.png`` (``detections_000.csv``,
+    ``detection_000.png``, ... for a batch). Both are checked before any work
+    (:func:`_planned_names`).
+    """
 
     name: str
     help: str
@@ -82,6 +88,7 @@ class _Method:
     run: Callable[[torch.Tensor, dict[str, Any]], Detection]
     binary: bool = True
     output_names: tuple[str, ...] = ("tracks.json",)
+    scene_outputs: bool = False
 
 
 def _add_hoc_options(group: argparse._ArgumentGroup) -> None:
@@ -806,7 +813,8 @@ _METHODS: dict[str, _Method] = {
         ),
         prepare=_prepare_hoc,
         run=_run_hoc,
-        output_names=("tracks.json", "cleaned.npy", "support.npy", "detections.csv"),
+        output_names=("tracks.json", "cleaned.npy", "support.npy"),
+        scene_outputs=True,
     ),
     "dpa": _Method(
         name="dpa",
@@ -828,7 +836,8 @@ _METHODS: dict[str, _Method] = {
         prepare=_prepare_dpa,
         run=_run_dpa,
         binary=False,
-        output_names=("tracks.json", "asf.npy", "detections.csv"),
+        output_names=("tracks.json", "asf.npy"),
+        scene_outputs=True,
     ),
 }
 
@@ -948,6 +957,31 @@ def _load_input(args: argparse.Namespace, binary: bool) -> tuple[torch.Tensor, l
     return cube, files
 
 
+def _planned_names(
+    method: _Method, params: dict[str, Any], args: argparse.Namespace, shape: Any = None
+) -> list[str]:
+    """The files a run will write, as far as known before detecting.
+
+    Without ``shape`` (before loading): ``method.output_names`` only; with the input's shape:
+    also the per-scene files (one per batch element for a ``(B, T, H, W)`` input),
+    ``binary.npy`` (``--threshold-pfa``) and ``shifts.csv`` (registration).
+    """
+    names = list(method.output_names)
+    if shape is None:
+        return names
+    if method.scene_outputs:
+        batch = [None] if len(shape) == 3 else list(range(shape[0]))
+        for b in batch:
+            names.append("detections.csv" if b is None else f"detections_{b:03d}.csv")
+            if not args.no_plot:
+                names.append("detection.png" if b is None else f"detection_{b:03d}.png")
+    if params.get("threshold_pfa") is not None:
+        names.append("binary.npy")
+    if params.get("register"):
+        names.append("shifts.csv")
+    return names
+
+
 def _cmd_detect(args: argparse.Namespace) -> int:
     import torch
 
@@ -970,14 +1004,19 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         with contextlib.suppress(ValueError, OSError):
             for file in frame_files(args.cube):
                 inputs[f"CUBE frame '{file.name}' of"] = file
-    # the fixed names are checked now, before any work; the full list again before writing
-    _check_destinations(out, list(method.output_names), inputs)
+    # no directory in the way, no input replaced: checked now, before any work; files hocnet
+    # did not write once the input's shape gives every name (in one message), before the
+    # detection; all of it again before writing
+    force = bool(getattr(args, "force", False))
+    _check_destinations(out, _planned_names(method, params, args), inputs, force=True)
     stages = _Stages(["load", method.name, "pictures", "write"], enabled=_show_progress(args))
     with stages:
         stages.next("load")
         cube, files = _load_input(args, binary)
         for file in files:
             inputs[f"CUBE frame '{file.name}' of"] = file
+        planned = _planned_names(method, params, args, tuple(cube.shape))
+        _check_destinations(out, planned, inputs, force=force)
         batched = cube.dim() == 4
         if batched and cube.shape[0] == 0:
             raise CLIError(
@@ -1064,7 +1103,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
                 writers[name] = _png_writer(fig)
 
         stages.next("write")
-        paths = _write_outputs(out, writers, inputs)
+        paths = _write_outputs(out, writers, inputs, force=force)
     if detection.summary is not None:
         print(f"{detection.summary} ({runtime:.2f} s)")
     else:
@@ -1136,9 +1175,11 @@ outputs of --method dpa:
   Batched (B, T, H, W) input gives ONE set of files with the batch axis; track ids run over
   the whole batch and meta["track_batch"][i] is the batch element of the i-th track; one picture
   and one detections file per element, detection_000.png, detections_000.csv, ... (--no-plot
-  skips the pictures). Files of the same names already in DIR are replaced; an output never
-  replaces an input file (CUBE or any of its image frames, --target-free). Nothing is written
-  if the input or an option is invalid, and either every file is written or none.
+  skips the pictures). Files of the same names already in DIR are replaced only if hocnet
+  wrote them and nobody changed them since (DIR/.hocnet-outputs.json records the size and
+  modification time of each file written), or with --force; an output never replaces an
+  input file (CUBE or any of its image frames, --target-free). Nothing is written if the
+  input or an option is invalid, and either every file is written or none.
 
 defaults (--method dpa):
   The library functions (hocnet.dpa.probability_matrices, accumulate, DPA) default to the
@@ -1206,6 +1247,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         help="output folder (default: detect-output)",
     )
     detect.add_argument("--no-plot", action="store_true", help="do not write the PNG picture(s)")
+    detect.add_argument(
+        "--force", action="store_true", help="replace files in --out that hocnet did not write"
+    )
     detect.add_argument(
         "--weights",
         default=None,

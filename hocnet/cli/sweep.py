@@ -5,19 +5,36 @@ Layout of ``--out DIR``: ``DIR/sweep.json`` (what was swept: kind, grid, fixed s
 ``DIR/results.csv`` (one row per trial: the grid point, its metrics, ``trial_id``, ``status``).
 A new sweep refuses a ``DIR`` that already holds one unless ``--force`` (which replaces it);
 ``--resume`` continues the stored sweep (grid and settings from ``sweep.json``; finished trials
-are not rerun) and rewrites its ``results.csv``.
+are not rerun) and rewrites its ``results.csv`` (only if hocnet wrote it and nobody changed it
+since: see ``DIR/.hocnet-outputs.json``, :func:`hocnet.cli._common._foreign_files`).
+
+Every argument is checked, and ``--address`` probed, before ``DIR`` is created; a sweep that
+fails before its Ray experiment exists leaves nothing behind (the folders it created are
+removed).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import shutil
+import socket
 import textwrap
 from pathlib import Path
 from typing import Any
 
-from hocnet.cli._common import CLIError, _check_out_dir, _Formatter, _table, _write_outputs
+from hocnet.cli._common import (
+    CLIError,
+    _check_int,
+    _check_number,
+    _check_out_dir,
+    _forget_outputs,
+    _Formatter,
+    _refuse_foreign,
+    _table,
+    _write_outputs,
+)
 
 SETTINGS_FILE = "sweep.json"
 RESULTS_FILE = "results.csv"
@@ -39,6 +56,70 @@ def _require_ray() -> None:
         require_ray()
     except RayMissingError as err:
         raise CLIError(f"sweep: {err}") from None
+
+
+#: Seconds to wait for a TCP connection to --address before giving up. Ray 2.60 itself has no
+#: overall timeout for ``ray.init(address=...)``: its per-attempt timeouts
+#: (``RAY_gcs_rpc_server_connect_timeout_s``, 5 s) only bound each of its retries, which go on
+#: for minutes against an address where nothing listens; hence this probe.
+ADDRESS_TIMEOUT = 5.0
+
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def _probe_address(address: str) -> None:
+    """Refuse an ``--address`` that cannot be a running Ray cluster, within seconds.
+
+    ``auto`` (and ``local``) are left to Ray; ``HOST:PORT`` and ``ray://HOST:PORT`` must name a
+    port that accepts a TCP connection within :data:`ADDRESS_TIMEOUT` seconds.
+    """
+    text = address.strip()
+    if text in ("auto", "local"):
+        return
+    rest = text.split("://", 1)[1] if "://" in text else text
+    host, sep, port_text = rest.rstrip("/").rpartition(":")
+    host = host.strip("[]")
+    if not sep or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise CLIError(f"--address: expected 'auto', HOST:PORT or ray://HOST:PORT, got {address!r}")
+    hosts = [host]
+    if host in _LOOPBACK:  # Ray connects a loopback address through the node's own IP
+        with contextlib.suppress(Exception):
+            from ray.util import get_node_ip_address
+
+            hosts.append(get_node_ip_address())
+    reason = "unreachable"
+    for candidate in hosts:
+        try:
+            with socket.create_connection((candidate, int(port_text)), timeout=ADDRESS_TIMEOUT):
+                return
+        except OSError as err:
+            if candidate == host:
+                reason = "timed out" if isinstance(err, TimeoutError) else err.strerror or str(err)
+    raise CLIError(
+        f"--address: no Ray cluster reachable at {text} ({reason}); start one with "
+        "'ray start --head' or leave out --address for a local instance"
+    )
+
+
+def _check_run_options(args: argparse.Namespace) -> None:
+    """Check the run options before anything is created (the library checks them again)."""
+    if args.num_cpus is not None:
+        _check_int("--num-cpus", args.num_cpus, minimum=1)
+    _check_number("--cpus-per-trial", args.cpus_per_trial, low=0.0, low_inclusive=False)
+    if args.max_concurrent is not None:
+        _check_int("--max-concurrent", args.max_concurrent, minimum=1)
+    if args.address is not None:
+        _probe_address(args.address)
+
+
+def _made_by_us(out: Path) -> Path | None:
+    """The outermost folder of ``out`` (itself or a parent) that does not exist yet."""
+    created = None
+    for parent in [out.absolute(), *out.absolute().parents]:
+        if parent.exists():
+            break
+        created = parent
+    return created
 
 
 def _value(text: str) -> Any:
@@ -101,8 +182,12 @@ def _prepare_new(out: Path, experiment: Path, force: bool) -> None:
             f"--out: '{existing[0]}' exists: pass --resume to continue that sweep or --force "
             "to replace it"
         )
-    if experiment.exists():
-        shutil.rmtree(experiment)
+
+
+#: The hint of the refusal to rewrite a ``results.csv`` that hocnet did not write.
+_RESUME_HINT = (
+    "--resume rewrites it: move {it} away (or choose the sweep's own --out) and resume again"
+)
 
 
 def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
@@ -117,14 +202,21 @@ def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
         stored = _stored(out, kind)
         if not experiment.is_dir():
             raise CLIError(f"--resume: no Ray experiment '{experiment}' to resume")
+        _refuse_foreign(out, [RESULTS_FILE], _RESUME_HINT)
     else:
         stored = None
     trainable, space, settings, record = build(stored)
     if stored is None:
         _prepare_new(out, experiment, args.force)
-        text = json.dumps(record, indent=2, sort_keys=True) + "\n"
-        _write_outputs(out, {SETTINGS_FILE: lambda path: path.write_text(text)})
+    _check_run_options(args)  # every argument is checked before anything is created
+    created = _made_by_us(out)
     try:
+        if stored is None:
+            if experiment.exists():  # --force: the previous sweep goes
+                shutil.rmtree(experiment)
+            text = json.dumps(record, indent=2, sort_keys=True) + "\n"
+            writer = {SETTINGS_FILE: lambda path: path.write_text(text)}
+            _write_outputs(out, writer, force=args.force)
         result = run_sweep(
             trainable,
             space,
@@ -138,13 +230,14 @@ def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
             quiet=args.quiet,
         )
     except ValueError as err:
-        _forget(out, experiment, stored)
+        _forget(out, experiment, stored, created)
         raise CLIError(str(err)) from None
     except BaseException:  # e.g. no Ray cluster at --address: leave no half-made sweep behind
-        _forget(out, experiment, stored)
+        _forget(out, experiment, stored, created)
         raise
     writers = {RESULTS_FILE: lambda path: write_rows_csv(result.rows, path)}
-    (csv_path,) = _write_outputs(out, writers)
+    # a new sweep checked results.csv in _prepare_new, a resume before it ran
+    (csv_path,) = _write_outputs(out, writers, force=args.force)
     _summary(result, csv_path, args.metric)
     if result.errors or result.done < len(result.rows):
         print(
@@ -155,10 +248,25 @@ def _run(args: argparse.Namespace, kind: str, build: Any) -> int:
     return 0
 
 
-def _forget(out: Path, experiment: Path, stored: dict[str, Any] | None) -> None:
-    """Remove the ``sweep.json`` of a new sweep whose Ray experiment never started."""
-    if stored is None and not experiment.exists():
-        (out / SETTINGS_FILE).unlink(missing_ok=True)
+def _forget(
+    out: Path, experiment: Path, stored: dict[str, Any] | None, created: Path | None
+) -> None:
+    """Undo a new sweep whose Ray experiment never started.
+
+    The folders this run created (``created``: ``out`` or a parent of it) are removed; in a
+    folder that existed before, only the ``sweep.json`` written now and an empty ``ray/``. A
+    sweep whose experiment exists is kept: it can be resumed.
+    """
+    if stored is not None or experiment.exists():
+        return
+    if created is not None:
+        shutil.rmtree(created, ignore_errors=True)
+        return
+    (out / SETTINGS_FILE).unlink(missing_ok=True)
+    _forget_outputs(out, [SETTINGS_FILE])
+    with_ray = out / RAY_FOLDER
+    if with_ray.is_dir() and not any(with_ray.iterdir()):
+        with_ray.rmdir()
 
 
 def _summary(result: Any, csv_path: Path, metric: str) -> None:
@@ -243,7 +351,8 @@ def _add_run_options(parser: argparse.ArgumentParser, kind: str, metric: str) ->
     run.add_argument(
         "--address",
         default=None,
-        help="join a running Ray cluster ('auto' or ray://HOST:PORT); default: start an "
+        help="join a running Ray cluster ('auto', HOST:PORT or ray://HOST:PORT; an unreachable "
+        "HOST:PORT is refused after at most 5 s, 'auto' is left to Ray); default: start an "
         "embedded local instance",
     )
     run.add_argument(

@@ -318,7 +318,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
             raise CLIError(f"{flag}: does not apply to --detector {det}")
     out = _check_out_dir(args.out)
     inputs = {"SEQ": Path(args.seq)}
-    _check_destinations(out, list(OUTPUT_NAMES), inputs)
+    names = [n for n in OUTPUT_NAMES if not (args.no_plot and n.endswith(".png"))]
+    _check_destinations(out, names, inputs, force=args.force)
     cube = _load(args)
     n_t, h, w = cube.shape
     start = time.perf_counter()
@@ -348,7 +349,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     if not args.no_plot:
         title = f"{det.upper()} + MHT: {len(rows)} track{'s' * (len(rows) != 1)}"
         writers["tracks.png"] = _png_writer(_figure(cube, plots, rows, title))
-    paths = _write_outputs(out, writers, inputs)
+    paths = _write_outputs(out, writers, inputs, force=args.force)
     n_plots = sum(meta["plots_per_frame"])
     print(
         f"track: {det} + MHT on {n_t} x {h} x {w}: {n_plots} plots, {len(rows)} confirmed "
@@ -385,7 +386,8 @@ tracker:
   ln(beta / (1 - alpha))), Murty k-best global hypotheses, N-scan pruning; the motion model
   is an IMM of two constant-velocity models (--sigma-a and 10 x --sigma-a) or one CV model.
 
-outputs (in --out DIR, all or nothing; an input is never replaced):
+outputs (in --out DIR, all or nothing; an input is never replaced, nor a file hocnet did not
+write unless --force):
   tracks.json  {"meta": {...}, "tracks": [{"id", "status", "score", "first_frame",
                "last_frame", "state", "covariance", "points": [[frame, x, y, plot], ...]}]}
   tracks.png   the maximum over frames, the plots and the tracks with their ids
@@ -416,6 +418,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--out", default="track-output", metavar="DIR", help="output folder (default: track-output)"
     )
     p.add_argument("--no-plot", action="store_true", help="do not write tracks.png")
+    p.add_argument(
+        "--force", action="store_true", help="replace files in --out that hocnet did not write"
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     hoc = p.add_argument_group("hoc options (--detector hoc)")
     hoc.add_argument("--order", type=int, default=None, metavar="K", help="HOC order (default: 2)")

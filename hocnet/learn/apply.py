@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import os
+import re
+import warnings
 from typing import Any
 
 import torch
@@ -50,7 +52,13 @@ def load_detector(ckpt_path: str | os.PathLike, method: str | None = None) -> DP
     if method is not None:
         method = check_choice("method", method, tuple(SYSTEM_OF))
     try:
-        model = load_model(ckpt_path)
+        with warnings.catch_warnings():  # torch's note on a pickle's protocol: the error says it
+            warnings.filterwarnings(
+                "ignore", message="Detected pickle protocol", category=UserWarning
+            )
+            model = load_model(ckpt_path)
+    except ValueError as err:
+        raise ValueError(_load_message(ckpt_path, str(err))) from None
     except RuntimeError as err:  # load_state_dict: tensors that do not fit the hyper-parameters
         detail = str(err).splitlines()[0][:100]
         raise ValueError(
@@ -63,6 +71,30 @@ def load_detector(ckpt_path: str | os.PathLike, method: str | None = None) -> DP
             f"got a {SYSTEM_OF[other][1]} checkpoint (method {other!r})"
         )
     return model
+
+
+#: The first bytes of what ``torch.save`` writes: a zip archive, or (legacy) a pickle.
+_CHECKPOINT_MAGIC = (b"PK\x03\x04", b"\x80")
+
+
+def _load_message(ckpt_path: str | os.PathLike, message: str) -> str:
+    """One clean line for a checkpoint that cannot be loaded (no unpickler internals).
+
+    A file that starts like nothing ``torch.save`` writes (e.g. a text file) is said to be no
+    checkpoint at all; the detail of a failed unpickling (``pop from empty list``) is dropped.
+    """
+    path = os.fspath(ckpt_path)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError:
+        head = b""
+    if head and not head.startswith(_CHECKPOINT_MAGIC):
+        return (
+            f"`ckpt_path`: {path!r} is not a checkpoint (torch.save writes a zip archive or a "
+            "pickle); expected a .ckpt written by 'hocnet train'"
+        )
+    return re.sub(r" \(corrupted\?\): .*$", " (corrupted?)", message)
 
 
 def detect_dpa(frames: torch.Tensor, model: DPA, **kwargs: Any) -> DPADetection:

@@ -142,3 +142,39 @@ class TestTrack:
         assert main(["track", str(seq), "--out", str(out), "--no-plot"]) == 0
         assert "0 confirmed tracks" in capsys.readouterr().out
         assert json.loads((out / "tracks.json").read_text())["tracks"] == []
+
+
+class TestOwnFiles:
+    """`hocnet track` never replaces a user's own file in --out without --force."""
+
+    def test_own_file_refused_rerun_and_force(self, tmp_path, capsys):
+        from hocnet.cli._common import MANIFEST
+
+        seq = tmp_path / "scans.npy"
+        np.save(seq, np.zeros((8, 16, 16), dtype=bool))
+        out = tmp_path / "own"
+        out.mkdir()
+        (out / "tracks.json").write_text("MINE\n")
+        argv = ["track", str(seq), "--out", str(out)]
+        before = {p.name: p.read_bytes() for p in out.iterdir()}
+        code = main(argv)
+        one_line_error(
+            capsys,
+            code,
+            r"^hocnet: error: --out: '.*own/tracks\.json' exists and was not written by hocnet "
+            r"\(or was changed since\); use --force to replace it, or choose another --out$",
+        )
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing written
+        assert main([*argv, "--force"]) == 0
+        printed = capsys.readouterr().out
+        assert MANIFEST not in printed and ".tmp" not in printed
+        assert json.loads((out / "tracks.json").read_text())["tracks"] == []
+        names = sorted(p.name for p in out.iterdir())
+        assert names == sorted([MANIFEST, "tracks.json", "tracks.png"])
+        assert main(argv) == 0  # a rerun replaces hocnet's own files
+        (out / "tracks.png").write_bytes(b"edited by the user")
+        code = main([*argv, "--no-plot"])  # tracks.png is not written: not in the way
+        assert code == 0
+        capsys.readouterr()
+        one_line_error(capsys, main(argv), r"'.*tracks\.png' exists and was not written")
+        assert (out / "tracks.png").read_bytes() == b"edited by the user"
