@@ -621,3 +621,138 @@ def config_table(
         cells.append(str(lost))
         body.append(cells)
     return md_table(headers, body)
+
+
+# ----------------------------------------------------------------------------- engines (Ray)
+
+ENGINES = ("loop", "ray")
+"""Engines of the grid experiments: ``loop`` (here, one job after the other; the default) and
+``ray`` (one Ray Tune trial per job through ``hocnet.sweep.run_sweep``, the ``sweep`` extra)."""
+
+ENGINE_HELP = (
+    " Engine options: --engine {loop,ray} (default loop; ray: Ray Tune via hocnet.sweep, the "
+    "sweep extra), --ray-dir DIR (Ray's experiment folder), --resume (continue it), "
+    "--address ADDRESS (join a Ray cluster), --num-cpus N (local Ray instance)."
+)
+
+
+def check_engine(engine: str) -> str:
+    """``engine`` if it is one of :data:`ENGINES`, else a ValueError naming it."""
+    if engine not in ENGINES:
+        raise ValueError(f"`engine`: expected 'loop' or 'ray', got {engine!r}")
+    return engine
+
+
+def ray_map(
+    script: str | pathlib.Path,
+    function: str,
+    jobs: Sequence[Any],
+    shared: dict[str, Any],
+    *,
+    name: str,
+    progress: bool = True,
+    path: str | pathlib.Path | None = None,
+    resume: bool = False,
+    address: str | None = None,
+    num_cpus: int | None = None,
+) -> list[Any]:
+    """``[script.function(job, **shared) for job in jobs]``, one Ray Tune trial per job.
+
+    The trial (a closure, which Ray ships by value) imports the experiment ``script`` by its
+    file stem from the script's folder in the worker, runs ``function`` single-threaded and
+    reports its JSON-encoded result; ``shared`` goes to every trial as Ray's ``settings``
+    (pickled, not JSON). Results come back in the order of ``jobs``, JSON-decoded (tuples become
+    lists; floats, ints, strings and NaN are exact).
+
+    Args:
+        script: path of the experiment script (``__file__``).
+        function: name of a module-level function ``f(job, **shared)`` of the script.
+        jobs: picklable jobs.
+        shared: keyword arguments of every call.
+        name: experiment name (default Ray folder: a new temporary ``<name>-ray-*/<name>``).
+        progress: Ray's progress table (``False``: quiet).
+        path: Ray's experiment folder (``run_sweep``'s ``path``; ``None``: a new temporary one).
+        resume: continue the experiment in ``path`` (finished trials are not rerun).
+        address: join a running Ray cluster (``None``: an embedded local instance).
+        num_cpus: CPUs of an embedded local instance (``None``: all).
+
+    Raises:
+        hocnet.sweep.RayMissingError: without Ray Tune.
+        RuntimeError: some trial did not finish (the message says how to resume).
+    """
+    import json
+    import tempfile
+
+    from hocnet.sweep import require_ray, run_sweep
+
+    _, tune = require_ray()
+    script = pathlib.Path(script).resolve()
+    here, stem = str(script.parent), script.stem
+    settings = {"jobs": list(jobs), "shared": dict(shared)}
+
+    def trial(config, settings):  # a closure, so that Ray ships it by value to its workers
+        import importlib
+        import json
+        import sys
+
+        from ray import tune
+
+        if here not in sys.path:
+            sys.path.insert(0, here)
+        module = importlib.import_module(stem)
+        with module.C.single_thread():
+            out = getattr(module, function)(settings["jobs"][config["job"]], **settings["shared"])
+        tune.report({"result": json.dumps(out)})
+
+    if path is None:
+        path = pathlib.Path(tempfile.mkdtemp(prefix=f"{name}-ray-")) / name
+    space = {"job": tune.grid_search(list(range(len(settings["jobs"]))))}
+    result = run_sweep(
+        trial,
+        space,
+        path,
+        settings=settings,
+        resume=resume,
+        address=address,
+        num_cpus=num_cpus,
+        quiet=not progress,
+    )
+    if result.done < len(jobs):
+        raise RuntimeError(
+            f"{len(jobs) - result.done} of {len(jobs)} Ray trials did not finish; rerun with "
+            f"--engine ray --ray-dir {path} --resume"
+        )
+    ordered = sorted(result.rows, key=lambda r: int(r["job"]))
+    return [json.loads(row["result"]) for row in ordered]
+
+
+def engine_main(
+    name: str,
+    description: str,
+    run: Callable[..., pathlib.Path],
+    argv: Sequence[str] | None = None,
+) -> pathlib.Path:
+    """:func:`main_for` plus the engine options (``run`` takes ``engine=`` and ``ray=``).
+
+    ``--engine {loop,ray}``, ``--ray-dir DIR``, ``--resume``, ``--address ADDRESS`` and
+    ``--num-cpus N`` (the last four need ``--engine ray``; ``--resume`` needs ``--ray-dir``).
+    """
+    import functools
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--engine", choices=ENGINES, default="loop")
+    pre.add_argument("--ray-dir", default=None)
+    pre.add_argument("--resume", action="store_true")
+    pre.add_argument("--address", default=None)
+    pre.add_argument("--num-cpus", type=int, default=None)
+    args, rest = pre.parse_known_args(argv)
+    if args.engine == "loop" and (args.ray_dir or args.resume or args.address or args.num_cpus):
+        pre.error("--ray-dir, --resume, --address and --num-cpus need --engine ray")
+    ray: dict[str, Any] = {"resume": args.resume, "address": args.address}
+    ray["num_cpus"] = args.num_cpus
+    if args.ray_dir is not None:
+        ray["path"] = pathlib.Path(args.ray_dir)
+    elif args.resume:
+        pre.error("--resume needs --ray-dir (the folder of the run to continue)")
+    runner = functools.partial(run, engine=args.engine, ray=ray if args.engine == "ray" else None)
+    return main_for(name, description + ENGINE_HELP, runner, rest)

@@ -35,7 +35,6 @@ and ``--resume`` continues an interrupted run in it (finished trials are not rer
 
 from __future__ import annotations
 
-import argparse
 import functools
 import pathlib
 import sys
@@ -199,8 +198,7 @@ def evaluate(
     jobs = _jobs(scenes, table, grid)
     if engine == "ray":
         return _evaluate_ray(jobs, seeds, shapes, block, progress, **(ray or {}))
-    if engine != "loop":
-        raise ValueError(f"`engine`: expected 'loop' or 'ray', got {engine!r}")
+    C.check_engine(engine)
     data = {}
     for scene in scenes:
         data[scene] = sampled(scene, seeds, shapes[scene])
@@ -226,60 +224,11 @@ def ray_job(job: dict, seeds, shapes, block) -> list[dict]:
     return _job_rows(job, frames, truth, weights, seeds, block)
 
 
-def _evaluate_ray(
-    jobs, seeds, shapes, block, progress, *, path=None, resume=False, address=None, num_cpus=None
-) -> list[dict]:
+def _evaluate_ray(jobs, seeds, shapes, block, progress, **ray) -> list[dict]:
     """Run the jobs on Ray Tune, one trial per job (the ``--engine ray`` of this script)."""
-    import json
-    import tempfile
-
-    from hocnet.sweep import require_ray, run_sweep
-
-    _, tune = require_ray()
-    here = str(pathlib.Path(__file__).resolve().parent)
-    settings = {"jobs": jobs, "seeds": list(seeds), "shapes": shapes, "block": block}
-
-    def trial(config, settings):  # a closure, so that Ray ships it by value to its workers
-        import json
-        import sys
-
-        from ray import tune
-
-        if here not in sys.path:
-            sys.path.insert(0, here)
-        import dpa_b_sweep
-
-        with dpa_b_sweep.C.single_thread():
-            rows = dpa_b_sweep.ray_job(
-                settings["jobs"][config["job"]],
-                settings["seeds"],
-                settings["shapes"],
-                settings["block"],
-            )
-        tune.report({"rows": json.dumps(rows)})
-
-    if path is None:
-        path = pathlib.Path(tempfile.mkdtemp(prefix=f"{NAME}-ray-")) / NAME
-    space = {"job": tune.grid_search(list(range(len(jobs))))}
-    result = run_sweep(
-        trial,
-        space,
-        path,
-        settings=settings,
-        resume=resume,
-        address=address,
-        num_cpus=num_cpus,
-        quiet=not progress,
-    )
-    if result.done < len(jobs):
-        raise RuntimeError(
-            f"{len(jobs) - result.done} of {len(jobs)} Ray trials did not finish; rerun with "
-            f"--engine ray --ray-dir {path} --resume"
-        )
-    rows = []
-    for trial_row in sorted(result.rows, key=lambda r: int(r["job"])):
-        rows += json.loads(trial_row["rows"])
-    return rows
+    shared = {"seeds": list(seeds), "shapes": shapes, "block": block}
+    per_job = C.ray_map(__file__, "ray_job", jobs, shared, name=NAME, progress=progress, **ray)
+    return [row for rows in per_job for row in rows]
 
 
 def summarise(rows, scene, variant, g, bs) -> dict:
@@ -646,31 +595,9 @@ def run(
     return md
 
 
-ENGINE_HELP = (
-    " Engine options: --engine {loop,ray} (default loop; ray: Ray Tune via hocnet.sweep, the "
-    "sweep extra), --ray-dir DIR (Ray's experiment folder), --resume (continue it), "
-    "--address ADDRESS (join a Ray cluster), --num-cpus N (local Ray instance)."
-)
-
-
 def main(argv: Sequence[str] | None = None) -> pathlib.Path:
     """Command line entry point (``_expkit``'s options plus the engine options)."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--engine", choices=("loop", "ray"), default="loop")
-    pre.add_argument("--ray-dir", default=None)
-    pre.add_argument("--resume", action="store_true")
-    pre.add_argument("--address", default=None)
-    pre.add_argument("--num-cpus", type=int, default=None)
-    args, rest = pre.parse_known_args(argv)
-    if args.engine == "loop" and (args.ray_dir or args.resume or args.address or args.num_cpus):
-        pre.error("--ray-dir, --resume, --address and --num-cpus need --engine ray")
-    ray = {"resume": args.resume, "address": args.address, "num_cpus": args.num_cpus}
-    if args.ray_dir is not None:
-        ray["path"] = pathlib.Path(args.ray_dir)
-    elif args.resume:
-        pre.error("--resume needs --ray-dir (the folder of the run to continue)")
-    runner = functools.partial(run, engine=args.engine, ray=ray if args.engine == "ray" else None)
-    return C.main_for(NAME, DESCRIPTION + ENGINE_HELP, runner, rest)
+    return C.engine_main(NAME, DESCRIPTION, run, argv)
 
 
 if __name__ == "__main__":

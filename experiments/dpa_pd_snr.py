@@ -28,11 +28,16 @@ fraction of frames where the track back-tracked from the highest last-frame ASF 
 of the truth, and where each option holds (>= 0.8 of the frames).
 
 Run: ``python experiments/dpa_pd_snr.py [--quick] [--seeds N] [--out DIR]`` or
-``hocnet reproduce dpa-pd-snr``.
+``hocnet reproduce dpa-pd-snr``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on Ray
+Tune through ``hocnet.sweep.run_sweep``, one trial per (scene kind, detector) and per (option,
+speed), with the same rows; ``--ray-dir DIR`` keeps Ray's experiment folder there (default: a new
+temporary folder) and ``--resume`` continues an interrupted run in it; ``--address`` joins a
+running Ray cluster. The default engine, ``loop``, is unchanged.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import pathlib
 import sys
@@ -218,41 +223,140 @@ class Detector:
         return float(detected(result, positions).double().mean()), curve
 
 
+def speed_data(v: float, seeds, shape) -> tuple:
+    """Whitened frames ``(B, T, H, W)`` and truth ``(B, T, 2)`` of the speed-``v`` scenes."""
+    t_len, h, w = shape
+    # diagonal course through the centre, 30 degrees below the x axis
+    vx, vy = v * math.cos(math.radians(30.0)), v * math.sin(math.radians(30.0))
+    half = 0.5 * (t_len - 1)
+    target = IRTarget(0.5 * w - half * vx, 0.5 * h - half * vy, vx, vy, snr_db=SPEED_SNR)
+    seqs = [simulate_ir(shape, [target], clouds="clear", seed=int(s)) for s in seeds]
+    seq = C.stack_sequences(seqs)
+    return C.whiten(seq.frames, "anti_mean"), seq.positions[:, 0]
+
+
+def _speed_rows(option, v: float, data: tuple, seeds) -> list[dict]:
+    """The rows of one (option, speed) job: one per seed."""
+    label, g, equal, opts = option
+    weights = P.weights(*SPEED_MATRIX, equal_g=g if equal else None)
+    frames, truth = data
+    b = _b(weights, g)
+    path = backtrack(accumulate(frames, weights, b, g, **opts))
+    frac = P.on_truth(path, truth)
+    return [
+        {
+            "table": "speed",
+            "method": label,
+            "g": g,
+            "b": round(b, 4),
+            "speed": v,
+            "snr_db": SPEED_SNR,
+            "seed": seed,
+            "on_truth": float(frac[i]),
+            "tracked": int(frac[i] >= 0.8),
+        }
+        for i, seed in enumerate(seeds)
+    ]
+
+
 def speed_sweep(speeds, seeds, shape, progress) -> list[dict]:
     """On-truth fraction of the back-tracked track per (option, speed, seed)."""
     rows = []
     jobs = [(o, v) for o in options() for v in speeds]
-    data = {}
-    t_len, h, w = shape
-    for v in speeds:
-        # diagonal course through the centre, 30 degrees below the x axis
-        vx, vy = v * math.cos(math.radians(30.0)), v * math.sin(math.radians(30.0))
-        half = 0.5 * (t_len - 1)
-        target = IRTarget(0.5 * w - half * vx, 0.5 * h - half * vy, vx, vy, snr_db=SPEED_SNR)
-        seqs = [simulate_ir(shape, [target], clouds="clear", seed=int(s)) for s in seeds]
-        seq = C.stack_sequences(seqs)
-        data[v] = (C.whiten(seq.frames, "anti_mean"), seq.positions[:, 0])
-    for (label, g, equal, opts), v in C.progress(jobs, enabled=progress, desc=f"{NAME} speed"):
-        weights = P.weights(*SPEED_MATRIX, equal_g=g if equal else None)
-        frames, truth = data[v]
-        b = _b(weights, g)
-        path = backtrack(accumulate(frames, weights, b, g, **opts))
-        frac = P.on_truth(path, truth)
-        rows += [
-            {
-                "table": "speed",
-                "method": label,
-                "g": g,
-                "b": round(b, 4),
-                "speed": v,
-                "snr_db": SPEED_SNR,
-                "seed": seed,
-                "on_truth": float(frac[i]),
-                "tracked": int(frac[i] >= 0.8),
-            }
-            for i, seed in enumerate(seeds)
-        ]
+    data = {v: speed_data(v, seeds, shape) for v in speeds}
+    for option, v in C.progress(jobs, enabled=progress, desc=f"{NAME} speed"):
+        rows += _speed_rows(option, v, data[v], seeds)
     return rows
+
+
+def detector_settings(weights: torch.Tensor) -> list[tuple]:
+    """``(label, b, g, weights, accumulate kwargs)`` of every detector, single frame first."""
+    settings = [(SINGLE, 0.0, 0.0, weights, {})]
+    for label, g, equal, opts in options():
+        w = P.weights(equal_g=g if equal else None)
+        settings.append((label, _b(w, g), g, w, opts))
+    return settings
+
+
+@functools.lru_cache(maxsize=2)
+def _calib(kind: str, calib_seeds: tuple, shape: tuple) -> torch.Tensor:
+    """Whitened target-free calibration frames, cached per Ray worker."""
+    return C.whiten(simulate(kind, list(calib_seeds), shape).target_free, "anti_mean")
+
+
+@functools.lru_cache(maxsize=2)
+def _scenes(kind: str, seeds: tuple, shape: tuple) -> Scenes:
+    """:class:`Scenes`, cached per Ray worker."""
+    return Scenes(list(seeds), shape, kind)
+
+
+@functools.lru_cache(maxsize=2)
+def _speed_data(v: float, seeds: tuple, shape: tuple) -> tuple:
+    """:func:`speed_data`, cached per Ray worker."""
+    return speed_data(v, seeds, shape)
+
+
+def ray_job(job, settings, seeds, calib_seeds, shape, snrs, speed_seeds, speed_shape) -> dict:
+    """One trial of ``--engine ray``: the loop engine's computation for one job.
+
+    ``("pd", kind, i)``: detector ``settings[i]`` calibrated on ``kind``'s calibration scenes
+    and run at every SNR (its label, b, g, threshold and per-SNR Pd and per-pixel Pd curve);
+    ``("speed", i, v)``: the speed rows of ``options()[i]`` at speed ``v``.
+    """
+    if job[0] == "speed":
+        _, index, v = job
+        data = _speed_data(v, tuple(speed_seeds), tuple(speed_shape))
+        return {"rows": _speed_rows(options()[index], v, data, speed_seeds)}
+    _, kind, index = job
+    label, b, g, w, opts = settings[index]
+    det = Detector(label, b, g, w, _calib(kind, tuple(calib_seeds), tuple(shape)), opts)
+    evaluation = _scenes(kind, tuple(seeds), tuple(shape))
+    out: dict[str, Any] = {"label": det.label, "b": det.b, "g": det.g}
+    out.update({"threshold": det.threshold, "n_targets": evaluation.positions.shape[1]})
+    results = []
+    for snr in snrs:
+        pd, curve = det.run(evaluation.frames(snr), evaluation.positions)
+        results.append([snr, pd, curve.tolist(), str(curve.dtype).removeprefix("torch.")])
+    return {**out, "results": results}
+
+
+def _evaluate_ray(
+    settings, seeds, calib_seeds, shape, snrs, speeds, speed_seeds, speed_shape, progress, **ray
+) -> tuple:
+    """``--engine ray``: one trial per (scene kind, detector) and per (option, speed).
+
+    Returns ``(detectors, results, targets per scene, speed rows)`` as the loop engine builds
+    them (detectors as namespaces of ``label``, ``b``, ``g``, ``threshold``).
+    """
+    import types
+
+    jobs = [("pd", kind, i) for kind in KINDS for i in range(len(settings))]
+    jobs += [("speed", i, v) for i in range(len(options())) for v in speeds]
+    shared = {
+        "settings": settings,
+        "seeds": list(seeds),
+        "calib_seeds": list(calib_seeds),
+        "shape": shape,
+        "snrs": list(snrs),
+        "speed_seeds": list(speed_seeds),
+        "speed_shape": speed_shape,
+    }
+    outs = C.ray_map(__file__, "ray_job", jobs, shared, name=NAME, progress=progress, **ray)
+    detectors: dict = {kind: [] for kind in KINDS}
+    results: dict = {}
+    n_targets, speed_rows = 0, []
+    for job, out in zip(jobs, outs):
+        if job[0] == "speed":
+            speed_rows += out["rows"]
+            continue
+        kind = job[1]
+        keys = ("label", "b", "g", "threshold")
+        detectors[kind].append(types.SimpleNamespace(**{k: out[k] for k in keys}))
+        n_targets = out["n_targets"]
+        for snr, pd, curve, dtype in out["results"]:
+            tensor = torch.tensor(curve, dtype=getattr(torch, dtype))
+            results[kind, out["label"], snr] = {"pd": pd, "curve": tensor}
+    return detectors, results, n_targets, speed_rows
 
 
 def _fmt_frames(value: float, n_frames: int) -> str:
@@ -406,6 +510,8 @@ def run(
     seeds: int | None = None,
     out_dir: pathlib.Path | None = None,
     progress: bool = True,
+    engine: str = "loop",
+    ray: dict | None = None,
 ) -> pathlib.Path:
     """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
 
@@ -414,7 +520,12 @@ def run(
         seeds: evaluation scenes per SNR and per speed (default 20, quick 2); the calibration
             sets have 20 scenes (quick: 2).
         out_dir: output folder (default ``experiments/results``).
-        progress: show a tqdm progress bar.
+        progress: show a tqdm progress bar (``engine="ray"``: Ray's progress table).
+        engine: ``"loop"`` (default; the jobs one after the other here) or ``"ray"`` (Ray Tune
+            through ``hocnet.sweep.run_sweep``: one trial per (scene kind, detector), running it
+            at every SNR, and one per (option, speed); the same rows).
+        ray: keyword arguments of the Ray engine (``path``, ``resume``, ``address``,
+            ``num_cpus``).
 
     Returns:
         Path of the markdown file.
@@ -432,32 +543,44 @@ def run(
     speed_seeds = C.seed_list(SPEED_SEED_BASE, n)
     weights = P.weights()
     all_snrs = sorted({*snrs, *frame_snrs})
+    settings = detector_settings(weights)
+    methods = [label for label, *_ in settings]
     with C.single_thread(), C.Timer() as timer:
-        calib = {
-            kind: C.whiten(simulate(kind, calib_seeds, shape).target_free, "anti_mean")
-            for kind in KINDS
-        }
-        settings = [(SINGLE, 0.0, 0.0, weights, {})]
-        for label, g, equal, opts in options():
-            w = P.weights(equal_g=g if equal else None)
-            settings.append((label, _b(w, g), g, w, opts))
-        methods = [label for label, *_ in settings]
-        detectors = {
-            kind: [Detector(lab, b, g, w, calib[kind], o) for lab, b, g, w, o in settings]
-            for kind in KINDS
-        }
-        results: dict = {}
-        positions = {}
-        for kind in KINDS:
-            evaluation = Scenes(seed_values, shape, kind)
-            positions[kind] = evaluation.positions
-            jobs = [(d, snr) for snr in all_snrs for d in detectors[kind]]
-            for det, snr in C.progress(jobs, enabled=progress, desc=f"{NAME} {kind}"):
-                pd, curve = det.run(evaluation.frames(snr), evaluation.positions)
-                results[kind, det.label, snr] = {"pd": pd, "curve": curve}
-        speed_rows = speed_sweep(speeds, speed_seeds, speed_shape, progress)
+        if C.check_engine(engine) == "ray":
+            detectors, results, per_scene, speed_rows = _evaluate_ray(
+                settings,
+                seed_values,
+                calib_seeds,
+                shape,
+                all_snrs,
+                speeds,
+                speed_seeds,
+                speed_shape,
+                progress,
+                **(ray or {}),
+            )
+        else:
+            calib = {
+                kind: C.whiten(simulate(kind, calib_seeds, shape).target_free, "anti_mean")
+                for kind in KINDS
+            }
+            detectors = {
+                kind: [Detector(lab, b, g, w, calib[kind], o) for lab, b, g, w, o in settings]
+                for kind in KINDS
+            }
+            results: dict = {}
+            positions = {}
+            for kind in KINDS:
+                evaluation = Scenes(seed_values, shape, kind)
+                positions[kind] = evaluation.positions
+                jobs = [(d, snr) for snr in all_snrs for d in detectors[kind]]
+                for det, snr in C.progress(jobs, enabled=progress, desc=f"{NAME} {kind}"):
+                    pd, curve = det.run(evaluation.frames(snr), evaluation.positions)
+                    results[kind, det.label, snr] = {"pd": pd, "curve": curve}
+            per_scene = positions[SCENE].shape[1]
+            speed_rows = speed_sweep(speeds, speed_seeds, speed_shape, progress)
     n_frames = shape[0]
-    n_targets = n * positions[SCENE].shape[1]
+    n_targets = n * per_scene
     steps = torch.arange(1, n_frames + 1)
     rows = []
     for kind in KINDS:
@@ -576,8 +699,8 @@ def run(
 
 
 def main(argv: Sequence[str] | None = None) -> pathlib.Path:
-    """Command line entry point."""
-    return C.main_for(NAME, DESCRIPTION, run, argv)
+    """Command line entry point (``_expkit``'s options plus the engine options)."""
+    return C.engine_main(NAME, DESCRIPTION, run, argv)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,11 @@ NPA's target moves along y, so its long blocks are 80 x 30 (our reading: the pap
 which blocks it used for NPA).
 
 Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR]`` or
-``hocnet reproduce dpa-sampling``.
+``hocnet reproduce dpa-sampling``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on
+Ray Tune through ``hocnet.sweep.run_sweep``, one trial per (scene, s_n), with the same rows;
+``--ray-dir DIR`` keeps Ray's experiment folder there (default: a new temporary folder) and
+``--resume`` continues an interrupted run in it; ``--address`` joins a running Ray cluster. The
+default engine, ``loop``, is unchanged.
 """
 
 from __future__ import annotations
@@ -152,44 +156,80 @@ def _why_table(rows, scenes, sampling) -> str:
     return C.md_table(headers, body)
 
 
-def evaluate(scenes, bvalues, weights, sampling, seeds, frames, quick, progress) -> list[dict]:
-    """One row per (scene, s_n, g, b choice, seed) with A_S for every Max_Numbers."""
-    rows = []
+def evaluate(
+    scenes,
+    bvalues,
+    weights,
+    sampling,
+    seeds,
+    frames,
+    quick,
+    progress,
+    *,
+    engine: str = "loop",
+    ray: dict | None = None,
+) -> list[dict]:
+    """One row per (scene, s_n, g, b choice, seed) with A_S for every Max_Numbers.
+
+    ``engine="loop"`` runs the (scene, s_n) jobs here, one after the other; ``engine="ray"``
+    runs each as one trial of a ``hocnet.sweep.run_sweep`` grid on Ray Tune (``ray``: the
+    keyword arguments of ``_expkit.ray_map``: ``path``, ``resume``, ``address``, ``num_cpus``).
+    Both run :func:`sampling_job` and give the same rows in the same order.
+    """
     jobs = [(scene, step) for scene in scenes for step in sampling]
-    for scene, step in C.progress(jobs, enabled=progress, desc=NAME):
-        shape, block = geometry(scene, step, quick)
-        whitened, truth = sampled_scene(scene, seeds, frames, shape, step)
-        last = min(LAST, frames)
-        for (g, choice), b in bvalues.items():
-            state = accumulate(whitened, weights, b, g)
-            hit = P.tracked(backtrack(state, P.nine_block_start(state.asf, truth, block)), truth)
-            paper = {
-                m: algorithm_score(state.asf, truth, last=last, block=block, max_numbers=m)
-                for m in MAX_NUMBERS
+    shared = {
+        "bvalues": bvalues,
+        "weights": weights,
+        "seeds": list(seeds),
+        "frames": frames,
+        "quick": quick,
+    }
+    if C.check_engine(engine) == "ray":
+        per_job = C.ray_map(
+            __file__, "sampling_job", jobs, shared, name=NAME, progress=progress, **(ray or {})
+        )
+    else:
+        per_job = [sampling_job(j, **shared) for j in C.progress(jobs, enabled=progress, desc=NAME)]
+    return [row for rows in per_job for row in rows]
+
+
+def sampling_job(job, bvalues, weights, seeds, frames, quick) -> list[dict]:
+    """The rows of one (scene, s_n) job: one per (g, b choice, seed)."""
+    scene, step = job
+    rows = []
+    shape, block = geometry(scene, step, quick)
+    whitened, truth = sampled_scene(scene, seeds, frames, shape, step)
+    last = min(LAST, frames)
+    for (g, choice), b in bvalues.items():
+        state = accumulate(whitened, weights, b, g)
+        hit = P.tracked(backtrack(state, P.nine_block_start(state.asf, truth, block)), truth)
+        paper = {
+            m: algorithm_score(state.asf, truth, last=last, block=block, max_numbers=m)
+            for m in MAX_NUMBERS
+        }
+        centred = {
+            m: algorithm_score(state.asf, truth, last=last, max_numbers=m, reading="centred")
+            for m in MAX_NUMBERS
+        }
+        parts = _snr_parts(state.asf, truth, block)
+        for i, seed in enumerate(seeds):
+            row = {
+                "table": "sampling",
+                "scene": scene,
+                "s_n": step,
+                "v_eff": round(step * SPEED[P.paper_name(scene)], 4),
+                "block": f"{block[0]}x{block[1]}",
+                "g": g,
+                "b_choice": choice,
+                "b": round(b, 4),
+                "seed": seed,
+                "tracked": int(hit[i]),
             }
-            centred = {
-                m: algorithm_score(state.asf, truth, last=last, max_numbers=m, reading="centred")
-                for m in MAX_NUMBERS
-            }
-            parts = _snr_parts(state.asf, truth, block)
-            for i, seed in enumerate(seeds):
-                row = {
-                    "table": "sampling",
-                    "scene": scene,
-                    "s_n": step,
-                    "v_eff": round(step * SPEED[P.paper_name(scene)], 4),
-                    "block": f"{block[0]}x{block[1]}",
-                    "g": g,
-                    "b_choice": choice,
-                    "b": round(b, 4),
-                    "seed": seed,
-                    "tracked": int(hit[i]),
-                }
-                row.update({f"a_s_mn{m}": float(paper[m][i]) for m in MAX_NUMBERS})
-                row.update({f"a_s_centred_mn{m}": float(centred[m][i]) for m in MAX_NUMBERS})
-                for key, values in parts.items():
-                    row.update({f"{key}_mn{m}": float(values[m][i]) for m in MAX_NUMBERS})
-                rows.append(row)
+            row.update({f"a_s_mn{m}": float(paper[m][i]) for m in MAX_NUMBERS})
+            row.update({f"a_s_centred_mn{m}": float(centred[m][i]) for m in MAX_NUMBERS})
+            for key, values in parts.items():
+                row.update({f"{key}_mn{m}": float(values[m][i]) for m in MAX_NUMBERS})
+            rows.append(row)
     return rows
 
 
@@ -331,6 +371,8 @@ def run(
     seeds: int | None = None,
     out_dir: pathlib.Path | None = None,
     progress: bool = True,
+    engine: str = "loop",
+    ray: dict | None = None,
 ) -> pathlib.Path:
     """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
 
@@ -338,7 +380,10 @@ def run(
         quick: smoke run (8 frames, small frames and 15 x 15 blocks, s_n = 1 and 4, 2 seeds).
         seeds: scenes per setting (default 20, quick 2).
         out_dir: output folder (default ``experiments/results``).
-        progress: show a tqdm progress bar.
+        progress: show a tqdm progress bar (``engine="ray"``: Ray's progress table).
+        engine: ``"loop"`` (default) or ``"ray"`` (Ray Tune, see :func:`evaluate`).
+        ray: keyword arguments of the Ray engine (``path``, ``resume``, ``address``,
+            ``num_cpus``).
 
     Returns:
         Path of the markdown file.
@@ -352,7 +397,18 @@ def run(
     weights = P.weights()
     bvalues = b_values(weights)
     with C.single_thread(), C.Timer() as timer:
-        rows = evaluate(scenes, bvalues, weights, sampling, seed_values, frames, quick, progress)
+        rows = evaluate(
+            scenes,
+            bvalues,
+            weights,
+            sampling,
+            seed_values,
+            frames,
+            quick,
+            progress,
+            engine=engine,
+            ray=ray,
+        )
     parts = [
         C.header(
             "[NR08] frame sampling (effective velocity) and Max_Numbers",
@@ -444,8 +500,8 @@ def run(
 
 
 def main(argv: Sequence[str] | None = None) -> pathlib.Path:
-    """Command line entry point."""
-    return C.main_for(NAME, DESCRIPTION, run, argv)
+    """Command line entry point (``_expkit``'s options plus the engine options)."""
+    return C.engine_main(NAME, DESCRIPTION, run, argv)
 
 
 if __name__ == "__main__":

@@ -406,6 +406,65 @@ def test_b_sweep_ray_engine_gives_the_loop_rows(ray_instance, tmp_path):
     assert ray_rows == loop
 
 
+# --------------------------------------------------------------------------------------------
+# experiments/dpa_sampling.py and dpa_pd_snr.py --engine ray
+# --------------------------------------------------------------------------------------------
+
+
+def _script(stem):
+    name = f"_test_sweep_{stem}"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, EXPERIMENTS / f"{stem}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+@pytest.mark.parametrize("stem", ["dpa_sampling", "dpa_pd_snr"])
+def test_rejects_an_unknown_engine(stem, tmp_path):
+    with pytest.raises(ValueError, match="`engine`: expected 'loop' or 'ray'"):
+        _script(stem).run(quick=True, out_dir=tmp_path, progress=False, engine="spark")
+
+
+@pytest.mark.parametrize("stem", ["dpa_b_sweep", "dpa_sampling", "dpa_pd_snr"])
+def test_engine_flags_need_engine_ray(stem, capsys):
+    m = _script(stem)
+    with pytest.raises(SystemExit):
+        m.main(["--quick", "--resume"])
+    assert "need --engine ray" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        m.main(["--quick", "--engine", "ray", "--resume"])
+    assert "--resume needs --ray-dir" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        m.main(["--help"])
+    assert "Engine options" in " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+
+
+@needs_ray
+@pytest.mark.parametrize("stem", ["dpa_sampling", "dpa_pd_snr"])
+def test_quick_run_gives_the_same_csv_on_either_engine(stem, ray_instance, tmp_path):
+    """A --quick run with --engine ray writes the loop engine's CSV byte for byte."""
+    m = _script(stem)
+    loop = m.run(quick=True, out_dir=tmp_path / "loop", progress=False)
+    ray = m.run(
+        quick=True,
+        out_dir=tmp_path / "ray",
+        progress=False,
+        engine="ray",
+        ray={"path": tmp_path / "exp"},
+    )
+    csv_name = f"{m.NAME}.csv"
+    assert (tmp_path / "ray" / csv_name).read_bytes() == (tmp_path / "loop" / csv_name).read_bytes()
+    assert len(_rows(tmp_path / "ray" / csv_name)) > 0
+    # the reports differ only in their runtime line
+    strip = [line for line in loop.read_text().splitlines() if not line.startswith("- Runtime")]
+    assert strip == [
+        line for line in ray.read_text().splitlines() if not line.startswith("- Runtime")
+    ]
+    assert any((tmp_path / "exp").glob("experiment_state*.json"))  # Ray Tune ran the trials
+
+
 @pytest.mark.slow
 @needs_ray
 def test_train_sweep_on_ray(ray_instance, tmp_path):

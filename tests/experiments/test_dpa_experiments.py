@@ -263,8 +263,10 @@ class TestSampling:
         module = load("dpa-sampling")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
         rows = check_outputs("dpa-sampling", md, tmp_path)
-        # 3 scenes (NA23A, NPA, fluctuating NA23A) x s_n 1, 4 x g 0, 1 x b paper / EMC x 2 seeds
-        assert len(rows) == 3 * 2 * 2 * 2 * 2
+        # 4 scenes (NA23A, NPA, fluctuating and one-pixel NA23A) x s_n 1, 4 x g 0, 1
+        # x b paper / EMC x 2 seeds
+        assert len(module.SCENES) == 4
+        assert len(rows) == 4 * 2 * 2 * 2 * 2
         assert {r["s_n"] for r in rows} == {"1", "4"}
         assert {r["b_choice"] for r in rows} == {"paper", "EMC"}
         for r in rows:
@@ -308,7 +310,7 @@ class TestSampling:
     def test_full(self, tmp_path):
         module = load("dpa-sampling")
         rows = check_outputs("dpa-sampling", module.run(out_dir=tmp_path), tmp_path)
-        assert len(rows) == 3 * 5 * 2 * 2 * 20
+        assert len(rows) == 4 * 5 * 2 * 2 * 2 * 20
 
 
 class TestPdSnr:
