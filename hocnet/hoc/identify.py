@@ -944,6 +944,8 @@ def _best_paths(
     # kept, so ties go as over all triples): the (K, L, L) table on those rows only
     sub = (points[p0] | points[p1] | points[p2]).nonzero().squeeze(1)
     ks = sub.numel()
+    if ks == 0:  # no triple through the points: no chain
+        return []
     total = bw[sub][:, :, None] + fw[sub][:, None, :] - w[sub].view(ks, 1, 1)  # (Ks, L, L)
     length = lb + lf + 3
     total = torch.where(length >= min_points, total, neg)
