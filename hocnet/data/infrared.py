@@ -694,6 +694,7 @@ def npa_like(
     seed: int | None = None,
     generator: torch.Generator | None = None,
     fluctuation: float | None = None,
+    start: tuple[float, float] | None = None,
 ) -> IRSequence:
     """Scene after the NPA sequence of [NR08]: two slow targets, the studied one in clouds.
 
@@ -725,6 +726,9 @@ def npa_like(
         seed: random seed (a seeded preset is reproducible).
         generator: generator to draw from instead of ``seed``.
         fluctuation: per-frame peak fluctuation of :func:`simulate_ir` (``None``: constant).
+        start: ``(x0, y0)`` of target 0 in frame 0 instead of the default above (e.g. the
+            centre of a frame tall enough for 80-row blocks above and below it); target 1 then
+            starts at ``(min(x0 + 60, 7W/8), min(y0 + 30, 0.85 H))``.
 
     Returns:
         An :class:`IRSequence` with two targets; target 0 is the studied one.
@@ -741,7 +745,12 @@ def npa_like(
         clouds = NPA_CLOUDS
     if not isinstance(clouds, CloudSpec):
         raise TypeError(f"`clouds`: expected a CloudSpec or None, got {type(clouds).__name__}")
-    x0, y0 = min(45.0, 0.375 * w), min(45.0, 0.5 * h)
+    if start is None:
+        x0, y0 = min(45.0, 0.375 * w), min(45.0, 0.5 * h)
+    else:
+        if not isinstance(start, Sequence) or len(start) != 2:
+            raise TypeError(f"`start`: expected (x0, y0), got {start!r}")
+        x0, y0 = (check_number("start", v) for v in start)
     x1, y1 = min(x0 + 60.0, 0.875 * w), min(y0 + 30.0, 0.85 * h)
     targets = [
         IRTarget(x0, y0, 0.0, -speed, snr_db=snr_db),
