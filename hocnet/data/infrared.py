@@ -128,7 +128,7 @@ class IRTarget:
             target as the Gaussian of eq. (1), its W_basic assumes a 3 x 3 target spread
             (section 2.2.2) and the project's ``PAPER_SIGMA`` = 0.871 px implies about 3 x 3
             too; with the Gaussian target the g = 1 A_S peaks at Max_Numbers 2-4, not 1
-            (``experiments/dpa_sampling.py``).
+            (3-4 at s_n = 2-5 in ``dpa-sampling``, 2-4 per seed in ``tests/dpa``).
 
     Examples:
         >>> IRTarget(10.0, 5.0, 1.0, 0.0, snr_db=6.0).trajectory(3)
