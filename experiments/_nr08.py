@@ -78,8 +78,8 @@ departing from [NR08]'s Gaussian target (eq. 1; W_basic assumes a 3 x 3 target s
 2.2.2) and from ``PAPER_SIGMA`` = 0.871 px (about 3 x 3 pixels); motivated by targets that
 "subtend areas less than a pixel" (section 1) and by Figure 19, where the g = 1 ASF holds "only
 one high pixel belonging to the target". With the paper's Gaussian target the g = 1 A_S peaks
-at Max_Numbers 2-4 (``dpa-sampling``: 3-4 at s_n = 2-5, 6 at s_n = 1). The constructed scene of
-``tests/dpa/test_metrics.py``."""
+off 1 (``dpa-sampling``: Max_Numbers 3-4 at s_n = 2-5, 6 at s_n = 1; 2-4 per seed in
+``tests/dpa/test_metrics.py``). The constructed scene of ``tests/dpa/test_metrics.py``."""
 
 VARIANT_SCENES = {
     FLUCT: ("NA23A", {"fluctuation": FLUCTUATION}),
