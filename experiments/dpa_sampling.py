@@ -9,17 +9,20 @@ with b = 4.8 for g = 0, section 3.2.1(3); NPA's Max_Numbers are those of its s_n
 section 3.2.2(1)). The Max_Numbers peak is therefore read at s_n = 4 for NA23A and s_n = 3 for NPA.
 
 Here every scene (``na23a_like`` / ``npa_like``, the presets after section 3, and the NA23A-like
-variants: fluctuating peak, and one-pixel target ``psf="pixel"``, our reading of the paper's point
-target and the test scene of ``tests/dpa/test_metrics.py``) is simulated with
+variants: fluctuating peak, and one-pixel target ``psf="pixel"``, our choice departing from the
+Gaussian target of eq. (1), the test scene of ``tests/dpa/test_metrics.py``) is simulated with
 ``1 + 24 s_n`` frames and every ``s_n``-th frame is kept, so the DPA (5 x 5 matrices, as in
 section 3) always sees 25 frames. It runs with g = 0 and g = 1, each at the b the paper used
 (4.8 and 0.8) and at the effective-memory b of direction 9 (eq. 12-14, EMC 0.8). A_S (eq. 16-17
 as printed: tiled blocks anchored on the target's first-frame pixel, mean over the last six
 frames) is computed for Max_Numbers = 1 .. 7 under the paper's reading and under our earlier
-centred reading. Blocks are 30 x 30, and 30 x 80 (NA23A, moving along x) once the target would
-leave a 30 x 30 target block (``fast``: NA23A s_n >= 3, NPA s_n >= 4; the paper names s_n = 4).
-NPA's target moves along y, so its long blocks are 80 x 30 (our reading: the paper does not say
-which blocks it used for NPA).
+centred reading. Each scene uses ONE block size at every s_n, so that the A_S peak over s_n
+compares velocities and not block sizes: 30 x 80 (NA23A, moving along x) / 80 x 30 (NPA, moving
+along y; our reading: the paper does not say which blocks it used for NPA) since some s_n needs
+them (``fast``: the target may leave a 30 x 30 block, NA23A s_n >= 2, NPA s_n >= 3; the paper
+names s_n = 4), in frames that hold the nine blocks in full (NA23A 90 x 240, NPA 240 x 120 with
+the studied target started at mid-height). A noise-free footprint table (``footprints``) shows
+how many pixels the target lights in the last ASF.
 
 Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR]`` or
 ``hocnet reproduce dpa-sampling``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on
@@ -65,6 +68,8 @@ SCENES = (*P.SCENES, P.FLUCT, P.POINT)
 """The presets after section 3 of [NR08], the fluctuating and the one-pixel-target NA23A-like
 variants."""
 JITTER = 0.5
+PSF_RADIUS = 1.0
+"""Pixels the target lights beyond its centre pixel (the presets' 0.7 px Gaussian lights 3 x 3)."""
 
 
 def scene_label(scene: str) -> str:
@@ -74,33 +79,65 @@ def scene_label(scene: str) -> str:
 
 
 def fast(scene: str, step: int, frames: int = FRAMES) -> bool:
-    """Whether the long blocks are needed: the target leaves a 30 x 30 target block.
+    """Whether the target may leave a 30 x 30 target block at sampling ``step``.
 
     [NR08] section 3.2: "To keep the target in the 'target block', a larger block size of
     30 x 80 was used for fast targets instead of 30 x 30" (named for s_n = 4). The target starts
-    at the block centre and travels ``speed s_n (frames - 1)`` px plus the jitter: the long
-    blocks are used once that exceeds half a 30-pixel block (NA23A: s_n >= 3, 21.6 px at s_n =
-    3; NPA: s_n >= 4, 14.4 px at s_n = 3), our reading of "fast".
+    at the block centre and travels ``speed s_n (frames - 1)`` px; the first-to-last jitter
+    adds up to ``2 JITTER`` and the PSF lights ``PSF_RADIUS`` px beyond the centre, so the
+    target may leave the block once ``travel + 2 JITTER + PSF_RADIUS`` exceeds half a 30-pixel
+    block (NA23A: s_n >= 2, 14.4 + 2 px at s_n = 2; NPA: s_n >= 3, 14.4 + 2 px at s_n = 3), our
+    reading of "fast".
     """
-    travel = SPEED[P.paper_name(scene)] * step * (frames - 1) + JITTER
+    travel = SPEED[P.paper_name(scene)] * step * (frames - 1) + 2.0 * JITTER + PSF_RADIUS
     return travel > 15.0
 
 
-def geometry(scene: str, step: int, quick: bool) -> tuple[tuple[int, int], tuple[int, int]]:
-    """``(frame (H, W), block (rows, columns))`` of a scene at sampling ``step``."""
+def long_blocks(scene: str, sampling: Sequence[int], frames: int = FRAMES) -> bool:
+    """Whether a scene uses the long blocks at *every* s_n: some s_n of ``sampling`` is ``fast``.
+
+    One block size across s_n, so that A_S compares effective velocities, not block sizes
+    (eq. 17's NTB statistics depend on the block size).
+    """
+    return any(fast(scene, step, frames) for step in sampling)
+
+
+def geometry(
+    scene: str, step: int, quick: bool, sampling: Sequence[int] = SAMPLING
+) -> tuple[tuple[int, int], tuple[int, int]]:
+    """``(frame (H, W), block (rows, columns))`` of a scene, the same at every s_n of ``sampling``.
+
+    The frame holds the nine blocks in full around the target's first-frame pixel: NA23A's
+    target starts at the frame centre; NPA's is started at ``(45, 120)`` of a 240-row frame
+    (:func:`npa_start`). ``step`` is kept for the callers (the geometry no longer depends on it).
+    """
+    del step
     if quick:
         return ((45, 90) if P.paper_name(scene) == "NA23A" else (45, 60)), (15, 15)
-    if not fast(scene, step):
+    if not long_blocks(scene, sampling):
         return ((90, 90) if P.paper_name(scene) == "NA23A" else (90, 120)), (30, 30)
     if P.paper_name(scene) == "NA23A":
         return (90, 240), (30, 80)  # [NR08] section 3.2.1(2): 30 x 80 blocks, moving along x
-    return (90, 120), (80, 30)  # moving along y; clipped by the frame at the top and the bottom
+    return (240, 120), (80, 30)  # moving along y: 80 x 30, three of them above each other
+
+
+def npa_start(shape: tuple[int, int]) -> tuple[float, float] | None:
+    """``start`` of ``npa_like`` for a frame ``(H, W)``.
+
+    The studied target at mid-height of a frame taller than 90 rows (the nine 80 x 30 blocks in
+    full), else ``None`` (the preset's default).
+    """
+    height, _ = shape
+    return (45.0, 0.5 * height) if height > 90 else None
 
 
 def sampled_scene(scene: str, seeds: Sequence[int], frames: int, shape, step: int) -> tuple:
     """Whitened frames ``(B, frames, H, W)`` and the studied target's ``(B, frames, 2)``."""
     long = 1 + (frames - 1) * step
-    seq = P.scene(scene, seeds, shape=(long, *shape))
+    extra = {}
+    if P.paper_name(scene) == "NPA" and npa_start(shape) is not None:
+        extra["start"] = npa_start(shape)
+    seq = P.scene(scene, seeds, shape=(long, *shape), **extra)
     kept = seq.frames[:, ::step]
     return C.whiten(kept, "anti_mean"), seq.positions[:, 0, ::step]
 
@@ -183,6 +220,7 @@ def evaluate(
         "seeds": list(seeds),
         "frames": frames,
         "quick": quick,
+        "sampling": sampling,
     }
     if C.check_engine(engine) == "ray":
         per_job = C.ray_map(
@@ -193,11 +231,11 @@ def evaluate(
     return [row for rows in per_job for row in rows]
 
 
-def sampling_job(job, bvalues, weights, seeds, frames, quick) -> list[dict]:
+def sampling_job(job, bvalues, weights, seeds, frames, quick, sampling) -> list[dict]:
     """The rows of one (scene, s_n) job: one per (g, b choice, seed)."""
     scene, step = job
     rows = []
-    shape, block = geometry(scene, step, quick)
+    shape, block = geometry(scene, step, quick, sampling)
     whitened, truth = sampled_scene(scene, seeds, frames, shape, step)
     last = min(LAST, frames)
     for (g, choice), b in bvalues.items():
@@ -231,6 +269,52 @@ def sampling_job(job, bvalues, weights, seeds, frames, quick) -> list[dict]:
                 row.update({f"{key}_mn{m}": float(values[m][i]) for m in MAX_NUMBERS})
             rows.append(row)
     return rows
+
+
+FOOTPRINT_SCENES = ("NA23A", P.POINT)
+"""Scenes of the noise-free footprint table: the presets' Gaussian target and the one-pixel one."""
+
+
+def footprints(seeds, frames, quick, sampling, weights) -> dict[tuple[str, float], list[float]]:
+    """Noise-free footprint of the target in the last ASF, at the paper's s_n and b.
+
+    The target's own signal (``frames - target_free``: no noise, no clouds) of each scene,
+    sampled every s_n-th frame (NA23A's s_n of Table 2, 4), anti-mean whitened and accumulated
+    with the paper's b (4.8 at g = 0, 0.8 at g = 1); the seven highest pixels of the last
+    frame's ASF relative to the highest one, averaged over the seeds (the jitter differs).
+
+    Returns:
+        ``{(scene, g): [1.0, r2, ..., r7]}``.
+    """
+    out = {}
+    for scene in FOOTPRINT_SCENES:
+        step = _ref_sn(scene, sampling)
+        shape, _ = geometry(scene, step, quick, sampling)
+        seq = P.scene(scene, seeds, shape=(1 + (frames - 1) * step, *shape))
+        signal = (seq.frames - seq.target_free)[:, ::step]
+        whitened = C.whiten(signal, "anti_mean")
+        for g in GS:
+            state = accumulate(whitened, weights, P.PAPER_B_USED[g], g)
+            top = state.asf[:, -1].detach().flatten(1).double().topk(len(MAX_NUMBERS)).values
+            rel = (top / top[:, :1]).mean(dim=0)
+            out[scene, g] = [float(v) for v in rel]
+    return out
+
+
+def _footprint_table(prints, sampling) -> str:
+    headers = ["target", "g", "b", "s_n", *(f"pixel {m}" for m in MAX_NUMBERS)]
+    body = []
+    for (scene, g), rel in prints.items():
+        body.append(
+            [
+                scene_label(scene),
+                f"{g:g}",
+                f"{P.PAPER_B_USED[g]:g}",
+                str(_ref_sn(scene, sampling)),
+                *(f"{v:.2f}" for v in rel),
+            ]
+        )
+    return C.md_table(headers, body)
 
 
 def _sel(rows, scene, g, choice, step=None):
@@ -409,6 +493,7 @@ def run(
             engine=engine,
             ray=ray,
         )
+        prints = footprints(seed_values, frames, quick, sampling, weights)
     parts = [
         C.header(
             "[NR08] frame sampling (effective velocity) and Max_Numbers",
@@ -422,15 +507,21 @@ def run(
         "SNRs (Table 2's peaks 60 / 30 x the noise), *NA23A-like, fluctuating peak* "
         f"(`na23a_like(fluctuation={P.FLUCTUATION:g})`, our addition: per-frame peak exponential "
         f"with mean {P.FLUCTUATION:g} x the peak, clipped at it; see `dpa-b-sweep`), and "
-        "*NA23A-like, one-pixel target* (`na23a_like(psf='pixel')`, our reading of the paper's "
-        "point target: the whole peak in the pixel containing the jittered position), simulated "
+        "*NA23A-like, one-pixel target* (`na23a_like(psf='pixel')`, our choice, departing from "
+        "eq. (1)'s Gaussian target and PAPER_SIGMA: the whole peak in the pixel containing the "
+        "jittered position, after the targets that 'subtend areas less than a pixel' and Figure "
+        "19's one high pixel), simulated "
         f"with 1 + {frames - 1} s_n frames of which every s_n-th is kept; seeds "
-        f"{seed_values[0]} .. {seed_values[-1]}. Frames and blocks per s_n: "
+        f"{seed_values[0]} .. {seed_values[-1]}. One frame and block size per scene at every "
+        "s_n (the long blocks wherever some s_n needs them: the target may leave a 30 x 30 "
+        "block once speed s_n 24 + 2 x 0.5 px jitter + 1 px PSF radius > 15 px, NA23A s_n >= 2, "
+        "NPA s_n >= 3), so that A_S compares velocities, not block sizes; NPA's studied target "
+        "starts at mid-height of a 240-row frame so that the nine 80 x 30 blocks are full: "
         + "; ".join(
-            f"{s} s_n {step}: {geometry(s, step, quick)[0][0]} x {geometry(s, step, quick)[0][1]}"
-            f", blocks {geometry(s, step, quick)[1][0]} x {geometry(s, step, quick)[1][1]}"
+            f"{s}: {geometry(s, 1, quick, sampling)[0][0]} x "
+            f"{geometry(s, 1, quick, sampling)[0][1]}, blocks "
+            f"{geometry(s, 1, quick, sampling)[1][0]} x {geometry(s, 1, quick, sampling)[1][1]}"
             for s in scenes
-            for step in sampling
         )
         + ".",
         "- DPA: anti-mean whitening, `probability_matrices(5, v_max=1)`; b: *paper* = 4.8 "
@@ -455,18 +546,16 @@ def run(
         "[NR08]'s 'target pixels') and faster beyond; std SNR_NTB also falls with Max_Numbers in "
         "blocks of white noise (the mean of the few highest pixels varies less from block to "
         "block the more pixels it averages), so A_S peaks where the footprint ends only if SNR_TB "
-        "falls faster there than std SNR_NTB. Noiseless footprints at s_n = 4 (last frame, "
-        "relative to the highest pixel; `/tmp` probe, one scene): the one-pixel target at g = 1, "
-        "b = 0.8 is 1, 0.15, 0.09: one pixel, and A_S peaks at 1 in every scene, as Table 2 "
-        "and Figure 19 ('only one high pixel belonging to the target'); at g = 0, b = 4.8 the max "
-        "recursion keeps the pixels the target passed (b max(w) = 0.83 per frame): 1, 0.73, "
-        "0.72, 0.61, 0.49, 0.38, and A_S rises steeply up to Max_Numbers = 3 and then flattens "
-        "(within a few % up to 7; the argmax varies from scene to scene): the knee is at the "
-        "paper's 3, a peak there is not reproduced on white noise. The presets' 0.7 px Gaussian "
-        "PSF lights 3 x 3 pixels (g = 1 footprint 1, 0.79, 0.78, 0.60, ...), so A_S peaks at 4 "
-        "(g = 1) and keeps rising to 7 (g = 0). Blocks with cloud edges keep their spread, and "
-        "A_S falls from Max_Numbers = 1. Means over the scenes, last frame only, at the paper's "
-        "s_n and b (A_S above is the mean over the last six frames):",
+        "falls faster there than std SNR_NTB. The footprints, noise-free (the target's own "
+        "signal, no noise, no clouds; `footprints`): the seven highest pixels of the last ASF "
+        "relative to the highest one, mean over the seeds, at NA23A's s_n of Table 2 and the "
+        "paper's b (at g = 0 the max recursion keeps the pixels the target passed, b max(w) per "
+        "frame; at g = 1 the sum spreads the score over the neighbours):",
+        "",
+        _footprint_table(prints, sampling),
+        "",
+        "Blocks with cloud edges keep their spread. Means over the scenes, last frame only, at "
+        "the paper's s_n and b (A_S above is the mean over the last six frames):",
         "",
         _why_table(rows, scenes, sampling),
         "",

@@ -326,6 +326,10 @@ def block_snr(
         block: paper: ``M`` or ``(M, N)`` (rows, columns), default ``(30, 30)``; centred: an
             odd size, default 5.
         max_numbers: number of highest pixels taken as "target" (``Max_Numbers``), ``>= 1``.
+            Default 1 (our choice): eq. (16) as printed takes "the five pixels with the
+            highest scores" (``max_numbers=5``, the paper's preliminary runs, Figures 9-13),
+            and section 3.2.1(3) then tunes it; 1 is Table 2's value for g = 1 (3 for g = 0),
+            the case of the paper's recommended b = 0.8. Pass 5 for eq. (16) as printed.
         reading: ``"paper"`` or ``"centred"``.
 
     Returns:
@@ -402,7 +406,8 @@ def block_snrs(
         image: ``(B, H, W)`` or ``(H, W)``.
         position: ``(B, 2)`` / ``(2,)`` ``(x, y)`` of the target.
         block: ``M`` or ``(M, N)`` (rows, columns), default ``(30, 30)``.
-        max_numbers: ``Max_Numbers``, ``>= 1``.
+        max_numbers: ``Max_Numbers``, ``>= 1``; default 1 (Table 2's g = 1 value, our choice;
+            eq. (16) as printed uses 5, see :func:`block_snr`).
 
     Returns:
         float64 ``(B, 9)``, or ``(9,)`` for an unbatched image.
@@ -482,7 +487,9 @@ def algorithm_score(
         last: number of final frames averaged, ``1 .. T``.
         block: paper: ``M`` or ``(M, N)`` rows x columns (default 30 x 30); centred: odd size
             (default 5).
-        max_numbers: ``Max_Numbers``, the number of highest pixels taken as "target", ``>= 1``.
+        max_numbers: ``Max_Numbers``, the number of highest pixels taken as "target", ``>= 1``;
+            default 1 (Table 2's g = 1 value, our choice; eq. (16) as printed uses 5, see
+            :func:`block_snr`).
         reading: ``"paper"`` or ``"centred"``.
         anchor: ``"first"`` or ``"each"`` (paper reading only).
 

@@ -289,14 +289,40 @@ class TestSampling:
 
     def test_geometry_follows_the_paper(self):
         module = load("dpa-sampling")
-        assert module.geometry("NA23A", 1, False) == ((90, 90), (30, 30))
-        assert module.geometry("NA23A", 4, False) == ((90, 240), (30, 80))
-        assert module.geometry("NPA", 5, False)[1] == (80, 30)
-        assert module.geometry(paper().FLUCT, 4, False) == ((90, 240), (30, 80))
-        # the long blocks as soon as the target would leave a 30 x 30 target block
-        assert module.geometry("NA23A", 3, False) == ((90, 240), (30, 80))  # 21.6 px of travel
-        assert module.geometry("NPA", 3, False)[1] == (30, 30)  # 14.4 px
-        assert module.geometry("NPA", 4, False)[1] == (80, 30)  # 19.2 px
+        # one block size per scene at every s_n (the long blocks since some s_n needs them)
+        for step in (1, 2, 3, 4, 5):
+            assert module.geometry("NA23A", step, False) == ((90, 240), (30, 80))
+            assert module.geometry(paper().FLUCT, step, False) == ((90, 240), (30, 80))
+            assert module.geometry("NPA", step, False) == ((240, 120), (80, 30))
+        # a grid that never needs them keeps 30 x 30 at every s_n
+        assert module.geometry("NA23A", 1, False, (1,)) == ((90, 90), (30, 30))
+        assert module.geometry("NPA", 2, False, (1, 2)) == ((90, 120), (30, 30))
+        # the target may leave a 30 x 30 block: travel + 2 x jitter + PSF radius > 15 px
+        assert not module.fast("NA23A", 1)  # 7.2 + 2 px
+        assert module.fast("NA23A", 2)  # 14.4 + 2 px
+        assert not module.fast("NPA", 2)  # 9.6 + 2 px
+        assert module.fast("NPA", 3)  # 14.4 + 2 px
+
+    def test_nine_blocks_are_full(self):
+        module = load("dpa-sampling")
+        for scene in ("NA23A", "NPA", paper().FLUCT, paper().POINT):
+            (height, width), (rows, cols) = module.geometry(scene, 4, False)
+            _, truth = module.sampled_scene(scene, [1], 3, (height, width), 1)
+            x, y = (math.floor(float(v) + 0.5) for v in truth[0, 0])
+            # the nine blocks around the first-frame pixel, as tiled by algorithm_score
+            x0, y0 = x - cols // 2 - cols, y - rows // 2 - rows
+            assert 0 <= x0 and x0 + 3 * cols <= width, scene
+            assert 0 <= y0 and y0 + 3 * rows <= height, scene
+
+    def test_footprints_are_measured(self):
+        module = load("dpa-sampling")
+        prints = module.footprints([7000, 7001], 8, True, (1, 4), paper().weights())
+        assert set(prints) == {(s, g) for s in module.FOOTPRINT_SCENES for g in (0.0, 1.0)}
+        for rel in prints.values():
+            assert len(rel) == 7 and rel[0] == pytest.approx(1.0)
+            assert all(a >= b - 1e-9 for a, b in itertools.pairwise(rel))
+        # a one-pixel target at g = 1 lights fewer high pixels than the 0.7 px Gaussian
+        assert prints[paper().POINT, 1.0][1] < prints["NA23A", 1.0][1]
 
     def test_sampled_scene_keeps_every_step(self):
         module = load("dpa-sampling")
@@ -310,7 +336,7 @@ class TestSampling:
     def test_full(self, tmp_path):
         module = load("dpa-sampling")
         rows = check_outputs("dpa-sampling", module.run(out_dir=tmp_path), tmp_path)
-        assert len(rows) == 4 * 5 * 2 * 2 * 2 * 20
+        assert len(rows) == 4 * 5 * 2 * 2 * 20
 
 
 class TestPdSnr:
