@@ -5,8 +5,9 @@ target in clear sky, right to left at 0.3 px/frame, peak 60 x the noise: Table 2
 peak) and ``npa_like`` (two targets at 0.2 px/frame, the studied one engulfed in clouds, peak 30 x
 the noise, cloud plateau ``NPA_CLOUDS``), and a third, our addition: the NA23A-like scene with a
 fluctuating target peak (``na23a_like(fluctuation=0.4)``: the per-frame peak is exponential, mean
-0.4 x 60 sigma, clipped at 60 sigma, so that Table 2's peak is the *maximal* one and some frames
-lose the target, as the paper's noisy frames), run with the paper DPA only. 12 seeded scenes each,
+0.4 x 60 sigma before clipping at 60 sigma (mean 0.367 x after it), so that Table 2's peak is
+the *maximal* one and some frames lose the target, as the paper's noisy frames), run with the
+paper DPA only. 12 seeded scenes each,
 sampled at the s_n where the paper finds Table 2's ranges
 (every 4th frame for NA23A, section 3.2.1(3); every 3rd for NPA, section 3.2.2(1): 1.2 and 0.6
 px/frame between kept frames, 25 kept frames), anti-mean whitened, run through the DPA
