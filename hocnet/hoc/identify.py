@@ -178,6 +178,12 @@ DEFAULT_DEDUPE = 2
 RESCUE_CROSSING = True
 """Track ends step: also keep a whole track crossing accepted ones (:func:`_extensions`)."""
 
+RESCUE_ALONE = True
+"""Track ends step: also keep a best whole track sharing no point with an accepted one when all
+its points are image points (our addition, review finding 1: a track starting mid-window whose
+maximal chain clutter extends backwards scores below the threshold as a chain, 2.48, while its
+best sub-track scores 2.83; without this all 7 points were lost)."""
+
 RESIDUAL_MARGIN = 0.5
 """Pixels by which a kept point must lie nearer the predicted position to win (``dedupe``).
 
@@ -823,6 +829,8 @@ def _is_near_duplicate(
             continue
         if any(scan_of[q] not in k_scan for q in pts):
             continue
+        if not all(_next_to_shared(pts, i, on_k) for i in diff):
+            continue  # ``K`` offers no detour here: its residual would be a far extrapolation
         shared_c = set(pts)
         if len(diff) > 1 and any(
             image[pts[i]] and pts[i] not in covered and _adjacent(xy, pts[i], k_pts, k_scan)
@@ -835,6 +843,17 @@ def _is_near_duplicate(
         ):
             return True
     return False
+
+
+def _next_to_shared(pts: list[int], i: int, on_k: set[int]) -> bool:
+    """Whether a scan next to ``pts[i]`` (before or after) holds a point shared with ``K``.
+
+    A near-duplicate differs from ``K`` by a detour (or an end point): next to each differing
+    point the two tracks meet. Without this, with ``explained``, a kept track sharing only far
+    points (e.g. two scans at the other end) was asked, and its residual, extrapolated over
+    many scans, dropped a target point (hard-case scene 14, review finding 2).
+    """
+    return (i > 0 and pts[i - 1] in on_k) or (i + 1 < len(pts) and pts[i + 1] in on_k)
 
 
 def _adjacent(xy: list[list[int]], q: int, k_pts: list[int], k_scan: dict[int, int]) -> bool:
@@ -1002,6 +1021,7 @@ def _extensions(
     flat: torch.Tensor,
     coords: torch.Tensor,
     crossing: bool | None = None,
+    accepted: torch.Tensor | None = None,
 ) -> list[list[int]]:
     """Best whole tracks of the image points left out that extend an accepted track.
 
@@ -1030,11 +1050,18 @@ def _extensions(
     a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
     root = is_root.tolist()
     crossing = RESCUE_CROSSING if crossing is None else crossing
+    acc = [True] * p0.numel() if accepted is None else accepted.tolist()
     out = []
     for path in paths:
         pts = [a0[path[0]], a1[path[0]]] + [a2[k] for k in path]
         shared = {ti for p in pts for ti in point_tracks.get(p, [])}
         if not shared:
+            # a track of its own (e.g. one starting mid-window whose maximal chain is extended
+            # backwards by clutter below the threshold): kept when all its points are image
+            # points no accepted track covers (``_select_tracks`` skips covered ones)
+            alone = RESCUE_ALONE and len(pts) >= min_points + 2 and all(root[p] for p in pts)
+            if alone and all(acc[k] for k in path):
+                out.append(path)
             continue
         covered_scans = set().union(*(scans[ti] for ti in shared))
         ends = {min(covered_scans), max(covered_scans)}
@@ -1154,6 +1181,7 @@ def _identify_sequences(
             cleaned,
             flat,
             coords,
+            accepted=accepted,
         )
         tracks += select(extra)
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
