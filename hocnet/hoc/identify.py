@@ -1293,6 +1293,7 @@ def identify_tracks(
     score_span: int = DEFAULT_SCORE_SPAN,
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
+    track_ends: bool = True,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor]:
     """Link candidate points into scored tracks (section III-B of [LA98]; see the module notes).
 
@@ -1331,6 +1332,10 @@ def identify_tracks(
             sequence lies in the modified-HOC image (Case 1), so a point shared by crossing
             tracks lies on the sequence of each (default ``True``, our reading of section
             III-B; module notes, step 2). ``False``: one sequence per point (the earlier rule).
+        track_ends: ``method="paper"`` / ``"assignment"``: run the track-ends step (module notes,
+            step 5, our addition; ``RESCUE_CROSSING`` and ``RESCUE_ALONE`` are parts of it).
+            ``False`` with ``score_span=1, shared_points=False, dedupe=False``: the paper's
+            section III-B read literally.
 
     Returns:
         ``(tracks, scores, cleaned)``: the accepted tracks (ids 1, 2, ... in order of first
@@ -1369,6 +1374,7 @@ def identify_tracks(
         score_span=score_span,
         track_combine=track_combine,
         shared_points=shared_points,
+        track_ends=track_ends,
     )
     return tracks, scores, cleaned
 
@@ -1393,6 +1399,7 @@ def _identify(
     score_span: int = 1,
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
+    track_ends: bool = True,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
     cube, batched = as_cube("support", support, binary=True)
     v = check_int("v", v, minimum=1)
@@ -1438,6 +1445,7 @@ def _identify(
                 dedupe=dedupe,
                 track_kw=track_kw,
                 shared_points=bool(shared_points),
+                rescue=bool(track_ends),
             )
             capped |= cap
         all_tracks.extend(tr)
@@ -1554,6 +1562,7 @@ def detect(
     score_span: int = DEFAULT_SCORE_SPAN,
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
+    track_ends: bool = True,
 ) -> HOCResult:
     """Detect multiple targets in a binary multi-scan cube with the modified HOC of [LA98].
 
@@ -1598,6 +1607,9 @@ def detect(
         track_combine: combination for the track scores only (``None``: ``combine``).
         shared_points: several five-point sequences per image point (default ``True``;
             :func:`identify_tracks`).
+        track_ends: run the track-ends step (step 5 of the module notes, our addition; with
+            it ``RESCUE_CROSSING`` and ``RESCUE_ALONE``); ``False`` with ``score_span=1,
+            shared_points=False, dedupe=False`` is the paper's procedure read literally.
 
     Returns:
         :class:`HOCResult` with ``support``, ``tracks``, ``scores``, ``cleaned``,
@@ -1665,6 +1677,7 @@ def detect(
         score_span=score_span,
         track_combine=track_combine,
         shared_points=shared_points,
+        track_ends=track_ends,
         **kw,
     )
     if capped:

@@ -846,3 +846,14 @@ class TestTrackEnds:
         assert int((truth & ~detect(cube).cleaned).sum()) == 7
         monkeypatch.undo()
         assert not (truth & ~detect(cube).cleaned).any()
+
+    def test_track_ends_off(self):
+        # ``track_ends=False`` skips the step: the track above is lost again, and the literal
+        # configuration runs (no addition of ours)
+        cube, truth = _partial_scene(6)
+        assert int((truth & ~detect(cube, track_ends=False).cleaned).sum()) == 7
+        literal = {"score_span": 1, "shared_points": False, "dedupe": False, "track_ends": False}
+        result = detect(cube, **literal)  # its own sequences: this track survives (measured)
+        assert not (truth & ~result.cleaned).any()
+        _, _, cleaned = identify_tracks(result.support, roots=result.support, **literal)
+        assert torch.equal(cleaned, result.cleaned)
