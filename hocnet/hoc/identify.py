@@ -15,7 +15,8 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    network cannot evaluate, or the end of a track) the sequence is shorter. Sequences are
    compared whole: a sequence's score is the average of its point scores (each interior point
    scored from its in- and out-move, eq. 8-9, :func:`~hocnet.hoc.scoring.point_score`), longer
-   sequences first, and each image point keeps its best sequence. So a clutter triple that
+   sequences first (our choice: the paper does not order sequences of unequal length), and
+   each image point keeps its best sequence. So a clutter triple that
    scores higher than the true triple at one point loses when the whole true sequence scores
    higher. **Shared points** (``shared_points=True``, the default; our reading of "any number
    of crossing or splitting tracks"): a point on two tracks carries the moves of both, one
@@ -37,7 +38,8 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    cross (share a point) or split (share a beginning).
 4. **Scoring.** A track's score is the average of its interior point scores; tracks shorter
    than ``min_points`` or scoring below ``threshold`` (2.5, section IV-C) are rejected, and a
-   track whose points are all on better tracks (best first) is dropped. Near-duplicates
+   track whose points are all on better tracks (best first) is dropped (our choice: the paper
+   does not say how overlapping candidate tracks are resolved). Near-duplicates
    (``dedupe``, our addition): a track that differs from a better kept track at one scan only
    (a clutter detour or an alternative end point) is compared with it as a whole sequence at
    that scan and dropped when the kept track's point is in the modified-HOC image and its own
@@ -60,16 +62,42 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    98.80 / 96.79 % at 0.8 / 1.4 / 2.0 %; one sequence per point: 99.49 / 98.97 / 97.02 %).
    The kept point must lie at least half a pixel nearer the prediction (``RESIDUAL_MARGIN``):
    positions are whole pixels, so a smaller difference does not say which point is the
-   target's, and both tracks are kept.
-5. **Track ends (our addition).** An image point left out because its only triple lost to a
-   clutter point keeps its best whole track (dynamic programming over all chains through it)
-   when that track passes the threshold and only extends accepted tracks or replaces one of
-   their end points; detours that replace an inner point stay rejected (measured on Table III
+   target's, and both tracks are kept. And the kept track must meet the candidate next to
+   every differing point (a shared point at the scan before or after it,
+   :func:`_next_to_shared`): otherwise the prediction is an extrapolation over many scans from
+   a track that merely shares far points (with ``explained``, an unrelated crossing track), and
+   it dropped a target point whatever the margin (hard-case scene 14, review finding 2).
+5. **Track ends (our addition; ``track_ends=True``, the default; ``False`` skips it).** An
+   image point left out because its only triple lost to a clutter point keeps its best whole
+   track (dynamic programming over all chains through it) when that track passes the
+   threshold and only extends accepted tracks or replaces one of their end points;
+   detours that replace an inner point stay rejected (measured on Table III
    scenes: without this step 1-2 target points per 5 scenes were lost at track ends). Also
    kept: a best whole track that crosses accepted tracks and brings at least ``min_points - 1``
    new points, all in the modified-HOC image (``RESCUE_CROSSING``; two tracks swapping pixels
    at a crossing: measured on 120 hard-case scenes 11 -> 7 target points lost with one
    sequence per point; with shared points 0 lost either way, 98.68 % with it, 98.69 % without).
+   Also kept (``RESCUE_ALONE``): a best whole track sharing no point with an accepted track,
+   of at least ``min_points + 2`` points, all image points, all its triples in kept sequences
+   (a track starting mid-window whose maximal chain clutter extends backwards: as a chain it
+   scored 2.48 < 2.5 and all 7 points were lost; its best sub-track scores 2.83; review scene
+   ``scene(6, partial=True)``, ``tests/hoc/test_identify.py::TestTrackEnds``; the length bound
+   because the clutter tracks it otherwise kept, measured on Table III seeds 3000-3005 at
+   2.0 %, had 5-6 points). The dynamic programming of this step (:func:`_best_paths`) ranks
+   chains by their one-scan triple scores (``combine`` on one-scan moves, eq. 8-9 as printed),
+   while every track it proposes is then rescored and thresholded like any other candidate
+   (``score_span``): a span-2 score is not a sum over triples, so it cannot drive the dynamic
+   programming. The consequence: a track whose one-scan scores fail (alternating integer moves
+   with ``combine="min"``, 2.33 per point) is not proposed here even when its sequence score
+   passes (a known limit of the step).
+
+**Not implemented.** Cases 3b and 4b of section III-B (a target point missed by the sensor):
+a track is a chain of triples on consecutive scans, one point per scan, so a track with a
+missing scan splits in two (each kept if it passes on its own). The Case-1 rule ("a real target
+track should satisfy condition in Case 1 for most of the scans": more than half of a track's
+points in the modified-HOC image, ``case1`` of :func:`_identify_sequences`) is implemented but
+never enabled by :func:`detect` / :func:`identify_tracks`: candidates are built from the image's
+own sequences already, and the rule was not measured against the tables.
 
 **Point score** (section III-A; ``combine``, ``score_span``). The paper scores a point from its
 in-move and out-move by eq. (8) (movement) and eq. (9) (curvature) and thresholds "the average
@@ -1250,7 +1278,7 @@ def _assignment_links(
 
 
 def _score_kwargs(
-    A1: float, alpha1: float, A2: float, alpha2: float, combine: str = "mean"
+    A1: float, alpha1: float, A2: float, alpha2: float, combine: str = DEFAULT_COMBINE
 ) -> dict[str, Any]:
     return {
         "A1": check_number("A1", A1),
@@ -1319,12 +1347,14 @@ def identify_tracks(
         dedupe: drop a candidate track that differs from a better kept track at up to
             ``dedupe`` scans (``True``: 1; default 2), when the kept track's points there are
             better supported (our addition, module notes step 4); ``False``: the plain rule.
-        score_span: scans each move is averaged over when a five-point sequence or a track is
-            scored (:func:`~hocnet.hoc.scoring.track_point_scores`): ``1`` is eq. (8)-(9) on
+        score_span: scans each move is averaged over when a track is scored
+            (:func:`~hocnet.hoc.scoring.track_point_scores`): ``1`` is eq. (8)-(9) on
             one-scan moves as printed; ``2`` (default, our reading of "compared as whole
             sequences") scores every point on the two halves of its five-point sequence
             (``method="paper"`` and ``"assignment"``; ``"greedy"`` always uses one-scan
-            moves). Module notes, "Point score".
+            moves). The five-point sequences themselves are scored on two-scan halves for
+            every ``score_span > 1`` (a five-point sequence has no longer halves), so ``3``
+            changes the track scores only. Module notes, "Point score".
         track_combine: combination for the track scores only (``None``: ``combine``); the
             sequences are then built with ``combine``.
         shared_points: ``method="paper"``: besides its best five-point sequence, an image
