@@ -216,7 +216,9 @@ DEFAULT_DEDUPE = 2
 """Default of ``dedupe``: near-duplicates differing at up to two scans (our addition)."""
 
 RESCUE_CROSSING = True
-"""Track ends step: also keep a whole track crossing accepted ones (:func:`_extensions`)."""
+"""Track ends step: also keep a whole track crossing accepted ones (:func:`_extensions`).
+
+Part of the track-ends step: ``track_ends=False`` (:func:`detect`) skips it with the step."""
 
 RESCUE_ALONE = True
 """Track ends step: also keep a best whole track sharing no point with an accepted one when all
