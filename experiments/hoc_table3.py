@@ -65,7 +65,17 @@ CONFIGS = {
         "shared_points": False,
     },
     "combine=min, span 2, dedupe=1": {"dedupe": 1},
-    "combine=min, span 1 (eq. 8-9 as printed)": {"combine": "min", "score_span": 1},
+    "combine=min, span 1 (eq. 8-9 on one-scan moves; dedupe=2, shared points, track ends)": {
+        "combine": "min",
+        "score_span": 1,
+    },
+    "paper literally (min, span 1, no dedupe, one sequence per point, no track ends)": {
+        "combine": "min",
+        "score_span": 1,
+        "dedupe": False,
+        "shared_points": False,
+        "track_ends": False,
+    },
     "combine=min, span 3": {"combine": "min", "score_span": 3},
     "combine=mean, span 2": {"combine": "mean", "score_span": 2},
 }
@@ -384,10 +394,12 @@ def run(
         "`paper` = `detect`'s defaults: MHOC image, section III-B identification, point score "
         "`combine='min'` on moves averaged over `score_span=2` scans (each point scored on the "
         "two halves of its five-point sequence, our reading of 'compared as whole sequences'); "
-        "`span 1` = eq. (8)-(9) on one-scan moves as printed. With one-scan moves, `min` loses "
+        "`span 1` = eq. (8)-(9) on one-scan moves as printed; `paper literally` = section III-B "
+        "with none of our additions (span 1, no `dedupe`, one sequence per point, no track-ends "
+        "step). With one-scan moves, `min` loses "
         "the target points of tracks whose moves alternate (`table3-paper`) but none on "
         "`table3-int`. Near-duplicate tracks differing at up to two scans are dropped "
-        "(`dedupe=2`, our addition; every row uses it unless it says `dedupe=1`). See "
+        "(`dedupe=2`, our addition; every row uses it unless it says otherwise). See "
         "`hocnet.hoc.identify`, 'Point score'.",
         "",
         PAPER_NOTES,

@@ -5,9 +5,12 @@ As the paper prints them (section III-A), for a first move ``m1 = (i1, j1)`` (sc
 
 - movement score, eq. (8): ``S_m = (A1 - |i2 - i1| - |j2 - j1|) * alpha1`` (the L1 change of
   velocity);
-- curvature score, eq. (9): ``S_c = (A2 - Gamma) * alpha2``, ``Gamma = |atan(j2/i2) - atan(j1/i1)|``
-  the turn from ``m1`` to ``m2``, wrapped into ``[0, pi]`` (our reading: 0 when either move is
-  the zero move, whose bearing is undefined).
+- curvature score, eq. (9): ``S_c = (A2 - Gamma) * alpha2``, eq. (9b) printing
+  ``Gamma = |atan(j2/i2) - atan(j1/i1)|``. Our reading: ``Gamma`` is the turn from ``m1`` to
+  ``m2``, the difference of ``atan2`` bearings wrapped into ``[0, pi]`` (0 when either move is
+  the zero move, whose bearing is undefined). Why not the printed form: ``atan`` of the ratio
+  loses the direction (a reversal ``(1, 0) -> (-1, 0)`` would turn by 0, ``(1, 1) -> (-1, -1)``
+  too), and it divides by zero on vertical moves (``i = 0``), ill-conditioned near them.
 
 Table I of [LA98] (A1 = 9, alpha1 = 0.5, A2 = 2.356, alpha2 = 1.91) is reproduced exactly by
 ``tests/hoc/test_scoring.py``: tracks b (1, 1) -> (1, 1) and c (1, -1) -> (1, -1) score 4.5 / 4.5,
@@ -156,7 +159,9 @@ def point_score(
     threshold of 2.5 on the average point score of a track (section IV-C), but not how the two
     scores combine into one point score. ``combine`` chooses (our reading):
 
-    - ``"mean"`` (this function's default): ``(S_m + S_c) / 2``;
+    - ``"mean"`` (this function's default, and :func:`track_point_scores`'s: kept because
+      tests and doctests rely on it; track identification passes
+      :data:`DEFAULT_COMBINE` = ``"min"`` explicitly): ``(S_m + S_c) / 2``;
     - ``"min"`` (the default of track identification, :data:`DEFAULT_COMBINE`):
       ``min(S_m, S_c)``: a point fails when either score is low;
     - ``"sum"``: ``S_m + S_c`` (a diagnostic only: its scale, up to 7.24, does not match the
@@ -274,7 +279,8 @@ def track_point_scores(
         alpha1: movement-score scale of eq. (8).
         A2: curvature-score constant of eq. (9).
         alpha2: curvature-score scale of eq. (9).
-        combine: as in :func:`point_score`.
+        combine: as in :func:`point_score` (default ``"mean"``, unlike track identification's
+            :data:`DEFAULT_COMBINE` ``"min"``; see there).
 
     Returns:
         ``(max(N - 2, 0),)`` float64 tensor: the score of points ``1 .. N - 2``.

@@ -314,8 +314,9 @@ def _identify_window(
         kwargs["method"],
         kwargs["max_candidates"],
         dedupe=kwargs["dedupe"],
-        track_kw=_track_kwargs(kw, kwargs["score_span"], None),
+        track_kw=_track_kwargs(kw, kwargs["score_span"], kwargs["track_combine"]),
         shared_points=kwargs["shared_points"],
+        rescue=kwargs["track_ends"],
         triples=triples,
     )
     for i, track in enumerate(tracks, start=1):
@@ -374,6 +375,10 @@ class StreamingDetector:
             :func:`~hocnet.hoc.identify.detect`).
         shared_points: several five-point sequences per image point at crossings (as in
             :func:`~hocnet.hoc.identify.detect`).
+        track_combine: combination for the track scores only (``None``: ``combine``; as in
+            :func:`~hocnet.hoc.identify.detect`).
+        track_ends: run the track-ends step (our addition; as in
+            :func:`~hocnet.hoc.identify.detect`).
 
     Raises:
         TypeError: an argument of the wrong type (named in the message).
@@ -414,6 +419,8 @@ class StreamingDetector:
         dedupe: bool | int = DEFAULT_DEDUPE,
         score_span: int = DEFAULT_SCORE_SPAN,
         shared_points: bool = DEFAULT_SHARED_POINTS,
+        track_combine: str | None = None,
+        track_ends: bool = True,
     ) -> None:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
@@ -447,6 +454,12 @@ class StreamingDetector:
             "dedupe": _dedupe_scans(dedupe),
             "score_span": check_int("score_span", score_span, minimum=1),
             "shared_points": bool(shared_points),
+            "track_combine": (
+                None
+                if track_combine is None
+                else check_choice("track_combine", track_combine, COMBINE)
+            ),
+            "track_ends": bool(track_ends),
         }
         self._bound = density_bound("modified", self.v, self.delta)
         self._allowed = allowed_moves(self.v, self.delta)  # the table of the batch layers

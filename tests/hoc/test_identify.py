@@ -1,5 +1,6 @@
 import itertools
 import math
+import random
 import time
 import tracemalloc
 import warnings
@@ -116,6 +117,46 @@ def _hard_scene(tracks, seed, density=0.014):
 HARD_SCENES = {
     # clutter seed: the three tracks, (y, x) at scans 0-9 (scenes 91, 112, 115 and 555 of 600
     # drawn like ``hard_case`` with random.Random(7), the clutter seed the scene number)
+    # 14: seed 14 of ``random.Random(seed)`` drawn like ``hard_case`` (review finding 2: a
+    # kept track sharing only two far points near-duplicated the true track at scan 1)
+    14: [
+        [
+            (27, 29),
+            (29, 30),
+            (30, 30),
+            (31, 30),
+            (32, 31),
+            (33, 31),
+            (34, 31),
+            (36, 32),
+            (37, 32),
+            (38, 33),
+        ],
+        [
+            (38, 31),
+            (36, 31),
+            (35, 31),
+            (33, 31),
+            (32, 31),
+            (30, 31),
+            (29, 31),
+            (27, 32),
+            (26, 32),
+            (24, 32),
+        ],
+        [
+            (25, 26),
+            (27, 27),
+            (28, 28),
+            (29, 28),
+            (31, 29),
+            (32, 30),
+            (34, 30),
+            (35, 31),
+            (37, 32),
+            (38, 32),
+        ],
+    ],
     91: [
         [
             (28, 23),
@@ -284,7 +325,9 @@ class TestHardCase:
     112, 115). With ``shared_points=True`` (every short track through an image point keeps its
     best Case-1 sequence) and the half-pixel residual margin of ``dedupe``
     (``RESIDUAL_MARGIN``; scene 555, a track running beside another), the default loses none
-    of 600 scenes; ``test_regression_scenes`` holds the four scenes that failed.
+    of 600 scenes; ``test_regression_scenes`` holds the four scenes that failed, and scene 14
+    of the review's 183 (a kept track sharing only far points near-duplicated a true one;
+    fixed by the shared-neighbour rule, ``_next_to_shared``).
     """
 
     @settings(
@@ -318,13 +361,32 @@ class TestHardCase:
         assert int((truth & ~result.cleaned).sum()) == lost
 
     def test_residual_margin(self, monkeypatch):
-        # scene 555: two near-parallel tracks 1 pixel apart at scan 6; without the half-pixel
-        # margin the other track's point wins by 0.28 px (0.47 against 0.75 px from the line
-        # through the shared points) and the true track is dropped as its near-duplicate
+        # scene 555: two near-parallel tracks 1 pixel apart at scan 6. Without the rule that a
+        # kept track must meet the candidate next to each differing point (``_next_to_shared``)
+        # and without the half-pixel margin, the other track's point won by 0.28 px and the
+        # true track was dropped as its near-duplicate; either rule alone keeps it
         cube, truth = _hard_scene(HARD_SCENES[555], 555)
         monkeypatch.setattr(identify_module, "RESIDUAL_MARGIN", 1e-9)
+        monkeypatch.setattr(identify_module, "_next_to_shared", lambda *args: True)
         result = detect(cube, order=2)
         assert int((truth & ~result.cleaned).sum()) == 1
+        monkeypatch.undo()
+        monkeypatch.setattr(identify_module, "RESIDUAL_MARGIN", 1e-9)
+        assert not (truth & ~detect(cube, order=2).cleaned).any()
+        monkeypatch.undo()
+        assert not (truth & ~detect(cube, order=2).cleaned).any()
+
+    def test_far_kept_track_does_not_near_duplicate(self, monkeypatch):
+        # scene 14 (review finding 2): with ``explained``, the true track differs from an
+        # unrelated kept track at scan 1 only (its other points lie on other kept tracks); the
+        # residual extrapolated from that track's two points at scans 8-9 dropped (1, 29, 30),
+        # whatever the margin. A kept track must share a point next to each differing one.
+        cube, truth = _hard_scene(HARD_SCENES[14], 14)
+        monkeypatch.setattr(identify_module, "_next_to_shared", lambda *args: True)
+        for margin in (0.5, math.sqrt(2) / 2 + 1e-9, 1.0):
+            monkeypatch.setattr(identify_module, "RESIDUAL_MARGIN", margin)
+            lost = (truth & ~detect(cube, order=2).cleaned).nonzero().tolist()
+            assert lost == [[1, 29, 30]]
         monkeypatch.undo()
         assert not (truth & ~detect(cube, order=2).cleaned).any()
 
@@ -748,3 +810,52 @@ class TestSharedPoints:
         covered = {0, 1, 2, 3, 4, 5}  # point 5 lies on another kept track
         assert not _is_near_duplicate(cand, kept, scan_of, image, xy, 1, covered)
         assert _is_near_duplicate(cand, kept, scan_of, image, xy, 1, covered, explained=True)
+
+
+def _partial_scene(seed, n_t=10, size=60, density=0.014):
+    """Three straight tracks at 1-3 px/scan, each starting at a random scan 0-4, plus clutter.
+
+    The scene of the review scripts (``scene(seed, partial=True)``): tracks from
+    ``random.Random(seed)``, clutter from ``torch.Generator().manual_seed(seed)``.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    cube = torch.rand(n_t, size, size, generator=gen) < density
+    truth = torch.zeros_like(cube)
+    rng = random.Random(seed)
+    for _ in range(3):
+        speed = rng.uniform(1, 3)
+        angle = rng.uniform(-math.pi, math.pi)
+        t0 = rng.randint(0, 4)
+        x0 = 30 - 4.5 * speed * math.cos(angle) + rng.uniform(-3, 3)
+        y0 = 30 - 4.5 * speed * math.sin(angle) + rng.uniform(-3, 3)
+        for t in range(t0, n_t):
+            y = round(y0 + t * speed * math.sin(angle))
+            x = round(x0 + t * speed * math.cos(angle))
+            if 0 <= y < size and 0 <= x < size:
+                truth[t, y, x] = True
+    return cube | truth, truth
+
+
+class TestTrackEnds:
+    """Step 5 of the module notes (the track-ends step, ``track_ends``)."""
+
+    def test_track_of_its_own_is_kept(self, monkeypatch):
+        # review finding 1: a track starting at scan 3 whose maximal chain clutter extends
+        # backwards scores 2.48 as a chain; its best sub-track (2.83) shares no point with an
+        # accepted track and was dropped: all 7 of its points lost
+        cube, truth = _partial_scene(6)
+        monkeypatch.setattr(identify_module, "RESCUE_ALONE", False)
+        assert int((truth & ~detect(cube).cleaned).sum()) == 7
+        monkeypatch.undo()
+        assert not (truth & ~detect(cube).cleaned).any()
+
+    def test_track_ends_off(self):
+        # ``track_ends=False`` skips the step: the track above is lost again, and the literal
+        # configuration runs (no addition of ours)
+        cube, truth = _partial_scene(6)
+        assert int((truth & ~detect(cube, track_ends=False).cleaned).sum()) == 7
+        literal = {"score_span": 1, "shared_points": False, "dedupe": False, "track_ends": False}
+        result = detect(cube, **literal)  # its own sequences: this track survives (measured)
+        assert not (truth & ~result.cleaned).any()
+        _, _, cleaned = identify_tracks(result.support, roots=result.support, **literal)
+        assert torch.equal(cleaned, result.cleaned)

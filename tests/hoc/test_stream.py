@@ -79,6 +79,23 @@ class TestStreamingEqualsBatch:
         for out in _stream(det, cube):
             _assert_same(out.result, detect(cube[out.start : out.stop], order=2, **kw))
 
+    @pytest.mark.parametrize(
+        "kw",
+        [
+            # the paper's section III-B read literally (no additions)
+            {"score_span": 1, "shared_points": False, "dedupe": False, "track_ends": False},
+            {"track_combine": "mean"},
+            {"track_ends": False},
+        ],
+    )
+    def test_literal_and_track_options_equal_detect(self, kw):
+        scene = paper_scene("fig5", 0.02, seed=3)
+        det = StreamingDetector(window=10, stride=2, order=2, **kw)
+        outs = _stream(det, scene.cube)
+        assert outs
+        for out in outs:
+            _assert_same(out.result, detect(scene.cube[out.start : out.stop], order=2, **kw))
+
     def test_conv_method_equals_detect(self):
         scene = paper_scene("fig5", 0.02, seed=5)
         cube = scene.cube[:12, 10:40, 5:45]
@@ -373,6 +390,7 @@ class TestErrors:
             ({"alpha1": math.inf}, ValueError, "alpha1"),
             ({"A2": None}, TypeError, "A2"),
             ({"alpha2": math.nan}, ValueError, "alpha2"),
+            ({"track_combine": "max"}, ValueError, "track_combine"),
         ],
     )
     def test_bad_constructor_argument_raises_at_construction(self, kwargs, error, name):
