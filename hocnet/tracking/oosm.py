@@ -253,11 +253,24 @@ def _retrodict(
     G: torch.Tensor,
     Fb: torch.Tensor,
     Q: torch.Tensor,
+    C0: torch.Tensor | None = None,
 ) -> Retrodiction:
-    GQ = G @ Q
-    Pvv = Q - Q @ GQ
-    Pxv = Q - Pp @ GQ
-    xr = (Fb @ (x - (Q @ g.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
+    """A1 retrodiction; ``C0 = cov(x(k), w(k, tau) | Z^{k-1})`` (default ``Q``, see below).
+
+    A1 takes the prior cross covariance of the state and of the process noise accumulated from
+    ``tau`` to ``t_k`` equal to ``Q(k, tau)``, true when that noise is independent of the noise
+    before ``tau`` (continuous white acceleration). For the piecewise-constant (discrete)
+    acceleration of [PD] 24.5, constant over the whole interval, ``w(k, tau) = Gamma(lag) a``
+    while ``x(k)`` contains ``Gamma(dt) a``: ``C0 = Gamma(dt) Sigma Gamma(lag)'`` (our exact
+    generalisation): ``P_vv = Q - C0' G C0``, ``P_xv = C0 - P(k|k-1) G C0``,
+    ``x(tau|k) = F(tau, k) [x(k|k) - C0' g]``.
+    """
+    if C0 is None:
+        C0 = Q
+    GC = G @ C0
+    Pvv = Q - C0.transpose(-1, -2) @ GC
+    Pxv = C0 - Pp @ GC
+    xr = (Fb @ (x - (C0.transpose(-1, -2) @ g.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
     Fbt = Fb.transpose(-1, -2)
     Pr = Fb @ (P + Pvv - Pxv - Pxv.transpose(-1, -2)) @ Fbt
     C = (P - Pxv) @ Fbt
