@@ -72,6 +72,8 @@ from hocnet.tracking.oosm import (
     _retrodict,
     check_oosm_time,
     oosm_too_old,
+    pinv_atol,
+    pinv_sym,
 )
 from hocnet.tracking.road import RoadNetwork, on_segment_probability_from_moments
 from hocnet.tracking.sensors import check_measurements, stop_detectable
@@ -564,7 +566,9 @@ def _oosm_memory(
     Rt[..., :m, :m] = torch.where(d.unsqueeze(-1), R, torch.zeros_like(R))
     St = Ht @ pred.P @ Ht.transpose(-1, -2) + Rt
     St = 0.5 * (St + St.transpose(-1, -2))
-    Sp = torch.linalg.pinv(St, hermitian=True, rtol=1e-9)
+    # cut-off on the scale of P(k|k-1) (see hocnet.tracking.oosm._projection): without a
+    # detection St = D P D' can be pure round-off for a mode already on its road
+    Sp = pinv_sym(St, pinv_atol(pred.P))
     HtS = Ht.transpose(-1, -2) @ Sp
     G = HtS @ Ht
     g = (HtS @ nut.unsqueeze(-1)).squeeze(-1)
