@@ -818,3 +818,36 @@ def test_vsimm_oosm_several_in_one_interval_stay_positive_definite(sensor_name):
             A = s.accel_cov[0, j]
             r = _retrodict(s.x[0, j], P, Pp, s.g[0, j], G, Fb, Gl @ A @ Gl.T, Gd @ A @ Gl.T)
             assert float(torch.linalg.eigvalsh(r.P).min()) > -1e-9 * float(r.P.trace())
+
+
+def test_vsimm_update_stop_mode_projection_stays_bounded_under_gmti():
+    """The stop mode of a track on a slanted road, updated with GMTI detections: its estimate
+    already lies on the road, so ``D P D'`` of the projection is pure round-off. A pseudo-inverse
+    cut-off relative to the largest eigenvalue of ``D P D'`` kept that round-off and inverted it
+    (variances up to 1e18, the 1e17 of the 24.6 experiment); with the cut-off on the scale of
+    ``P`` every mode's variance stays below its prediction's."""
+    gmti = GMTISensor(GMTI_POS, 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
+    cfg = VSIMMConfig()
+    u = torch.tensor([0.832, 0.5547], dtype=torch.float64)  # about the road's direction
+    for k in range(40):
+        g = torch.Generator().manual_seed(k)
+        a = -6000.0 + 100 * k
+        net = RoadNetwork([[[a, -5000.0], [a + 4500.0, -2000.0]]])
+        s0 = 0.2 + 0.6 * torch.rand(1, generator=g).item()
+        pos = torch.tensor([a, -5000.0], dtype=torch.float64) + s0 * torch.tensor(
+            [4500.0, 3000.0], dtype=torch.float64
+        )
+        x = torch.tensor([[pos[0], 8.0 * u[0], pos[1], 8.0 * u[1]]], dtype=torch.float64)
+        P0 = torch.diag(torch.tensor([400.0, 9.0, 400.0, 9.0], dtype=torch.float64))
+        s = vsimm_init(net, x, P0, cfg)
+        for t in (10.0, 20.0, 30.0):
+            pred = vsimm_predict(s, net, cfg, t)
+            xt = x.clone()
+            xt[0, [0, 2]] += 8.0 * u * t
+            noise = torch.randn(1, 3, generator=g, dtype=torch.float64)
+            z = gmti.measure(xt) + noise * torch.tensor([20.0, 20.0, 1.0], dtype=torch.float64)
+            s, _ = vsimm_update(s, pred, z, gmti, net, cfg)
+            var = s.P.diagonal(dim1=-2, dim2=-1)
+            bound = pred.P.diagonal(dim1=-2, dim2=-1)
+            assert torch.isfinite(s.x).all()
+            assert bool((var <= bound * (1 + 1e-9) + 1e-9).all()), (k, t, var.max())
