@@ -323,7 +323,7 @@ def pinv_atol(P: torch.Tensor, rel: float = 1e-9) -> torch.Tensor:
     product is.
 
     Examples:
-        >>> float(pinv_atol(torch.diag(torch.tensor([4.0, 0.0]))))
+        >>> float(pinv_atol(torch.diag(torch.tensor([4.0, 0.0], dtype=torch.float64))))
         4e-09
     """
     scale = P.diagonal(dim1=-2, dim2=-1).abs().amax(-1)
