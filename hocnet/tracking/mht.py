@@ -24,8 +24,8 @@ One :meth:`MHT.step` per scan runs the six blocks of the chapter's figure 24.2:
    one on all decisions older than ``n_scan`` scans, except that, when tracks carry a road
    section id (filter state key ``"section"``), the best branch of each road section is kept
    too.
-6. **Merging**: leaves with the same measurements over the last ``merge_scans`` scans are
-   merged into the best-scoring one.
+6. **Merging**: leaves of one family (target tree) with the same measurements over the last
+   ``merge_scans`` scans are merged into the best-scoring one (never across families).
 
 Readings of the equations (the OCR damaged 24.42-24.43; the chapter refers to Blackman and
 Popoli, *Design and Analysis of Modern Tracking Systems*, 1999, ch. 6 and 16, its ref. [5]):
@@ -1037,24 +1037,36 @@ class MHT:
         self._split()
 
     def _merge(self, by_uid: dict[int, _Leaf]) -> None:
-        """Merge leaves with identical measurements over the last ``merge_scans`` scans."""
+        """Merge leaves of one family with identical measurements over the last ``merge_scans``.
+
+        Merging is done **within a target tree** (our reading of [PD] 24.4.4 step 6, "selection
+        of the most probable tracks which have common measurements"; Blackman and Popoli 1999,
+        16.3): leaves of the same family whose last ``merge_scans`` measurements coincide are
+        duplicates of one track and are replaced by the best-scoring one. Leaves of different
+        families are never merged: two targets close together for a few scans share no
+        measurement in a consistent hypothesis, but a leaf of one tree can carry the same
+        recent measurements as a leaf of another; replacing it made every hypothesis that held
+        both trees inconsistent, and a whole cluster (the convoy during an overtaking) lost all
+        its tracks at once. A hypothesis whose merged form is inconsistent (the kept leaf
+        conflicts with another track of the hypothesis in an older scan) is kept unmerged.
+        """
         k = self.scan
         depth = self.merge_scans
         for cl in self._clusters:
             uids = {u for _, h in cl.hyps for u in h}
-            groups: dict[tuple[int, ...], list[_Leaf]] = {}
-            for u in uids:
+            groups: dict[tuple[int, tuple[int, ...]], list[_Leaf]] = {}
+            for u in sorted(uids):
                 leaf = by_uid[u]
                 if k - leaf.birth + 1 < depth:
                     continue
                 tail = leaf.history[-depth:]
                 if all(j < 0 for j in tail):
                     continue
-                groups.setdefault(tail, []).append(leaf)
+                groups.setdefault((leaf.family, tail), []).append(leaf)
             repl: dict[int, int] = {}
             for group in groups.values():
                 if len(group) > 1:
-                    group.sort(key=lambda lf: -lf.score)
+                    group.sort(key=lambda lf: (-lf.score, lf.uid))
                     for other in group[1:]:
                         repl[other.uid] = group[0].uid
             if not repl:
@@ -1062,8 +1074,8 @@ class MHT:
             hyps: dict[frozenset[int], float] = {}
             for _, h in cl.hyps:
                 h2 = frozenset(repl.get(u, u) for u in h)
-                if not self._consistent(h2, by_uid):
-                    continue
+                if h2 != h and not self._consistent(h2, by_uid):
+                    h2 = h
                 s = sum(by_uid[u].score for u in h2)
                 if h2 not in hyps or hyps[h2] < s:
                     hyps[h2] = s

@@ -253,11 +253,24 @@ def _retrodict(
     G: torch.Tensor,
     Fb: torch.Tensor,
     Q: torch.Tensor,
+    C0: torch.Tensor | None = None,
 ) -> Retrodiction:
-    GQ = G @ Q
-    Pvv = Q - Q @ GQ
-    Pxv = Q - Pp @ GQ
-    xr = (Fb @ (x - (Q @ g.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
+    """A1 retrodiction; ``C0 = cov(x(k), w(k, tau) | Z^{k-1})`` (default ``Q``, see below).
+
+    A1 takes the prior cross covariance of the state and of the process noise accumulated from
+    ``tau`` to ``t_k`` equal to ``Q(k, tau)``, true when that noise is independent of the noise
+    before ``tau`` (continuous white acceleration). For the piecewise-constant (discrete)
+    acceleration of [PD] 24.5, constant over the whole interval, ``w(k, tau) = Gamma(lag) a``
+    while ``x(k)`` contains ``Gamma(dt) a``: ``C0 = Gamma(dt) Sigma Gamma(lag)'`` (our exact
+    generalisation): ``P_vv = Q - C0' G C0``, ``P_xv = C0 - P(k|k-1) G C0``,
+    ``x(tau|k) = F(tau, k) [x(k|k) - C0' g]``.
+    """
+    if C0 is None:
+        C0 = Q
+    GC = G @ C0
+    Pvv = Q - C0.transpose(-1, -2) @ GC
+    Pxv = C0 - Pp @ GC
+    xr = (Fb @ (x - (C0.transpose(-1, -2) @ g.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
     Fbt = Fb.transpose(-1, -2)
     Pr = Fb @ (P + Pvv - Pxv - Pxv.transpose(-1, -2)) @ Fbt
     C = (P - Pxv) @ Fbt
@@ -302,6 +315,40 @@ def _as_retrodiction(r: Any) -> Retrodiction:
     )
 
 
+def pinv_atol(P: torch.Tensor, rel: float = 1e-9) -> torch.Tensor:
+    """Absolute pseudo-inverse cut-off ``rel * max_i |P_ii|`` per matrix ``(...)`` (our choice).
+
+    For a matrix ``D P D'`` (or ``H P H' + R``) whose rows of ``D`` have unit norm, eigenvalues
+    below ``rel`` times the scale of ``P`` are round-off, whatever the largest eigenvalue of the
+    product is.
+
+    Examples:
+        >>> float(pinv_atol(torch.diag(torch.tensor([4.0, 0.0], dtype=torch.float64))))
+        4e-09
+    """
+    scale = P.diagonal(dim1=-2, dim2=-1).abs().amax(-1)
+    return (rel * scale).clamp(min=torch.finfo(DTYPE).tiny)
+
+
+def pinv_sym(M: torch.Tensor, atol: torch.Tensor, rtol: float = 1e-9) -> torch.Tensor:
+    """Pseudo-inverse of a symmetric ``M (..., c, c)`` with an absolute cut-off per matrix.
+
+    Eigenvalues with ``|e| <= max(atol, rtol max|e|)`` are zero; ``atol (...)`` per matrix
+    (e.g. :func:`pinv_atol`).
+
+    Examples:
+        >>> M = torch.diag(torch.tensor([2.0, 1e-30], dtype=torch.float64))
+        >>> pinv_sym(M, pinv_atol(torch.eye(2, dtype=torch.float64))).diagonal().tolist()
+        [0.5, 0.0]
+    """
+    ev, V = torch.linalg.eigh(0.5 * (M + M.transpose(-1, -2)))
+    big = ev.abs().amax(-1, keepdim=True) if ev.numel() else ev
+    tol = torch.maximum(atol.unsqueeze(-1), rtol * big)
+    keep = ev.abs() > tol
+    inv = torch.where(keep, 1.0 / torch.where(keep, ev, torch.ones_like(ev)), torch.zeros_like(ev))
+    return (V * inv.unsqueeze(-2)) @ V.transpose(-1, -2)
+
+
 def _projection(
     x: torch.Tensor, P: torch.Tensor, D: torch.Tensor, L: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -309,9 +356,13 @@ def _projection(
     PDt = P @ D.transpose(-1, -2)
     M = D @ PDt
     M = 0.5 * (M + M.transpose(-1, -2))
-    # eigenvalues below 1e-9 of the largest are zero: D P D' is singular for a stopped mode and
-    # for a retrodiction whose across-road position and velocity are driven by one noise
-    Minv = torch.linalg.pinv(M, hermitian=True, rtol=1e-9)
+    # D P D' is singular for a stopped mode and for a retrodiction whose across-road position
+    # and velocity are driven by one noise. Its eigenvalues below 1e-9 of the scale of P (the
+    # largest variance; the rows of D have unit norm) are zero. A cut-off relative to the
+    # largest eigenvalue of D P D' itself (as before) failed when the estimate already lay on
+    # the road: D P D' was pure round-off (1e-30), its "largest" eigenvalue was kept and
+    # inverted, and the projected variances reached 1e17 (the stop mode under a GMTI detection)
+    Minv = pinv_sym(M, pinv_atol(P))
     K = PDt @ Minv
     resid = (D @ x.unsqueeze(-1)).squeeze(-1) - L
     xs = x - (K @ resid.unsqueeze(-1)).squeeze(-1)

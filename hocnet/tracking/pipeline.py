@@ -50,11 +50,17 @@ Our readings and choices (the chapter leaves them to its references):
   ``l`` line of sight) when ``|u . l| >= 0.2``, with standard deviation
   ``init_speed_std_rr``; otherwise speed 0 with ``init_speed_std``.
 - **Robustness (ours).** Blown-up mode estimates (non-finite, a variance above 1e9 or a mode
-  more than 1 km from its prediction; seen for the stop mode, whose update with a GMTI detection
-  has likelihood 0 but whose road projection returned variances of 1e17) are replaced by the
-  prediction; covariances are symmetrised with negative eigenvalues clipped; an OOSM update
-  that fails (non positive definite retrodiction, seen with several delayed reports in one
-  interval) keeps the state. :attr:`VSIMMRoadFilter.sanitized` and ``oosm_failures`` count them.
+  more than 1 km from its prediction) are replaced by the prediction; covariances are
+  symmetrised with negative eigenvalues clipped; an OOSM update that fails (innovation
+  covariance not positive definite) keeps the state. :attr:`VSIMMRoadFilter.sanitized` and
+  ``oosm_failures`` count them. Both were frequent before three fixes in the modules (the
+  stop mode's road projection under a GMTI detection returned variances of 1e17: the
+  pseudo-inverse cut-off of ``D P D'`` is now relative to ``P``,
+  :func:`hocnet.tracking.oosm.pinv_atol`; several delayed reports in one interval gave
+  indefinite retrodictions: :func:`~hocnet.tracking.vsimm.vsimm_oosm` now uses the exact cross
+  covariance of the piecewise-constant acceleration and rewrites the A1 memory after each
+  OOSM update); they are now guards only (the remaining resets are moving modes moved more
+  than 1 km by a missed detection, counted in the results).
 - **Types.** All type reports are mapped to the video frame (8 classes, 256 subsets) by the
   refinement of 24.5.3 (:data:`~hocnet.tracking.scenario.VIDEO_TO_GMTI`): a GMTI declaration
   ``c`` puts ``P{c}`` on the set of video classes of GMTI class ``c``, the rest on the whole
@@ -155,9 +161,9 @@ class PDTrackerConfig:
             and is never deleted).
         coast_penalty: see ``max_coast``.
 
-    ``merge_scans`` defaults to 0: the MHT's merging groups leaves of *different* families with
-    the same recent measurements and emptied the hypothesis list of the convoy's cluster during an
-    overtaking (all its tracks deleted at once); reported, merging left off here.
+    ``merge_scans`` (3) merges duplicate leaves of one target tree (the MHT's merge once grouped
+    leaves of *different* families and emptied the convoy's cluster during an overtaking; fixed
+    in :mod:`hocnet.tracking.mht`, the pipeline had run with merging off).
     """
 
     road_sigmas: tuple[tuple[float, float], ...] = ((0.05, 0.05), (0.8, 0.4))
@@ -179,7 +185,7 @@ class PDTrackerConfig:
     beta: float = 0.1
     n_hypotheses: int = 10
     n_scan: int = 3
-    merge_scans: int = 0
+    merge_scans: int = 3
     hypothesis_ratio: float = 1e-4
     type_term: str = "estimate"
     segment_by_measurement: bool = False

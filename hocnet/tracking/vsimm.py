@@ -72,6 +72,8 @@ from hocnet.tracking.oosm import (
     _retrodict,
     check_oosm_time,
     oosm_too_old,
+    pinv_atol,
+    pinv_sym,
 )
 from hocnet.tracking.road import RoadNetwork, on_segment_probability_from_moments
 from hocnet.tracking.sensors import check_measurements, stop_detectable
@@ -564,7 +566,9 @@ def _oosm_memory(
     Rt[..., :m, :m] = torch.where(d.unsqueeze(-1), R, torch.zeros_like(R))
     St = Ht @ pred.P @ Ht.transpose(-1, -2) + Rt
     St = 0.5 * (St + St.transpose(-1, -2))
-    Sp = torch.linalg.pinv(St, hermitian=True, rtol=1e-9)
+    # cut-off on the scale of P(k|k-1) (see hocnet.tracking.oosm._projection): without a
+    # detection St = D P D' can be pure round-off for a mode already on its road
+    Sp = pinv_sym(St, pinv_atol(pred.P))
     HtS = Ht.transpose(-1, -2) @ Sp
     G = HtS @ Ht
     g = (HtS @ nut.unsqueeze(-1)).squeeze(-1)
@@ -1111,6 +1115,38 @@ def vsimm_expand_sections(
 # ------------------------------------------------------------------------------------------
 
 
+def _refresh_memory(
+    P_pred: torch.Tensor,
+    x: torch.Tensor,
+    P: torch.Tensor,
+    g: torch.Tensor,
+    G: torch.Tensor,
+    x_new: torch.Tensor,
+    P_new: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A1 memory after an OOSM update, so that a further OOSM of the interval stays consistent.
+
+    A1 retrodicts from ``x(k|k) = x(k|k-1) + P(k|k-1) g`` and
+    ``P(k|k) = P(k|k-1) - P(k|k-1) G P(k|k-1)``. An OOSM update changes ``x(k|k), P(k|k)`` but
+    not ``g, G``: a second OOSM of the same interval then retrodicted with a stale memory, and
+    its covariance was indefinite (seen down to -1e17 relative in the 24.6 experiment). Our
+    fix: the memory is rewritten so that both identities hold for the updated estimate,
+    ``g' = g + P(k|k-1)^+ (x' - x)`` and ``G' = G + P(k|k-1)^+ (P - P') P(k|k-1)^+``, i.e. the
+    information of the delayed measurement is kept as information on ``x(k)`` (its part on the
+    process noise of the interval is dropped: approximate, as any sequence of A1 updates in one
+    interval, but ``0 <= G' <= P(k|k-1)^+`` on the range of ``P(k|k-1)`` since
+    ``0 <= P' <= P(k|k-1)``, so the next retrodiction is a valid conditioning: positive
+    semi-definite). Unchanged rows (``P' = P``) keep their memory.
+    """
+    Pp = 0.5 * (P_pred + P_pred.transpose(-1, -2))
+    Pinv = torch.linalg.pinv(Pp, hermitian=True, rtol=1e-12)
+    dP = P - P_new
+    dP = 0.5 * (dP + dP.transpose(-1, -2))
+    g_new = g + (Pinv @ (x_new - x).unsqueeze(-1)).squeeze(-1)
+    G_new = G + Pinv @ dP @ Pinv
+    return g_new, 0.5 * (G_new + G_new.transpose(-1, -2))
+
+
 def vsimm_oosm(
     state: VSIMMState,
     z: Any,
@@ -1131,8 +1167,13 @@ def vsimm_oosm(
     done on the road"), the A1 update of ``x(k|k)``, the projection of the result on the mode's
     current segment, and the mode probabilities ``mu_i ∝ mu_i Lambda_i(tau)`` with the
     PD-aware likelihoods of 24.30-24.31 (the IMM-OOSM of Bar-Shalom and Chen, the chapter's [3],
-    in its simplest form: mode probabilities at ``t_k`` re-weighted; our reading). The OOSM
-    memory is kept, so a second OOSM in the same interval is approximate.
+    in its simplest form: mode probabilities at ``t_k`` re-weighted; our reading). With the
+    chapter's piecewise-constant acceleration (``config.noise="discrete"``) the cross
+    covariance of the state and the noise after ``tau`` is ``Gamma(dt) Sigma Gamma(lag)'``, not
+    A1's ``Q(k, tau)`` (which made even a first retrodiction indefinite); see
+    :func:`hocnet.tracking.oosm._retrodict`. After the update the A1 memory ``g, G`` is
+    rewritten for the updated estimate (``_refresh_memory``), so several OOSMs in one interval
+    keep positive semi-definite covariances (approximate beyond the first, our addition).
 
     Args:
         state: rows at time ``t_k``.
@@ -1195,7 +1236,12 @@ def vsimm_oosm(
     Fb, _ = _mode_F(config.kinds, -lag)
     _, Gm = _mode_F(config.kinds, lag)
     Q = _process_noise(config.kinds, config.noise, lag, Gm, state.accel_cov)
-    r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q)
+    C0 = None
+    if config.noise == "discrete":
+        # one acceleration over the whole interval: cov(x(k), w(k, tau)) = Gamma(dt) S Gamma(lag)'
+        _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
+        C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
+    r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
     on = state.segment >= 0
@@ -1227,7 +1273,8 @@ def vsimm_oosm(
     mu = torch.where(ok.unsqueeze(-1), torch.exp(a - total), state.mu)
     x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
     P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
-    new = state._replace(mu=mu, x=x_new, P=P_new)
+    g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
+    new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
     ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
     if too_old == "drop":
         return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)

@@ -257,6 +257,23 @@ class TestPruning:
         assert a.n_leaves <= b.n_leaves
         assert [t.measurements for t in a.tracks()] == [t.measurements for t in b.tracks()]
 
+    @pytest.mark.parametrize("seed", range(3))
+    def test_merging_keeps_close_targets(self, seed: int) -> None:
+        """Two targets a few sigma apart for several scans: merging must keep both tracks.
+
+        Reproduces the bug of the cross-family merge (leaves of two target trees with the same
+        recent measurements merged, every hypothesis holding both trees made inconsistent, the
+        cluster emptied): with ``merge_scans=2`` both tracks must survive the close passage.
+        """
+        starts = [(40.0, 100.0, 4.0, 0.0), (40.0, 103.0, 4.0, 0.0)]
+        scans, labels = simulate(starts, 25, pd=1.0, clutter=0, sigma=0.5, seed=seed)
+        mht = make_mht(merge_scans=2, n_scan=3, n_hypotheses=10)
+        history = run(mht, scans)
+        assert len(history[-1]) == 2
+        owners = sorted(purity(t, labels)[0] for t in mht.all_tracks())
+        assert owners == [0, 1]
+        assert min(len(h) for h in history[5:]) == 2  # never lost, not even for one scan
+
 
 def _reference_tracks(scans, mht: MHT, sigma_a: float, v_std: float):
     """Every possible track (slow per-track loop over histories): (meas set, score)."""
