@@ -275,9 +275,7 @@ class TestFullMatrices:
 
     @pytest.mark.parametrize("smooth", [None, 0.3])
     def test_gradcheck(self, smooth):
-        dpa = DPA(
-            window=3, b=0.7, g=0.4, learnable=("b", "g", "matrices"), smooth=smooth
-        ).double()
+        dpa = DPA(window=3, b=0.7, g=0.4, learnable=("b", "g", "matrices"), smooth=smooth).double()
         gen = torch.Generator().manual_seed(4)
         with torch.no_grad():
             dpa.matrices_raw.copy_(0.3 * torch.randn(9, 3, 3, generator=gen, dtype=F64))
