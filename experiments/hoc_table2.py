@@ -39,43 +39,8 @@ HEADLINE_ORDER = 2
 SEED_BASE = 2000
 
 
-CONFIGS = {
-    "paper": {},
-    "mhoc + assignment": {"identify": "assignment"},
-    "mhoc + greedy": {"identify": "greedy"},
-    "chain + paper": {"support": "chain"},
-    "chain + greedy (old default)": {"support": "chain", "identify": "greedy"},
-    "one sequence per point (shared_points=False, the previous default)": {"shared_points": False},
-    "combine=mean, span 1, dedupe=1 (earlier default)": {
-        "combine": "mean",
-        "score_span": 1,
-        "dedupe": 1,
-        "shared_points": False,
-    },
-    "combine=min, span 2, dedupe=1": {"dedupe": 1},
-    "combine=min, span 1 (eq. 8-9 on one-scan moves; dedupe=2, shared points, track ends)": {
-        "combine": "min",
-        "score_span": 1,
-    },
-    "paper literally (min, span 1, no dedupe, one sequence per point, no track ends)": {
-        "combine": "min",
-        "score_span": 1,
-        "dedupe": False,
-        "shared_points": False,
-        "track_ends": False,
-    },
-    "combine=min, span 3": {"combine": "min", "score_span": 3},
-    "combine=mean, span 2": {"combine": "mean", "score_span": 2},
-}
-"""Detector configurations: ``detect`` keyword arguments (order 2; order 3 runs "paper" only).
-
-``"paper"`` is ``detect``'s defaults: MHOC image, section III-B identification, point score
-``combine="min"`` on moves averaged over ``score_span=2`` scans (the whole five-point sequence,
-our reading; :mod:`hocnet.hoc.identify`, "Point score") and several five-point sequences per
-image point (``shared_points=True``, our reading; step 2 of the module notes; the previous
-default ``shared_points=False`` is a row of its own). ``combine="sum"`` and ``"movement"``
-remain options of ``detect`` (measured earlier: sum below mean, movement equal to min).
-"""
+CONFIGS = C.HOC_CONFIGS
+"""Detector configurations: :data:`_expkit.HOC_CONFIGS` (shared with the other HOC table)."""
 
 PAPER_HOC = {0.008: 99.56, 0.011: 97.55, 0.014: 93.99, 0.017: 87.42, 0.02: 75.44}
 """[LA98] printed MHOC clutter rejection (%) per density."""
