@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
-import re
 import sys
 import time
 import warnings
@@ -24,7 +22,6 @@ from hocnet.cli._common import (
     Writer,
     _check_destinations,
     _check_int,
-    _check_number,
     _check_out_dir,
     _Formatter,
     _one_line,
@@ -35,6 +32,19 @@ from hocnet.cli._common import (
     _to_flags,
     _torch_threads,
     _write_outputs,
+)
+from hocnet.cli._inputs import (
+    DPA_DESTS,
+    HOC_DESTS,
+    add_dpa_options,
+    add_hoc_options,
+    add_input_arguments,
+    add_preprocess_options,
+    frame_paths,
+    input_paths,
+    load_input,
+    prepare_dpa,
+    prepare_hoc,
 )
 
 # detection methods
@@ -91,109 +101,6 @@ class _Method:
     scene_outputs: bool = False
 
 
-def _add_hoc_options(group: argparse._ArgumentGroup) -> None:
-    group.add_argument(
-        "--order", type=int, default=None, metavar="K", help="HOC order k >= 1 (default: 2)"
-    )
-    group.add_argument(
-        "--v",
-        type=int,
-        default=None,
-        metavar="V",
-        help="velocity window: largest |dx|, |dy| per scan in pixels, >= 1 (default: 4)",
-    )
-    group.add_argument(
-        "--delta",
-        type=float,
-        default=None,
-        metavar="DEG",
-        help="largest turn between successive moves, in DEGREES, in (0, 180] (default: 45)",
-    )
-    group.add_argument(
-        "--threshold",
-        type=float,
-        default=None,
-        metavar="S",
-        help="smallest accepted track score, eq. (8)-(9) of [LA98] (default: 2.5)",
-    )
-    group.add_argument(
-        "--min-points",
-        type=int,
-        default=None,
-        metavar="N",
-        help="smallest accepted track length in points, >= 1 (default: 2 * order + 1)",
-    )
-    group.add_argument(
-        "--min-speed",
-        type=float,
-        default=None,
-        metavar="S",
-        help="drop tracks whose mean speed (first to last point) is below S pixels per scan, "
-        ">= 0; our addition against stationary clutter, not in [LA98] (default: 0, keep all)",
-    )
-    group.add_argument(
-        "--threshold-pfa",
-        type=float,
-        default=None,
-        metavar="P",
-        help="take INTENSITY frames: pre-process them (see the pre-processing options), then "
-        "keep in every frame the floor(P H W) highest whitened pixels (per-frame CFAR "
-        "threshold, false-alarm probability P per pixel, in (0, 1); our addition, "
-        "hocnet.data.binarize) as the binary cube of the HOC (default: off, CUBE is binary). "
-        "Caveat: on the real IR clips of README the HOC keeps the target in its support but its "
-        "point score cannot rank it (Pd 0.00 at one false alarm per frame; --method dpa: 0.985)",
-    )
-
-
-def _prepare_hoc(args: argparse.Namespace) -> dict[str, Any]:
-    """Validate the HOC options (flag names in the messages) and fill in defaults."""
-    order = _check_int("--order", 2 if args.order is None else args.order, minimum=1)
-    v = _check_int("--v", 4 if args.v is None else args.v, minimum=1)
-    delta = _check_number(
-        "--delta",
-        45.0 if args.delta is None else args.delta,
-        low=0.0,
-        high=180.0,
-        low_inclusive=False,
-    )
-    threshold = _check_number("--threshold", 2.5 if args.threshold is None else args.threshold)
-    min_points = 2 * order + 1 if args.min_points is None else args.min_points
-    min_points = _check_int("--min-points", min_points, minimum=1)
-    min_speed = _check_number("--min-speed", 0.0 if args.min_speed is None else args.min_speed)
-    if min_speed < 0:
-        raise CLIError(f"--min-speed: expected a speed >= 0 pixels per scan, got {min_speed:g}")
-    params: dict[str, Any] = {
-        "order": order,
-        "v": v,
-        "delta": delta,
-        "threshold": threshold,
-        "min_points": min_points,
-        "min_speed": min_speed,
-    }
-    if args.threshold_pfa is None:
-        for dest in _PRE_DESTS:
-            if getattr(args, dest, None) is not None:
-                flag = "--" + dest.replace("_", "-")
-                raise CLIError(
-                    f"{flag}: applies to intensity frames: --method dpa, or --method hoc with "
-                    "--threshold-pfa"
-                )
-        return params
-    from hocnet.dpa.presets import RECOMMENDED
-
-    params["threshold_pfa"] = _check_number(
-        "--threshold-pfa",
-        args.threshold_pfa,
-        low=0.0,
-        high=1.0,
-        low_inclusive=False,
-        high_inclusive=False,
-    )
-    params.update(_prepare_preprocess(args, RECOMMENDED))
-    params["binary"] = False
-    return params
-
-
 #: Batches at least this large are detected scene by scene under a progress bar.
 _PROGRESS_BATCH = 8
 
@@ -230,6 +137,36 @@ def _bound_hoc(cube: torch.Tensor, params: dict[str, Any]) -> None:
         )
 
 
+def binarize_frames(
+    frames: torch.Tensor, params: dict[str, Any]
+) -> tuple[torch.Tensor, torch.Tensor | None, str]:
+    """Intensity frames into the binary cube of the HOC (``--threshold-pfa``).
+
+    Pre-processing (:func:`_preprocess`: registration, causal background removal, whitening),
+    then per frame the ``floor(pfa H W)`` highest whitened pixels
+    (:func:`hocnet.data.binarize.cfar_binarize`, our addition).
+
+    Args:
+        frames: ``(T, H, W)`` or ``(B, T, H, W)`` intensities.
+        params: ``threshold_pfa`` and the pre-processing parameters of :func:`prepare_hoc`.
+
+    Returns:
+        ``(binary, shifts, note)``: the bool cube shaped like ``frames``, the registration
+        shifts (``None`` without registration) and a one-line summary.
+    """
+    from hocnet.data.binarize import cfar_binarize
+
+    pfa = params["threshold_pfa"]
+    _check_float32_range(frames, "`frames`")
+    white, shifts = _preprocess(frames, params)
+    binary = cfar_binarize(white, pfa)
+    note = (
+        f"binarised: {int(binary.sum())} points (CFAR, pfa {pfa:g} per pixel, at most "
+        f"{math.floor(pfa * binary.shape[-1] * binary.shape[-2])} per frame)"
+    )
+    return binary, shifts, note
+
+
 def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     """Run :func:`hocnet.hoc.detect`; a large batch goes scene by scene with a progress bar.
 
@@ -245,21 +182,15 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     outputs: dict[str, Writer] = {}
     notes: list[str] = []
     if pfa is not None:
-        from hocnet.data.binarize import cfar_binarize
         from hocnet.data.io import save_cube
 
-        _check_float32_range(cube, "`frames`")
-        white, shifts = _preprocess(cube, params)
-        cube = cfar_binarize(white, pfa)
+        cube, shifts, binarised = binarize_frames(cube, params)
         binary = cube
         outputs["binary.npy"] = lambda path: save_cube(path, binary)
         if shifts is not None:
             outputs["shifts.csv"] = _shifts_writer(shifts)
             notes.append(_shifts_summary(shifts))
-        notes.append(
-            f"binarised: {int(cube.sum())} points (CFAR, pfa {pfa:g} per pixel, at most "
-            f"{math.floor(pfa * cube.shape[-1] * cube.shape[-2])} per frame)"
-        )
+        notes.append(binarised)
     model = params.pop("model", None)
     _bound_hoc(cube, params)
     kwargs = {
@@ -320,229 +251,8 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     return finish(result)
 
 
-def _preset_default(field_name: str, fmt: str = "{}") -> str:
-    """``recommended: X, paper: Y`` for a help text (read from :mod:`hocnet.dpa.presets`)."""
-    from hocnet.dpa.presets import PAPER, RECOMMENDED
-
-    def show(value: Any) -> str:
-        if isinstance(value, bool):
-            return "on" if value else "off"
-        return "EMC" if value == "emc" else fmt.format(value)
-
-    rec, pap = getattr(RECOMMENDED, field_name), getattr(PAPER, field_name)
-    if rec == pap:
-        return f"default: {show(rec)} in both presets"
-    return f"default: {show(rec)} (--preset recommended), {show(pap)} (--preset paper)"
-
-
-def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
-    group.add_argument(
-        "--preset",
-        choices=("recommended", "paper"),
-        default=None,
-        help="the defaults of the DPA and pre-processing options: 'recommended' = the "
-        "pipeline measured best on six real IR clips (registration, median background of 10 "
-        "past frames, anti-mean, 5 x 5 matrices, g = 0, equal gain, memory 0.4; "
-        "hocnet.dpa.presets.RECOMMENDED), 'paper' = the DPA as [NR08] builds it (7 x 7, "
-        "v-max 2 + 0.5 jitter, g = 0, b = 4.67 from the EMC 0.8 of direction 9, no background "
-        "removal; hocnet.dpa.presets.PAPER, the library's defaults) (default: recommended)",
-    )
-    group.add_argument(
-        "--g",
-        type=float,
-        default=None,
-        metavar="G",
-        help=f"sum/max mixing of eq. (11) of [NR08], in [0, 1]: 0 = max, 1 = sum "
-        f"({_preset_default('g', '{:g}')}; DPA() also defaults to 0)",
-    )
-    group.add_argument(
-        "--b",
-        type=float,
-        default=None,
-        metavar="B",
-        help="memory factor, >= 0 (default: the b of the effective-memory criterion (EMC), "
-        "eq. (12)-(14) of [NR08], for g: EMC 0.4 with --preset recommended, 0.8 of "
-        "direction 9 with --preset paper)",
-    )
-    group.add_argument(
-        "--window",
-        type=int,
-        default=None,
-        metavar="K",
-        help=f"probability-matrix size, odd, at most the frame size ({_preset_default('window')})",
-    )
-    group.add_argument(
-        "--v-max",
-        type=float,
-        default=None,
-        metavar="V",
-        help="largest target speed in pixels per frame, without the 0.5 px jitter, > 0 "
-        f"({_preset_default('v_max', '{:g}')})",
-    )
-    group.add_argument(
-        "--equal-gain",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="rescale the direction matrices to one per-step gain (our addition to [NR08], "
-        "for sub-pixel targets that stay in place, see hocnet.dpa.equalize_gain; "
-        f"{_preset_default('equal_gain')})",
-    )
-    group.add_argument(
-        "--max-targets",
-        type=int,
-        default=None,
-        metavar="N",
-        help="largest number of tracks per sequence, >= 1 (default: 5)",
-    )
-    group.add_argument(
-        "--nms-radius",
-        type=int,
-        default=None,
-        metavar="R",
-        help="non-maximum suppression radius on the last ASF, >= 0 (default: 3)",
-    )
-    group.add_argument(
-        "--asf-threshold",
-        type=float,
-        default=None,
-        metavar="S",
-        help="keep last-frame ASF peaks above S (default: no threshold, the top peaks)",
-    )
-    group.add_argument(
-        "--target-free",
-        default=None,
-        metavar="FILE",
-        help="target-free frames (.npy/.npz) for a CFAR (constant false-alarm rate) threshold "
-        "at --pfa",
-    )
-    group.add_argument(
-        "--pfa",
-        type=float,
-        default=None,
-        metavar="P",
-        help="false-alarm probability (Pfa) per pixel of the CFAR threshold (default: 1e-3)",
-    )
-
-
 #: NMS radius (pixels) of the per-frame candidate detections of ``detections.csv``.
 DETECTION_NMS_RADIUS = 2
-
-#: Options of the pre-processing of intensity frames (shared by dpa and hoc --threshold-pfa).
-_PRE_DESTS = ("register", "background", "background_window", "whiten")
-
-
-def _add_preprocess_options(group: argparse._ArgumentGroup) -> None:
-    group.add_argument(
-        "--register",
-        action=argparse.BooleanOptionalAction,
-        default=None,
-        help="estimate the camera motion between frames (phase correlation, sub-pixel) and "
-        "move the past frames onto each frame before the background is taken; the shifts are "
-        "written to shifts.csv (our addition; "
-        f"{_preset_default('register')}; --method hoc --threshold-pfa: on)",
-    )
-    group.add_argument(
-        "--background",
-        choices=("none", "mean", "median", "lowrank"),
-        default=None,
-        help="causal temporal background removal: per-pixel mean / median / robust low-rank "
-        "background of the previous --background-window frames, subtracted before the "
-        f"whitening (our addition; {_preset_default('background')}; --method hoc "
-        "--threshold-pfa: median)",
-    )
-    group.add_argument(
-        "--background-window",
-        type=int,
-        default=None,
-        metavar="N",
-        help=f"past frames of the background, >= 1 ({_preset_default('background_window')})",
-    )
-    group.add_argument(
-        "--whiten",
-        choices=("mean", "median", "none"),
-        default=None,
-        help="anti-mean / anti-median whitening (7 x 7 ring, 3 x 3 guard) or none "
-        f"({_preset_default('whitening')}; --method hoc --threshold-pfa: mean)",
-    )
-
-
-def _prepare_preprocess(args: argparse.Namespace, preset: Any) -> dict[str, Any]:
-    """The pre-processing options, defaults from ``preset`` (a :class:`DPAPreset`)."""
-    window = preset.background_window if args.background_window is None else args.background_window
-    return {
-        "register": preset.register if args.register is None else bool(args.register),
-        "background": args.background or preset.background,
-        "background_window": _check_int("--background-window", window, minimum=1),
-        "whiten": args.whiten or preset.whitening,
-    }
-
-
-def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
-    """Validate the DPA options (flag names in the messages) and fill in the preset's defaults."""
-    from hocnet.dpa.presets import PRESETS
-
-    preset = PRESETS[args.preset or "recommended"]
-    g = _check_number("--g", preset.g if args.g is None else args.g, low=0.0, high=1.0)
-    if args.b is not None:
-        b = _check_number("--b", args.b, low=0.0)
-    else:
-        b = None if preset.b == "emc" else float(preset.b)
-    window = _check_int(
-        "--window", preset.window if args.window is None else args.window, minimum=1
-    )
-    if window % 2 == 0:
-        raise CLIError(f"--window: expected an odd integer, got {window}")
-    v_max = _check_number(
-        "--v-max", preset.v_max if args.v_max is None else args.v_max, low=0.0, low_inclusive=False
-    )
-    max_targets = _check_int(
-        "--max-targets", 5 if args.max_targets is None else args.max_targets, minimum=1
-    )
-    nms_radius = _check_int(
-        "--nms-radius", 3 if args.nms_radius is None else args.nms_radius, minimum=0
-    )
-    threshold = (
-        None if args.asf_threshold is None else _check_number("--asf-threshold", args.asf_threshold)
-    )
-    pfa = _check_number(
-        "--pfa",
-        1e-3 if args.pfa is None else args.pfa,
-        low=0.0,
-        high=1.0,
-        low_inclusive=False,
-        high_inclusive=False,
-    )
-    if threshold is not None and args.target_free is not None:
-        raise CLIError("--asf-threshold: expected no fixed threshold together with --target-free")
-    target_free = None
-    if args.target_free is not None:
-        from hocnet.data.io import load_cube
-
-        try:
-            target_free = load_cube(args.target_free)
-        except (ValueError, TypeError, OSError) as err:
-            message = str(err).replace("`path`", "--target-free").replace("`cube`: ", "")
-            raise CLIError(message) from None
-    return {
-        "preset": preset.name,
-        "g": g,
-        "b": b,
-        "window": window,
-        "v_max": v_max,
-        "jitter": preset.jitter,
-        "p": preset.p,
-        "penalty_step": preset.penalty_step,
-        "memory": preset.memory,
-        "memory_direction": preset.memory_direction,
-        "direction_step": preset.direction_step,
-        **_prepare_preprocess(args, preset),
-        "equal_gain": preset.equal_gain if args.equal_gain is None else bool(args.equal_gain),
-        "max_targets": max_targets,
-        "nms_radius": nms_radius,
-        "asf_threshold": threshold,
-        "pfa": pfa,
-        "target_free": target_free,
-    }
 
 
 def _check_float32_range(cube: torch.Tensor, label: str) -> None:
@@ -759,7 +469,9 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     t = torch.arange(n_t)
     for tr in tracks:
         (support[tr.batch] if batched else support)[t, tr.points[:, 1], tr.points[:, 2]] = True
-    result = argparse.Namespace(support=support, cleaned=support, tracks=tracks, state=found.state)
+    result = argparse.Namespace(
+        support=support, cleaned=support, tracks=tracks, state=found.state, shifts=shifts
+    )
     outputs: dict[str, Writer] = {"asf.npy": lambda path: save_cube(path, asf)}
     outputs.update(_detection_writers(asf, params["max_per_frame"]))
     if shifts is not None:
@@ -801,17 +513,9 @@ _METHODS: dict[str, _Method] = {
     "hoc": _Method(
         name="hoc",
         help="modified high-order correlation of [LA98] (binary cubes)",
-        add_options=_add_hoc_options,
-        option_dests=(
-            "order",
-            "v",
-            "delta",
-            "threshold",
-            "min_points",
-            "min_speed",
-            "threshold_pfa",
-        ),
-        prepare=_prepare_hoc,
+        add_options=add_hoc_options,
+        option_dests=HOC_DESTS,
+        prepare=prepare_hoc,
         run=_run_hoc,
         output_names=("tracks.json", "cleaned.npy", "support.npy"),
         scene_outputs=True,
@@ -819,21 +523,9 @@ _METHODS: dict[str, _Method] = {
     "dpa": _Method(
         name="dpa",
         help="dynamic-programming track-before-detect of [NR08] (float frames)",
-        add_options=_add_dpa_options,
-        option_dests=(
-            "preset",
-            "g",
-            "b",
-            "window",
-            "v_max",
-            "equal_gain",
-            "max_targets",
-            "nms_radius",
-            "asf_threshold",
-            "target_free",
-            "pfa",
-        ),
-        prepare=_prepare_dpa,
+        add_options=add_dpa_options,
+        option_dests=DPA_DESTS,
+        prepare=prepare_dpa,
         run=_run_dpa,
         binary=False,
         output_names=("tracks.json", "asf.npy"),
@@ -894,67 +586,8 @@ def _prepare_method(args: argparse.Namespace) -> tuple[_Method, dict[str, Any]]:
 
 
 # --------------------------------------------------------------------------------------------
-# shared helpers
-# --------------------------------------------------------------------------------------------
-
-
-# --------------------------------------------------------------------------------------------
 # hocnet detect
 # --------------------------------------------------------------------------------------------
-
-
-def _frames_source(text: str) -> bool:
-    """Whether CUBE names image frames (a folder, a glob or an image file), not a .npy/.npz."""
-    from hocnet.data.frames import IMAGE_SUFFIXES
-
-    path = Path(text)
-    if path.is_dir():  # a folder named like a cube file is a mistaken path, not a clip
-        return path.suffix.lower() not in (".npy", ".npz")
-    if path.is_file():
-        return path.suffix.lower() in IMAGE_SUFFIXES
-    return bool(re.search(r"[*?\[]", text))
-
-
-def _load_input(args: argparse.Namespace, binary: bool) -> tuple[torch.Tensor, list[Path]]:
-    """Load CUBE: a .npy/.npz cube, or a folder / glob / file of image frames.
-
-    Returns the cube and the image files read (inputs that no output may replace). A colour
-    frame converted to grey is reported as one ``hocnet: note:`` line on stderr.
-    """
-    import warnings
-
-    import torch
-
-    from hocnet._check import as_cube
-    from hocnet.data.frames import frame_files, load_frames
-    from hocnet.data.io import load_cube
-
-    files: list[Path] = []
-    try:
-        if _frames_source(args.cube):
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always", UserWarning)
-                cube = load_frames(args.cube, key=args.key, dtype=torch.float64)
-            for warning in caught:
-                if issubclass(warning.category, UserWarning):
-                    text = _one_line(str(warning.message)).replace("load_frames: ", "")
-                    print(f"{PROG}: note: {text}", file=sys.stderr)
-            files = frame_files(args.cube)
-            if binary:
-                cube, _ = as_cube("cube", cube, binary=True)
-                cube = cube[0]
-        else:
-            cube = load_cube(args.cube, key=args.key, binary=binary)
-    except (ValueError, TypeError, OSError) as err:
-        message = str(err).replace("`path`", "CUBE").replace("`source`", "CUBE")
-        message = message.replace("`key`", "--key").replace("`cube`: ", "")
-        if binary and "binary values" in message:
-            message += (
-                "; --method hoc needs binary scans: give --threshold-pfa P to binarise "
-                "intensity frames, or use --method dpa"
-            )
-        raise CLIError(message) from None
-    return cube, files
 
 
 def _planned_names(
@@ -993,17 +626,11 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     params["max_per_frame"] = _check_int("--max-per-frame", args.max_per_frame, minimum=1)
     binary = params.pop("binary", method.binary)
     out = _check_out_dir(args.out)
-    inputs = {"CUBE": Path(args.cube)}
+    inputs = input_paths(args.cube)
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
     if args.weights is not None:
         inputs["--weights"] = Path(args.weights)
-    if _frames_source(args.cube):
-        from hocnet.data.frames import frame_files
-
-        with contextlib.suppress(ValueError, OSError):
-            for file in frame_files(args.cube):
-                inputs[f"CUBE frame '{file.name}' of"] = file
     # no directory in the way, no input replaced: checked now, before any work; files hocnet
     # did not write once the input's shape gives every name (in one message), before the
     # detection; all of it again before writing
@@ -1012,9 +639,8 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     stages = _Stages(["load", method.name, "pictures", "write"], enabled=_show_progress(args))
     with stages:
         stages.next("load")
-        cube, files = _load_input(args, binary)
-        for file in files:
-            inputs[f"CUBE frame '{file.name}' of"] = file
+        cube, files = load_input(args.cube, args.key, binary)
+        inputs.update(frame_paths(files))
         planned = _planned_names(method, params, args, tuple(cube.shape))
         _check_destinations(out, planned, inputs, force=force)
         batched = cube.dim() == 4
@@ -1224,15 +850,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         epilog=_DETECT_EPILOG,
         formatter_class=_Formatter,
     )
-    detect.add_argument(
-        "cube",
-        metavar="CUBE",
-        help="input: a .npy / .npz cube, or a folder, glob ('clip/*.png') or file of image "
-        "frames (PNG, BMP, TIFF; 8 or 16 bit; sorted by name, natural order)",
-    )
-    detect.add_argument(
-        "--key", default=None, metavar="K", help="array name inside a .npz (default: its only one)"
-    )
+    add_input_arguments(detect, "cube", "CUBE")
     detect.add_argument(
         "--method",
         choices=sorted(_METHODS),
@@ -1271,7 +889,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         method.add_options(
             detect.add_argument_group(f"{method.name} options (--method {method.name})")
         )
-    _add_preprocess_options(
+    add_preprocess_options(
         detect.add_argument_group(
             "pre-processing of intensity frames (--method dpa, or --method hoc with "
             "--threshold-pfa; in this order: registration, background removal, whitening)"

@@ -4,7 +4,8 @@ The detector runs over the sequence and gives per-frame plots (pixel coordinates
 ``y`` = row); the track-oriented MHT (:class:`hocnet.tracking.mht.MHT`) turns them into confirmed
 tracks with identities:
 
-* ``--detector hoc``: the modified HOC of [LA98] on a BINARY ``(T, H, W)`` cube, streaming
+* ``--detector hoc``: the modified HOC of [LA98] on a BINARY ``(T, H, W)`` cube (or intensity
+  frames binarised as by ``hocnet detect --threshold-pfa``), streaming
   (:class:`hocnet.hoc.stream.StreamingDetector`, sliding windows): the plots of frame ``t`` are
   the points kept on identified HOC tracks in the windows holding ``t`` (union over windows;
   frames after the last full stride get one more window ending at the last frame).
@@ -12,6 +13,10 @@ tracks with identities:
   ``hocnet detect --method dpa``; the plots of frame ``t`` are the local maxima of the causal
   ASF of frame ``t`` (the ``detections.csv`` of ``hocnet detect``), above the DPA's CFAR
   threshold when one is set, at most ``--max-per-frame``.
+
+The input (a ``.npy`` / ``.npz`` sequence or image frames), the detector options and their
+validation are those of ``hocnet detect`` (:mod:`hocnet.cli._inputs`), and so is the detection
+code (:mod:`hocnet.cli.detect`).
 
 The MHT's false-alarm density defaults to the mean number of plots per frame divided by the
 frame area (an upper bound: targets are counted too; our choice), the new-target density to a
@@ -41,27 +46,38 @@ from hocnet.cli._common import (
     _torch_threads,
     _write_outputs,
 )
+from hocnet.cli._inputs import (
+    DPA_DESTS,
+    HOC_DESTS,
+    PRE_DESTS,
+    add_dpa_options,
+    add_hoc_options,
+    add_input_arguments,
+    add_preprocess_options,
+    frame_paths,
+    input_paths,
+    load_input,
+    prepare_dpa,
+    prepare_hoc,
+)
 
 OUTPUT_NAMES = ("tracks.json", "tracks.png")
 
-_HOC_DESTS = ("order", "v", "delta", "window", "stride")
-_DPA_DESTS = ("preset", "max_per_frame")
+#: ``hocnet detect``'s DPA options left out here: ``--max-targets`` and ``--nms-radius`` shape
+#: only the back-tracked tracks, not the plots; ``--window`` is the HOC's sliding window here
+#: (the DPA's matrix size follows ``--preset``).
+_DPA_SKIP = ("window", "max_targets", "nms_radius")
+_HOC_DESTS = (*HOC_DESTS, "window", "stride")
+_DPA_DESTS = (*(d for d in DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
+
+_LABEL, _SELECTOR = "SEQ", "--detector"
 
 
-def _load(args: argparse.Namespace) -> Any:
-    """Load SEQ as a float64 ``(T, H, W)`` tensor (binary for the HOC)."""
+def _load(args: argparse.Namespace, binary: bool) -> tuple[Any, list[Path]]:
+    """Load SEQ as a ``(T, H, W)`` tensor (bool for the HOC, else float64) and its image files."""
     import torch
 
-    from hocnet.data.io import load_cube
-
-    try:
-        cube = load_cube(args.seq, key=args.key, binary=args.detector == "hoc")
-    except (ValueError, TypeError, OSError) as err:
-        message = str(err).replace("`path`", "SEQ").replace("`key`", "--key")
-        message = message.replace("`cube`: ", "")
-        if args.detector == "hoc" and "binary" in message:
-            message += "; --detector hoc needs a binary cube, use --detector dpa on intensities"
-        raise CLIError(message) from None
+    cube, files = load_input(args.seq, args.key, binary, label=_LABEL, selector=_SELECTOR)
     if cube.dim() != 3:
         raise CLIError(
             f"SEQ: expected one sequence of shape (T, H, W), got shape {tuple(cube.shape)}"
@@ -73,63 +89,90 @@ def _load(args: argparse.Namespace) -> Any:
             raise CLIError(f"SEQ: expected finite values, got {bad} NaN or infinite values")
     if min(cube.shape) == 0:
         raise CLIError(f"SEQ: expected a non-empty sequence, got shape {tuple(cube.shape)}")
-    return cube
+    return cube, files
 
 
-def _hoc_params(args: argparse.Namespace, n_frames: int) -> dict[str, Any]:
-    order = _check_int("--order", 2 if args.order is None else args.order, minimum=1)
-    v = _check_int("--v", 4 if args.v is None else args.v, minimum=1)
-    delta = _check_number(
-        "--delta",
-        45.0 if args.delta is None else args.delta,
-        low=0.0,
-        high=180.0,
-        low_inclusive=False,
+def _prepare(args: argparse.Namespace) -> dict[str, Any]:
+    """Validate the detector's options (as ``hocnet detect`` does) before anything is read."""
+    det = args.detector
+    other = _DPA_DESTS if det == "hoc" else _HOC_DESTS
+    mine = _HOC_DESTS if det == "hoc" else _DPA_DESTS
+    for dest in other:
+        if dest not in mine and getattr(args, dest, None) is not None:
+            flag = "--" + dest.replace("_", "-")
+            raise CLIError(f"{flag}: does not apply to --detector {det}")
+    _mht_params(args, [], 1.0)  # the tracker's options too, before any work
+    if det == "hoc":
+        params = prepare_hoc(args, _SELECTOR)
+        params["window"] = _check_int(
+            "--window", 10 if args.window is None else args.window, minimum=2 * params["order"] + 1
+        )
+        params["stride"] = _check_int(
+            "--stride", 2 if args.stride is None else args.stride, minimum=1
+        )
+        return params
+    dpa = argparse.Namespace(**vars(args))
+    for dest in _DPA_SKIP:  # not options of this command: the preset's / detect's defaults
+        setattr(dpa, dest, None)
+    params = prepare_dpa(dpa)
+    params["max_per_frame"] = _check_int(
+        "--max-per-frame", 5 if args.max_per_frame is None else args.max_per_frame, minimum=1
     )
-    window = _check_int(
-        "--window", 10 if args.window is None else args.window, minimum=2 * order + 1
-    )
-    stride = _check_int("--stride", 2 if args.stride is None else args.stride, minimum=1)
+    return params
+
+
+def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
+    """The binary cube of the HOC (``--threshold-pfa``: binarised), notes and shifts."""
+    from hocnet.cli.detect import _bound_hoc, _shifts_summary, binarize_frames
+
+    n_frames = cube.shape[0]
+    order = params["order"]
     if n_frames < 2 * order + 1:
         raise CLIError(
             f"SEQ: expected at least 2 * order + 1 = {2 * order + 1} frames for --order "
             f"{order}, got {n_frames}"
         )
-    return {
-        "order": order,
-        "v": v,
-        "delta": delta,
-        "window": min(window, n_frames),
-        "stride": stride,
-    }
+    notes: list[str] = []
+    shifts = None
+    if params.get("threshold_pfa") is not None:
+        cube, shifts, note = binarize_frames(cube, params)
+        if shifts is not None:
+            notes.append(_shifts_summary(shifts))
+        notes.append(note)
+    _bound_hoc(cube, params)
+    params["window"] = min(params["window"], n_frames)
+    return cube, notes, shifts
 
 
 def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
     """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC."""
     import torch
 
+    from hocnet.hoc import detect, reject_slow_tracks
     from hocnet.hoc.stream import StreamingDetector
 
-    det = StreamingDetector(
-        window=p["window"],
-        stride=p["stride"],
-        order=p["order"],
-        v=p["v"],
-        delta=math.radians(p["delta"]),
-    )
+    kw = {
+        "order": p["order"],
+        "v": p["v"],
+        "delta": math.radians(p["delta"]),
+        "threshold": p["threshold"],
+        "min_points": p["min_points"],
+    }
+
+    def cleaned(result: Any) -> Any:
+        if p["min_speed"] > 0:
+            result = reject_slow_tracks(result, p["min_speed"])
+        return result.cleaned
+
+    det = StreamingDetector(window=p["window"], stride=p["stride"], **kw)
     n_t, h, w = cube.shape
     kept = torch.zeros(n_t, h, w, dtype=torch.bool)
     for t in range(n_t):
         out = det.push(cube[t])
         if out is not None:
-            kept[out.start : out.stop] |= out.result.cleaned
+            kept[out.start : out.stop] |= cleaned(out.result)
     if (n_t - p["window"]) % p["stride"]:  # the last frames: one final window at the end
-        from hocnet.hoc import detect
-
-        last = detect(
-            cube[n_t - p["window"] :], order=p["order"], v=p["v"], delta=math.radians(p["delta"])
-        )
-        kept[n_t - p["window"] :] |= last.cleaned
+        kept[n_t - p["window"] :] |= cleaned(detect(cube[n_t - p["window"] :], **kw))
     plots = []
     for t in range(n_t):
         yx = kept[t].nonzero().double()
@@ -137,35 +180,14 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
     return plots
 
 
-def _dpa_plots(cube: Any, args: argparse.Namespace) -> tuple[list[Any], dict[str, Any]]:
-    """Per-frame plots of the DPA (local maxima of the causal ASF) and the DPA parameters."""
+def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, Any], Any]:
+    """Per-frame plots of the DPA (local maxima of the causal ASF), its parameters and shifts."""
     import torch
 
-    from hocnet.cli.detect import DETECTION_NMS_RADIUS, _prepare_dpa, _run_dpa
+    from hocnet.cli.detect import DETECTION_NMS_RADIUS, _run_dpa
     from hocnet.detection_metrics import detect_peaks
 
-    ns = argparse.Namespace(
-        preset=args.preset,
-        g=None,
-        b=None,
-        window=None,
-        v_max=None,
-        max_targets=None,
-        nms_radius=None,
-        asf_threshold=None,
-        pfa=None,
-        target_free=None,
-        equal_gain=None,
-        register=None,
-        background=None,
-        background_window=None,
-        whiten=None,
-    )
-    params = _prepare_dpa(ns)
-    per_frame = _check_int(
-        "--max-per-frame", 5 if args.max_per_frame is None else args.max_per_frame, minimum=1
-    )
-    params["max_per_frame"] = per_frame
+    per_frame = params["max_per_frame"]
     detection = _run_dpa(cube, params)
     asf = detection.result.state.asf.double()
     threshold = detection.params.get("threshold_used")
@@ -179,13 +201,20 @@ def _dpa_plots(cube: Any, args: argparse.Namespace) -> tuple[list[Any], dict[str
         if flat.numel() and bool(flat.max() == flat.min()):
             rows = rows[:0]  # a constant frame (e.g. frame 0 after background removal)
         plots.append(rows[:, 1:3].to(torch.float64))
+    used = detection.params
     meta = {
-        "preset": params["preset"],
+        "preset": used["preset"],
         "max_per_frame": per_frame,
         "asf_threshold": threshold,
+        "cfar": used["cfar"],
         "nms_radius": DETECTION_NMS_RADIUS,
+        **{
+            k: used[k]
+            for k in ("g", "b", "window", "v_max", "equal_gain", "pfa", *PRE_DESTS)
+            if k in used
+        },
     }
-    return plots, meta
+    return plots, meta, detection.result.shifts
 
 
 def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict[str, Any]:
@@ -310,25 +339,32 @@ def _figure(cube: Any, plots: list[Any], tracks: list[dict[str, Any]], title: st
 
 
 def _cmd_track(args: argparse.Namespace) -> int:
+    from hocnet.cli.detect import _shifts_summary
+
     det = args.detector
-    other = _DPA_DESTS if det == "hoc" else _HOC_DESTS
-    for dest in other:
-        if getattr(args, dest, None) is not None:
-            flag = "--" + dest.replace("_", "-")
-            raise CLIError(f"{flag}: does not apply to --detector {det}")
+    det_params = _prepare(args)
+    binary = det == "hoc" and det_params.pop("binary", True)
     out = _check_out_dir(args.out)
-    inputs = {"SEQ": Path(args.seq)}
+    inputs = input_paths(args.seq, _LABEL)
+    if getattr(args, "target_free", None) is not None:
+        inputs["--target-free"] = Path(args.target_free)
     names = [n for n in OUTPUT_NAMES if not (args.no_plot and n.endswith(".png"))]
     _check_destinations(out, names, inputs, force=args.force)
-    cube = _load(args)
+    cube, files = _load(args, binary)
+    inputs.update(frame_paths(files, _LABEL))
+    _check_destinations(out, names, inputs, force=args.force)
     n_t, h, w = cube.shape
+    notes: list[str] = []
+    shifts = None
     start = time.perf_counter()
     with _torch_threads(PIPELINE_THREADS):
         if det == "hoc":
-            det_params = _hoc_params(args, n_t)
-            plots = _hoc_plots(cube, det_params)
+            scans, notes, shifts = _hoc_input(cube, det_params)
+            plots = _hoc_plots(scans, det_params)
         else:
-            plots, det_params = _dpa_plots(cube, args)
+            plots, det_params, shifts = _dpa_plots(cube, det_params)
+            if shifts is not None:
+                notes.append(_shifts_summary(shifts))
         params = _mht_params(args, plots, float(h * w))
         tracks = _run_mht(plots, params)
     runtime = time.perf_counter() - start
@@ -339,6 +375,9 @@ def _cmd_track(args: argparse.Namespace) -> int:
         "mht_params": params,
         "input": str(Path(args.seq).resolve()),
         "input_shape": [n_t, h, w],
+        **({"key": args.key} if args.key is not None else {}),
+        **({"input_frames": [file.name for file in files]} if files else {}),
+        **({"shifts": [[float(v) for v in s] for s in shifts]} if shifts is not None else {}),
         "plots_per_frame": [int(p.shape[0]) for p in plots],
         "coordinates": "pixels, x = column, y = row; points are [frame, x, y, plot index]",
         "state": "[x, vx, y, vy] at the last frame of the track (px, px/frame)",
@@ -355,6 +394,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         f"track: {det} + MHT on {n_t} x {h} x {w}: {n_plots} plots, {len(rows)} confirmed "
         f"track{'s' * (len(rows) != 1)} ({runtime:.2f} s)"
     )
+    for note in notes:
+        print(f"  {note}")
     if rows:
         table = [
             (
@@ -374,11 +415,18 @@ def _cmd_track(args: argparse.Namespace) -> int:
 
 
 _EPILOG = """\
-detectors:
+input:
+  SEQ is one sequence (T, H, W), read as by 'hocnet detect': a .npy file, an array of a .npz
+  (--key), or image frames: a folder (every file in it must be a PNG / BMP / TIFF frame, all
+  of one size), a glob pattern (quote it: 'clip/frame_*.png') or one (multi-page) image file,
+  sorted by name in natural order, values not rescaled, colour converted to grey.
+
+detectors (their options, defaults and messages are those of 'hocnet detect'):
   hoc  the modified HOC of [LA98], streaming over sliding windows (--window, --stride), on a
-       BINARY cube (T, H, W) of bool or 0/1 values
+       BINARY cube (bool or 0/1 values), or on intensity frames with --threshold-pfa P
+       (pre-processed, then binarised per frame by a CFAR threshold, as 'hocnet detect' does)
   dpa  the DPA of [NR08] with the pre-processing of 'hocnet detect --method dpa' (--preset),
-       on INTENSITY frames (T, H, W); plots = local maxima of each frame's causal ASF
+       on INTENSITY frames; plots = local maxima of each frame's causal ASF
 
 tracker:
   the track-oriented structured-branching MHT of [PD] (hocnet.tracking.mht.MHT): chi-square
@@ -386,8 +434,9 @@ tracker:
   ln(beta / (1 - alpha))), Murty k-best global hypotheses, N-scan pruning; the motion model
   is an IMM of two constant-velocity models (--sigma-a and 10 x --sigma-a) or one CV model.
 
-outputs (in --out DIR, all or nothing; an input is never replaced, nor a file hocnet did not
-write unless --force):
+outputs (in --out DIR, all or nothing; an input is never replaced, SEQ or any of its image
+frames, --target-free; nor a file hocnet did not write unless --force; nothing is written if
+the input or an option is invalid):
   tracks.json  {"meta": {...}, "tracks": [{"id", "status", "score", "first_frame",
                "last_frame", "state", "covariance", "points": [[frame, x, y, plot], ...]}]}
   tracks.png   the maximum over frames, the plots and the tracks with their ids
@@ -395,6 +444,8 @@ write unless --force):
 examples:
   hocnet track scans.npy --detector hoc --out tracks
   hocnet track frames.npy --detector dpa --pd 0.8 --out tracks
+  hocnet track clip_folder/ --detector dpa --out tracks
+  hocnet track 'clip/*.png' --detector hoc --threshold-pfa 0.001 --out tracks
 """
 
 
@@ -403,14 +454,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p = commands.add_parser(
         "track",
         help="detect and track: a detector's plots into the MHT of [PD] (confirmed tracks)",
-        description="Run a detector over a sequence and feed its per-frame plots (pixel\n"
-        "coordinates) to the track-oriented MHT of [PD]; print the confirmed tracks\n"
-        "and write them as JSON and a picture.",
+        description="Run a detector over a sequence (a .npy/.npz cube or image frames) and\n"
+        "feed its per-frame plots (pixel coordinates) to the track-oriented MHT of [PD];\n"
+        "print the confirmed tracks and write them as JSON and a picture.",
         epilog=_EPILOG,
         formatter_class=_Formatter,
     )
-    p.add_argument("seq", metavar="SEQ", help="input: a .npy / .npz sequence (T, H, W)")
-    p.add_argument("--key", default=None, metavar="K", help="array name inside a .npz")
+    add_input_arguments(p, "seq", _LABEL, what="sequence (T, H, W)")
     p.add_argument(
         "--detector", choices=("hoc", "dpa"), default="hoc", help="detector (default: hoc)"
     )
@@ -422,30 +472,19 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--force", action="store_true", help="replace files in --out that hocnet did not write"
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    hoc = p.add_argument_group("hoc options (--detector hoc)")
-    hoc.add_argument("--order", type=int, default=None, metavar="K", help="HOC order (default: 2)")
-    hoc.add_argument(
-        "--v", type=int, default=None, metavar="V", help="velocity window (default: 4)"
-    )
-    hoc.add_argument(
-        "--delta",
-        type=float,
-        default=None,
-        metavar="DEG",
-        help="curvature limit, degrees (default: 45)",
-    )
+    hoc = p.add_argument_group("hoc options (--detector hoc; as in 'hocnet detect')")
+    add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
     hoc.add_argument(
         "--window", type=int, default=None, metavar="N", help="frames per window (default: 10)"
     )
     hoc.add_argument(
         "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"
     )
-    dpa = p.add_argument_group("dpa options (--detector dpa)")
-    dpa.add_argument(
-        "--preset",
-        choices=("recommended", "paper"),
-        default=None,
-        help="DPA and pre-processing defaults, as in 'hocnet detect' (default: recommended)",
+    dpa = p.add_argument_group("dpa options (--detector dpa; as in 'hocnet detect')")
+    add_dpa_options(
+        dpa,
+        skip=_DPA_SKIP,
+        helps={"asf_threshold": "keep the plots whose ASF is above S (default: no threshold)"},
     )
     dpa.add_argument(
         "--max-per-frame",
@@ -453,6 +492,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=None,
         metavar="N",
         help="most plots per frame (default: 5)",
+    )
+    add_preprocess_options(
+        p.add_argument_group(
+            "pre-processing of intensity frames (--detector dpa, or --detector hoc with "
+            "--threshold-pfa; in this order: registration, background removal, whitening)"
+        ),
+        selector=_SELECTOR,
+        shifts_to="tracks.json (meta.shifts)",
     )
     mht = p.add_argument_group("tracker options")
     mht.add_argument(
