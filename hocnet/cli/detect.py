@@ -167,6 +167,23 @@ def binarize_frames(
     return binary, shifts, note
 
 
+def hoc_kwargs(params: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`hocnet.hoc.detect` from the HOC options (delta in radians).
+
+    Examples:
+        >>> p = {"order": 2, "v": 4, "delta": 180.0, "threshold": 2.5, "min_points": 5}
+        >>> round(hoc_kwargs(p)["delta"], 4)
+        3.1416
+    """
+    return {
+        "order": params["order"],
+        "v": params["v"],
+        "delta": math.radians(params["delta"]),
+        "threshold": params["threshold"],
+        "min_points": params["min_points"],
+    }
+
+
 def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     """Run :func:`hocnet.hoc.detect`; a large batch goes scene by scene with a progress bar.
 
@@ -193,13 +210,7 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         notes.append(binarised)
     model = params.pop("model", None)
     _bound_hoc(cube, params)
-    kwargs = {
-        "order": params["order"],
-        "v": params["v"],
-        "delta": math.radians(params["delta"]),
-        "threshold": params["threshold"],
-        "min_points": params["min_points"],
-    }
+    kwargs = hoc_kwargs(params)
     if model is not None:  # --weights: the support of the learned network
         from hocnet.learn.apply import detect_hoc
 

@@ -27,11 +27,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from pathlib import Path
 from typing import Any
 
+from hocnet.cli import _inputs
 from hocnet.cli._common import (
     PIPELINE_THREADS,
     CLIError,
@@ -46,20 +46,6 @@ from hocnet.cli._common import (
     _torch_threads,
     _write_outputs,
 )
-from hocnet.cli._inputs import (
-    DPA_DESTS,
-    HOC_DESTS,
-    PRE_DESTS,
-    add_dpa_options,
-    add_hoc_options,
-    add_input_arguments,
-    add_preprocess_options,
-    frame_paths,
-    input_paths,
-    load_input,
-    prepare_dpa,
-    prepare_hoc,
-)
 
 OUTPUT_NAMES = ("tracks.json", "tracks.png")
 
@@ -67,8 +53,8 @@ OUTPUT_NAMES = ("tracks.json", "tracks.png")
 #: only the back-tracked tracks, not the plots; ``--window`` is the HOC's sliding window here
 #: (the DPA's matrix size follows ``--preset``).
 _DPA_SKIP = ("window", "max_targets", "nms_radius")
-_HOC_DESTS = (*HOC_DESTS, "window", "stride")
-_DPA_DESTS = (*(d for d in DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
+_HOC_DESTS = (*_inputs.HOC_DESTS, "window", "stride")
+_DPA_DESTS = (*(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
 
 _LABEL, _SELECTOR = "SEQ", "--detector"
 
@@ -77,7 +63,7 @@ def _load(args: argparse.Namespace, binary: bool) -> tuple[Any, list[Path]]:
     """Load SEQ as a ``(T, H, W)`` tensor (bool for the HOC, else float64) and its image files."""
     import torch
 
-    cube, files = load_input(args.seq, args.key, binary, label=_LABEL, selector=_SELECTOR)
+    cube, files = _inputs.load_input(args.seq, args.key, binary, label=_LABEL, selector=_SELECTOR)
     if cube.dim() != 3:
         raise CLIError(
             f"SEQ: expected one sequence of shape (T, H, W), got shape {tuple(cube.shape)}"
@@ -103,7 +89,7 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
             raise CLIError(f"{flag}: does not apply to --detector {det}")
     _mht_params(args, [], 1.0)  # the tracker's options too, before any work
     if det == "hoc":
-        params = prepare_hoc(args, _SELECTOR)
+        params = _inputs.prepare_hoc(args, _SELECTOR)
         params["window"] = _check_int(
             "--window", 10 if args.window is None else args.window, minimum=2 * params["order"] + 1
         )
@@ -114,7 +100,7 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
     dpa = argparse.Namespace(**vars(args))
     for dest in _DPA_SKIP:  # not options of this command: the preset's / detect's defaults
         setattr(dpa, dest, None)
-    params = prepare_dpa(dpa)
+    params = _inputs.prepare_dpa(dpa)
     params["max_per_frame"] = _check_int(
         "--max-per-frame", 5 if args.max_per_frame is None else args.max_per_frame, minimum=1
     )
@@ -148,16 +134,11 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
     """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC."""
     import torch
 
+    from hocnet.cli.detect import hoc_kwargs
     from hocnet.hoc import detect, reject_slow_tracks
     from hocnet.hoc.stream import StreamingDetector
 
-    kw = {
-        "order": p["order"],
-        "v": p["v"],
-        "delta": math.radians(p["delta"]),
-        "threshold": p["threshold"],
-        "min_points": p["min_points"],
-    }
+    kw = hoc_kwargs(p)
 
     def cleaned(result: Any) -> Any:
         if p["min_speed"] > 0:
@@ -210,7 +191,7 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, 
         "nms_radius": DETECTION_NMS_RADIUS,
         **{
             k: used[k]
-            for k in ("g", "b", "window", "v_max", "equal_gain", "pfa", *PRE_DESTS)
+            for k in ("g", "b", "window", "v_max", "equal_gain", "pfa", *_inputs.PRE_DESTS)
             if k in used
         },
     }
@@ -345,13 +326,13 @@ def _cmd_track(args: argparse.Namespace) -> int:
     det_params = _prepare(args)
     binary = det == "hoc" and det_params.pop("binary", True)
     out = _check_out_dir(args.out)
-    inputs = input_paths(args.seq, _LABEL)
+    inputs = _inputs.input_paths(args.seq, _LABEL)
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
     names = [n for n in OUTPUT_NAMES if not (args.no_plot and n.endswith(".png"))]
     _check_destinations(out, names, inputs, force=args.force)
     cube, files = _load(args, binary)
-    inputs.update(frame_paths(files, _LABEL))
+    inputs.update(_inputs.frame_paths(files, _LABEL))
     _check_destinations(out, names, inputs, force=args.force)
     n_t, h, w = cube.shape
     notes: list[str] = []
@@ -460,7 +441,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         epilog=_EPILOG,
         formatter_class=_Formatter,
     )
-    add_input_arguments(p, "seq", _LABEL, what="sequence (T, H, W)")
+    _inputs.add_input_arguments(p, "seq", _LABEL, what="sequence (T, H, W)")
     p.add_argument(
         "--detector", choices=("hoc", "dpa"), default="hoc", help="detector (default: hoc)"
     )
@@ -473,7 +454,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     hoc = p.add_argument_group("hoc options (--detector hoc; as in 'hocnet detect')")
-    add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
+    _inputs.add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
     hoc.add_argument(
         "--window", type=int, default=None, metavar="N", help="frames per window (default: 10)"
     )
@@ -481,7 +462,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"
     )
     dpa = p.add_argument_group("dpa options (--detector dpa; as in 'hocnet detect')")
-    add_dpa_options(
+    _inputs.add_dpa_options(
         dpa,
         skip=_DPA_SKIP,
         helps={"asf_threshold": "keep the plots whose ASF is above S (default: no threshold)"},
@@ -493,7 +474,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         metavar="N",
         help="most plots per frame (default: 5)",
     )
-    add_preprocess_options(
+    _inputs.add_preprocess_options(
         p.add_argument_group(
             "pre-processing of intensity frames (--detector dpa, or --detector hoc with "
             "--threshold-pfa; in this order: registration, background removal, whitening)"
