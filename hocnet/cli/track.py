@@ -169,6 +169,12 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, 
     from hocnet.detection_metrics import detect_peaks
 
     per_frame = params["max_per_frame"]
+    size, (height, width) = params["window"], cube.shape[-2:]
+    if min(height, width) < size:  # `hocnet detect` would name its --window, not an option here
+        raise CLIError(
+            f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
+            f"matrices of --preset {params['preset']}, got {height} x {width}"
+        )
     detection = _run_dpa(cube, params)
     asf = detection.result.state.asf.double()
     threshold = detection.params.get("threshold_used")

@@ -100,6 +100,7 @@ class TestTrack:
             (np.zeros((2, 6, 8, 8)), "hoc", r"SEQ: expected one sequence of shape \(T, H, W\)"),
             (np.full((6, 8, 8), 0.5), "hoc", r"binary"),
             (np.zeros((3, 8, 8), dtype=bool), "hoc", r"SEQ: expected at least .* = 5 frames"),
+            (np.zeros((6, 4, 9)), "dpa", r"SEQ: expected frames of at least 5 x 5 .* got 4 x 9"),
         ],
     )
     def test_bad_input(self, tmp_path, capsys, array, detector, match):
