@@ -577,7 +577,11 @@ def build_report(
                 row("5: zero move only after a zero move", res["rule:zero-with-zero"]),
                 row("5: tan^-1(j/i) literally (window modulo pi)", res["rule:arctan"]),
                 row("5: hard limiter fires at c > 1 (eq. 3 says c > 0)", res["threshold:1"]),
-                row("4b: strict five-point chains (Proposition 1 read strictly)", strict),
+                row(
+                    "4b: strict five-point chains (Proposition 1 read strictly; "
+                    f"first {len(next(iter(strict.values())))} seeds)",
+                    strict,
+                ),
             ],
         ),
         "",
