@@ -72,7 +72,12 @@ def as_float64(name: str, value: Any, *, min_dim: int = 0, square: bool = False)
     """
     if not isinstance(value, torch.Tensor):
         try:
-            value = torch.as_tensor(value)
+            value_in = value
+            value = torch.as_tensor(value_in)
+            if value.is_floating_point() and value.dtype != DTYPE:
+                # Python floats default to float32 in torch: read them again in float64 so
+                # that 0.002 stays 0.002 (not 0.0020000000949).
+                value = torch.as_tensor(value_in, dtype=DTYPE)
         except (TypeError, ValueError, RuntimeError):
             raise TypeError(
                 f"`{name}`: expected a real tensor or array, got {_describe(value)}"

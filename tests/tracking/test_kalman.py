@@ -221,3 +221,12 @@ class TestLikelihoodAndGate:
             gate(z, torch.eye(2), 0.0)
         with pytest.raises(ValueError, match="`S`"):
             mahalanobis2(z, -torch.eye(2))
+
+
+def test_as_float64_reads_python_floats_in_float64():
+    """Python floats are read in float64, not through float32 (0.002 stays 0.002)."""
+    from hocnet.tracking.kalman import as_float64
+
+    assert as_float64("x", 0.002).item() == 0.002
+    assert as_float64("x", [0.002, 1e-9]).tolist() == [0.002, 1e-9]
+    assert as_float64("x", [[1, 2], [3, 4]]).dtype == torch.float64
