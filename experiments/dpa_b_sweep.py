@@ -23,8 +23,15 @@ target block and its 8 neighbours,
 Max_Numbers 3 for g = 0 and 1 for g = 1 as in Table 2, mean over the last six frames), our earlier
 centred reading beside it, and whether the track back-tracked from the highest last-frame ASF of
 the nine blocks (section 2.3) follows the studied target (within 1.5 px in >= 80 % of the
-frames). The b range where tracking occurred (>= 50 % of the scenes) is set beside Table 2; b per
-direction and the eq. (15) constants of the matrices beside the paper's.
+frames). The b range where tracking occurred (>= 50 % of the scenes) is set beside Table 2, and
+beside it the ranges of three more criteria (``_nr08.CRITERIA``): *located* (the last-frame
+detection within 1.5 px, section 3.2.1(3)'s "track and locate"), *MN highest on target* (the
+Max_Numbers highest pixels of the last target block are target pixels, Figure 16's section (1),
+``hocnet.dpa.metrics.highest_on_target``) and the *good range* (both; our reading of section
+3.2.1(3)'s "good range of EMCs"). Eq. (17)'s terms (SNR_TB, mean and std SNR_NTB,
+``algorithm_score_terms``) are recorded per b, and a noise-free run (``noise_free_gain``) shows
+how much memory adds to the moving target against a standing pixel. b per direction and the
+eq. (15) constants of the matrices beside the paper's.
 
 Run: ``python experiments/dpa_b_sweep.py [--quick] [--seeds N] [--out DIR]`` or
 ``hocnet reproduce dpa-b-sweep``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on
@@ -590,6 +597,20 @@ def _plot(summaries, scenes, table, grid, path: pathlib.Path) -> None:
             s = summaries[scene, variant, g]
             C.plot_band(top, s["b"], s["a_mean"], s["a_std"], color=colours[variant], label=variant)
             bottom.plot(s["b"], [100 * r for r in s["rate"]], "-o", ms=3, color=colours[variant])
+            bottom.plot(
+                s["b"],
+                [100 * r for r in s["located"]],
+                "--",
+                color=colours[variant],
+                label="located (last frame), dashed",
+            )
+            bottom.plot(
+                s["b"],
+                [100 * r for r in s["good"]],
+                ":",
+                color=colours[variant],
+                label="good range criterion, dotted",
+            )
         low, high = P.PAPER_B_RANGE[P.paper_name(scene), g]
         for ax in (top, bottom):
             ax.axvspan(low, high, color="0.85", zorder=0, label="paper Table 2 range")
@@ -597,7 +618,7 @@ def _plot(summaries, scenes, table, grid, path: pathlib.Path) -> None:
         bottom.axhline(100 * TRACK_LEVEL, color="k", ls=":", lw=1)
         top.set_title(f"{scene_label(scene)}, g = {g:g} (MN {P.PAPER_MAX_NUMBERS[g]})", fontsize=9)
         top.set_ylabel("A_S, eq. (16)-(17) (mean ± std)")
-        bottom.set_ylabel("tracking rate (% of scenes)")
+        bottom.set_ylabel("% of scenes (solid: tracked)")
         bottom.set_xlabel("memory factor b")
         bottom.set_ylim(-3, 103)
     handles: dict = {}
