@@ -184,6 +184,33 @@ def tracked(trajectory: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
     return tracking_success(trajectory, truth)
 
 
+def located(trajectory: torch.Tensor, truth: torch.Tensor) -> torch.Tensor:
+    """``(B,)`` bool: the back-tracked track's last-frame pixel lies within 1.5 px of the target.
+
+    Our reading of [NR08]'s "track and locate" / "track and detect" (section 3.2.1(3), 3.2.2):
+    the pixel with the highest last-frame score (of the nine blocks, :func:`nine_block_start`)
+    is the detection (section 2.1: "the pixel with the highest accumulated score in the last
+    processed frame is selected as the target"), and it must be the target. Unlike
+    :func:`tracked` it ignores where the back-tracked path runs in earlier frames (the paper
+    calls tracking up to b = 6.0 "inaccurate" above 5.6, Figure 18, and still counts it).
+    ``tracking_success(..., last=1)``.
+    """
+    from hocnet.dpa import tracking_success
+
+    return tracking_success(trajectory, truth, last=1)
+
+
+CRITERIA = {
+    "tracked": "track within 1.5 px in >= 80 % of frames",
+    "located": "last-frame detection within 1.5 px (track and locate)",
+    "good": "located and the Max_Numbers highest pixels of the last target block on the target",
+}
+"""Criteria of the b range, per scene (then: in >= 50 % of the scenes). ``good`` is our reading of
+section 3.2.1(3)'s "good range": where "the algorithm was able to track and locate the target"
+(``located``) and the Max_Numbers highest pixels of the last frame are target pixels (section (1)
+of Figure 16; Figures 17 and 19), via ``hocnet.dpa.metrics.highest_on_target``."""
+
+
 def on_truth(trajectory: torch.Tensor, truth: torch.Tensor, radius: float = 1.5) -> torch.Tensor:
     """``(B,)`` fraction of frames where the trajectory lies within ``radius`` px of the truth."""
     dist = torch.linalg.vector_norm(trajectory.double() - truth.double(), dim=-1)

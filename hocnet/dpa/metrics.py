@@ -30,11 +30,13 @@ __all__ = [
     "PAPER_BLOCK",
     "READINGS",
     "algorithm_score",
+    "algorithm_score_terms",
     "block_snr",
     "block_snrs",
     "detection_probability",
     "frame_thresholds",
     "frames_to_reach",
+    "highest_on_target",
     "tracking_success",
 ]
 
@@ -260,6 +262,13 @@ def _paper_score(
     snr: torch.Tensor, usable: torch.Tensor, max_numbers: int, name: str = "asf"
 ) -> torch.Tensor:
     """A_S of eq. (17) from the ``(K, 9)`` block SNRs: ``(K,)`` float64."""
+    return _paper_terms(snr, usable, max_numbers, name)[0]
+
+
+def _paper_terms(
+    snr: torch.Tensor, usable: torch.Tensor, max_numbers: int, name: str = "asf"
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A_S of eq. (17) and its terms ``(A_S, SNR_TB, mean SNR_NTB, std SNR_NTB)``, each ``(K,)``."""
     if not bool(usable[:, 4].all()):
         raise ValueError(
             "`max_numbers`: expected fewer than the pixels of the target block inside the "
@@ -279,7 +288,8 @@ def _paper_score(
     contrast = snr[:, 4] - mean
     flat = std == 0
     inf = torch.where(contrast == 0, torch.zeros_like(contrast), torch.sign(contrast) * math.inf)
-    return torch.where(flat, inf, contrast / torch.where(flat, torch.ones_like(std), std))
+    score = torch.where(flat, inf, contrast / torch.where(flat, torch.ones_like(std), std))
+    return score, snr[:, 4], mean, std
 
 
 # ----------------------------------------------------------------------------- API
@@ -545,6 +555,163 @@ def algorithm_score(
         snr = _block_snr(*args, block, max_numbers)
     score = snr.view(bsz, n_targets * last).mean(dim=1)
     return score if batched else score[0]
+
+
+def algorithm_score_terms(
+    asf: torch.Tensor,
+    positions: torch.Tensor,
+    *,
+    last: int = 6,
+    block: int | tuple[int, int] | None = None,
+    max_numbers: int = 1,
+    anchor: str = "first",
+) -> dict[str, torch.Tensor]:
+    """``A_S`` of eq. (17) of [NR08] (paper reading) together with the terms it is made of.
+
+    Per frame, eq. (17) is ``A_S = (SNR_TB - mean SNR_NTB) / std SNR_NTB``; this returns the
+    mean over the ``last`` final frames (and the targets) of each of ``A_S``, ``SNR_TB``,
+    ``mean SNR_NTB`` and ``std SNR_NTB``, so that a change of ``A_S`` (e.g. versus ``b``) can
+    be traced to the target block or to its neighbours. ``"score"`` equals
+    :func:`algorithm_score` with ``reading="paper"`` and the same arguments. Our addition (a
+    diagnostic; [NR08] plots the same three terms in Figures 10, 11, 14, 22 and 24).
+
+    Args:
+        asf: ASF sequence ``(B, T, H, W)`` or ``(T, H, W)``.
+        positions: true ``(x, y)`` ``(B, T, 2)`` / ``(T, 2)`` or ``(B, N, T, 2)`` /
+            ``(N, T, 2)``; float.
+        last: number of final frames averaged, ``1 .. T``.
+        block: ``M`` or ``(M, N)`` rows x columns (default 30 x 30).
+        max_numbers: ``Max_Numbers``, ``>= 1``.
+        anchor: ``"first"`` (tiling fixed on the frame-0 position) or ``"each"``.
+
+    Returns:
+        ``{"score", "snr_tb", "ntb_mean", "ntb_std"}``: float ``(B,)`` each (0-d unbatched).
+
+    Raises:
+        TypeError: non-real inputs or non-integer sizes.
+        ValueError: as :func:`algorithm_score`.
+
+    Examples:
+        >>> asf = torch.randn(4, 45, 45, generator=torch.Generator().manual_seed(0))
+        >>> asf[:, 22, 22] += 8.0
+        >>> truth = torch.tensor([[22.0, 22.0]]).expand(4, 2)
+        >>> terms = algorithm_score_terms(asf, truth, last=2, block=15)
+        >>> sorted(terms)
+        ['ntb_mean', 'ntb_std', 'score', 'snr_tb']
+        >>> bool(terms["snr_tb"] > terms["ntb_mean"])
+        True
+    """
+    anchor = check_choice("anchor", anchor, ("first", "each"))
+    rows, cols = _check_rect(block)
+    max_numbers = check_int("max_numbers", max_numbers, minimum=1)
+    cube, batched = as_cube("asf", asf)
+    cube = _float(cube)
+    bsz, n_t, height, width = cube.shape
+    pos = _targets("positions", positions, bsz, n_t, batched, "a tensor of (x, y) positions")
+    last = check_int("last", last, minimum=1, maximum=n_t)
+    n_targets = pos.shape[1]
+    images = cube[:, n_t - last :].reshape(bsz * last, height, width)
+    pos = pos.to(cube.device)
+    if anchor == "first":
+        pos = pos[:, :, :1].expand(bsz, n_targets, last, 2)
+    else:
+        pos = pos[:, :, n_t - last :]
+    x, y = _pixels("positions", pos, height, width)
+    which = torch.arange(bsz, device=cube.device).view(bsz, 1, 1) * last
+    which = (which + torch.arange(last, device=cube.device).view(1, 1, last)).expand(
+        bsz, n_targets, last
+    )
+    snrs, usable = _paper_snrs(
+        images, which.reshape(-1), x.reshape(-1), y.reshape(-1), rows, cols, max_numbers
+    )
+    terms = _paper_terms(snrs, usable, max_numbers)
+    out = {}
+    for key, value in zip(("score", "snr_tb", "ntb_mean", "ntb_std"), terms, strict=True):
+        mean = value.to(cube.dtype).view(bsz, n_targets * last).mean(dim=1)
+        out[key] = mean if batched else mean[0]
+    return out
+
+
+def highest_on_target(
+    asf: torch.Tensor,
+    positions: torch.Tensor,
+    *,
+    block: int | tuple[int, int] | None = None,
+    max_numbers: int = 1,
+    radius: float = 1.5,
+    anchor: str = "first",
+) -> torch.Tensor:
+    """Whether the ``Max_Numbers`` highest pixels of the last target block are target pixels.
+
+    [NR08] section 3.2.1(3) splits its b axis (Figure 16, Figures 17 and 19) by what the
+    highest pixels of the last processed frame are: "(1) target pixels, (2) trail and target
+    pixels and pixel of origin, and (3) pixel of origin and trail pixels", and calls a range
+    good where "the highest pixels taken as 'target pixels' indeed belong to the target". Our
+    reading: the target block is the one of :func:`algorithm_score` (``M x N``, centred on the
+    target's pixel in frame 0 with ``anchor="first"``, on its last-frame pixel with ``"each"``),
+    clipped to the frame; a pixel is a *target pixel* when its centre lies within ``radius`` px
+    (Euclidean, ``<=``) of the true last-frame position; the answer is ``True`` when all
+    ``max_numbers`` highest pixels of the block (ties: an arbitrary choice among equal values)
+    are target pixels. Our addition as a function; the rule is the paper's text.
+
+    Args:
+        asf: ASF sequence ``(B, T, H, W)`` or ``(T, H, W)`` (only its last frame is read).
+        positions: true ``(x, y)`` of the studied target, ``(B, T, 2)`` or ``(T, 2)``; float.
+        block: ``M`` or ``(M, N)`` rows x columns (default 30 x 30).
+        max_numbers: number of highest pixels, ``>= 1``, fewer than the block's pixels in the
+            frame.
+        radius: target-pixel radius in pixels, ``> 0``.
+        anchor: ``"first"`` or ``"each"``.
+
+    Returns:
+        bool ``(B,)``, or a 0-d bool tensor for an unbatched ``asf``.
+
+    Raises:
+        TypeError: non-real inputs or non-integer sizes.
+        ValueError: wrong shapes, NaN/inf, out-of-range sizes, positions outside the frame, a
+            target block with at most ``max_numbers`` pixels inside the frame.
+
+    Examples:
+        >>> asf = torch.zeros(2, 30, 30)
+        >>> asf[-1, 15, 15], asf[-1, 15, 16], asf[-1, 15, 20] = 9.0, 8.0, 7.0  # target, trail
+        >>> truth = torch.tensor([[15.0, 15.0], [15.2, 15.0]])
+        >>> bool(highest_on_target(asf, truth, block=9, max_numbers=2))
+        True
+        >>> bool(highest_on_target(asf, truth, block=9, max_numbers=3))
+        False
+    """
+    anchor = check_choice("anchor", anchor, ("first", "each"))
+    rows, cols = _check_rect(block)
+    max_numbers = check_int("max_numbers", max_numbers, minimum=1)
+    radius = check_number("radius", radius, low=0.0, low_inclusive=False)
+    cube, batched = as_cube("asf", asf)
+    cube = _float(cube).detach()
+    bsz, n_t, height, width = cube.shape
+    pos = _tensor("positions", positions, "a tensor of (x, y) positions")
+    want = (bsz, n_t, 2) if batched else (n_t, 2)
+    if tuple(pos.shape) != want:
+        raise ValueError(f"`positions`: expected shape {want}, got {tuple(pos.shape)}")
+    pos = (pos if batched else pos.unsqueeze(0)).to(cube.device).double()
+    x, y = _pixels("positions", pos[:, 0 if anchor == "first" else -1], height, width)
+    dev = cube.device
+    rr = torch.arange(height, device=dev).view(1, -1, 1)
+    cc = torch.arange(width, device=dev).view(1, 1, -1)
+    r0 = (y - rows // 2).view(-1, 1, 1)
+    c0 = (x - cols // 2).view(-1, 1, 1)
+    inside = (rr >= r0) & (rr < r0 + rows) & (cc >= c0) & (cc < c0 + cols)  # (B, H, W)
+    count = inside.flatten(1).sum(dim=1)
+    if bool((count <= max_numbers).any()):
+        raise ValueError(
+            "`max_numbers`: expected fewer than the pixels of the target block inside the "
+            f"frame ({int(count.min())}), got {max_numbers}"
+        )
+    scores = cube[:, -1].masked_fill(~inside, -math.inf).flatten(1)
+    top = scores.topk(max_numbers, dim=1).indices  # (B, K)
+    px = (top % width).double()
+    py = torch.div(top, width, rounding_mode="floor").double()
+    dist = torch.hypot(px - pos[:, -1, 0:1], py - pos[:, -1, 1:2])
+    hit = (dist <= radius + 1e-12).all(dim=1)
+    return hit if batched else hit[0]
 
 
 def tracking_success(

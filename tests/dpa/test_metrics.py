@@ -12,11 +12,13 @@ from hocnet.dpa.functional import accumulate
 from hocnet.dpa.matrices import effective_memory, probability_matrices
 from hocnet.dpa.metrics import (
     algorithm_score,
+    algorithm_score_terms,
     block_snr,
     block_snrs,
     detection_probability,
     frame_thresholds,
     frames_to_reach,
+    highest_on_target,
     tracking_success,
 )
 
@@ -565,6 +567,136 @@ class TestAlgorithmScorePaper:
             algorithm_score(asf, pos, last=2, block=(40, 40))
         with pytest.raises(ValueError, match="`max_numbers`"):
             algorithm_score(asf, pos, last=2, block=2, max_numbers=4)
+
+
+def paper_terms_loop(image, x, y, rows, cols, max_numbers):
+    """Slow oracle of the terms of eq. (17): (A_S, SNR_TB, mean SNR_NTB, std SNR_NTB)."""
+    snrs = paper_block_snrs_loop(image, x, y, rows, cols, max_numbers)
+    ntb = [s for i, s in enumerate(snrs) if i != 4 and s is not None]
+    mean = sum(ntb) / len(ntb)
+    std = math.sqrt(sum((s - mean) ** 2 for s in ntb) / len(ntb))
+    return (snrs[4] - mean) / std, snrs[4], mean, std
+
+
+class TestAlgorithmScoreTerms:
+    @pytest.mark.parametrize("seed", range(3))
+    def test_equals_loop_and_score(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        asf = torch.randn(2, 6, 20, 27, generator=gen, dtype=torch.float64)
+        pos = torch.rand(2, 6, 2, generator=gen, dtype=torch.float64) * torch.tensor([26, 19])
+        rows, cols = [(4, 5), (5, 5), (3, 8)][seed]
+        m = 1 + seed
+        for anchor in ("first", "each"):
+            got = algorithm_score_terms(
+                asf, pos, last=3, block=(rows, cols), max_numbers=m, anchor=anchor
+            )
+            score = algorithm_score(
+                asf, pos, last=3, block=(rows, cols), max_numbers=m, anchor=anchor
+            )
+            assert torch.equal(got["score"], score)
+            for b in range(2):
+                ref = []
+                for t in range(3, 6):
+                    at = 0 if anchor == "first" else t
+                    x, y = (math.floor(float(v) + 0.5) for v in pos[b, at])
+                    ref.append(paper_terms_loop(asf[b, t].numpy(), x, y, rows, cols, m))
+                for k, key in enumerate(("score", "snr_tb", "ntb_mean", "ntb_std")):
+                    want = sum(r[k] for r in ref) / len(ref)
+                    assert float(got[key][b]) == pytest.approx(want, rel=1e-9), key
+
+    def test_unbatched_and_exceptions(self):
+        asf = torch.randn(4, 40, 40, generator=torch.Generator().manual_seed(3))
+        pos = torch.full((4, 2), 20.0)
+        terms = algorithm_score_terms(asf, pos, last=2, block=10)
+        assert all(v.shape == () for v in terms.values())
+        with pytest.raises(ValueError, match="`anchor`"):
+            algorithm_score_terms(asf, pos, anchor="middle")
+        with pytest.raises(ValueError, match="`last`"):
+            algorithm_score_terms(asf, pos, last=5)
+        with pytest.raises(ValueError, match="`max_numbers`"):
+            algorithm_score_terms(asf, pos, last=2, block=2, max_numbers=4)
+
+
+def highest_on_target_loop(image, truth_first, truth_last, rows, cols, m, radius, anchor):
+    """Slow oracle: the m highest pixels of the (clipped) target block all within radius."""
+    n_h, n_w = image.shape
+    ax, ay = truth_first if anchor == "first" else truth_last
+    x, y = math.floor(ax + 0.5), math.floor(ay + 0.5)
+    values = [
+        (float(image[yy, xx]), xx, yy)
+        for yy in range(y - rows // 2, y - rows // 2 + rows)
+        for xx in range(x - cols // 2, x - cols // 2 + cols)
+        if 0 <= yy < n_h and 0 <= xx < n_w
+    ]
+    top = sorted(values, reverse=True)[:m]
+    return all(math.hypot(xx - truth_last[0], yy - truth_last[1]) <= radius for _, xx, yy in top)
+
+
+class TestHighestOnTarget:
+    @pytest.mark.parametrize("seed", range(4))
+    def test_equals_loop(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        asf = torch.randn(5, 4, 24, 30, generator=gen, dtype=torch.float64)
+        start = torch.rand(5, 2, generator=gen, dtype=torch.float64) * torch.tensor([29, 23])
+        end = (start + 3 * torch.rand(5, 2, generator=gen, dtype=torch.float64)).clamp(
+            max=torch.tensor([29.0, 23.0])
+        )
+        pos = torch.stack([start, (start + end) / 2, (start + end) / 2, end], dim=1)
+        for b in range(5):  # a bright target at the last position, sometimes a brighter trail
+            x, y = (math.floor(float(v) + 0.5) for v in end[b])
+            asf[b, -1, y, x] += 6.0
+            if b % 2:
+                asf[b, -1, max(y - 3, 0), max(x - 3, 0)] += 5.0 + b
+        rows, cols = [(7, 9), (5, 5), (9, 4), (30, 30)][seed]
+        m, radius = 1 + seed % 3, [1.5, 1.0, 2.5, 1.5][seed]
+        for anchor in ("first", "each"):
+            got = highest_on_target(
+                asf, pos, block=(rows, cols), max_numbers=m, radius=radius, anchor=anchor
+            )
+            ref = [
+                highest_on_target_loop(
+                    asf[b, -1].numpy(),
+                    pos[b, 0].tolist(),
+                    pos[b, -1].tolist(),
+                    rows,
+                    cols,
+                    m,
+                    radius,
+                    anchor,
+                )
+                for b in range(5)
+            ]
+            assert got.tolist() == ref, (anchor, got, ref)
+
+    def test_target_then_trail(self):
+        asf = torch.zeros(1, 3, 40, 40)
+        truth = torch.tensor([[[20.0, 20.0], [18.8, 20.0], [17.6, 20.0]]])
+        asf[0, -1, 20, 18] = 10.0  # the target pixel, 0.4 px from the truth
+        asf[0, -1, 20, 19] = 8.0  # 1.4 px: still a target pixel
+        asf[0, -1, 20, 21] = 9.0  # 3.4 px behind: trail
+        assert highest_on_target(asf, truth, block=9).tolist() == [True]
+        assert highest_on_target(asf, truth, block=9, max_numbers=2).tolist() == [False]
+        assert highest_on_target(asf, truth, block=9, max_numbers=2, radius=3.5).tolist() == [True]
+        # a brighter pixel outside the target block does not count
+        asf[0, -1, 2, 2] = 50.0
+        assert highest_on_target(asf, truth, block=9).tolist() == [True]
+        assert highest_on_target(asf[0], truth[0], block=9).shape == ()
+
+    def test_exceptions(self):
+        asf = torch.randn(2, 3, 20, 20)
+        truth = torch.full((2, 3, 2), 10.0)
+        with pytest.raises(ValueError, match="`anchor`"):
+            highest_on_target(asf, truth, anchor="x")
+        with pytest.raises(ValueError, match="`radius`"):
+            highest_on_target(asf, truth, radius=0.0)
+        with pytest.raises(ValueError, match="`positions`"):
+            highest_on_target(asf, truth[:, :2])
+        with pytest.raises(ValueError, match="`positions`"):
+            highest_on_target(asf, torch.full((2, 3, 2), 25.0))
+        with pytest.raises(ValueError, match="`max_numbers`"):
+            highest_on_target(asf, truth, block=2, max_numbers=4)
+        with pytest.raises(TypeError, match="`positions`"):
+            highest_on_target(asf, "here")
 
 
 # ----------------------------------------------------------------------------- Max_Numbers scene

@@ -155,6 +155,12 @@ class TestPaperValues:
         path = torch.tensor([[[0, 0], [1, 1], [2, 2], [0, 1], [0, 0]]])
         assert p.on_truth(path, truth).tolist() == [0.8]
         assert p.direction_option() == {"direction_step": "source"}
+        # located: only the last frame counts; tracked: >= 80 % of the frames
+        late = torch.tensor([[[0, 0], [0, 0], [0, 0], [0, 0], [9, 9]]])
+        early = torch.tensor([[[9, 9], [9, 9], [0, 0], [0, 0], [1, 1]]])
+        assert p.tracked(late, truth).tolist() == [True] and not bool(p.located(late, truth))
+        assert p.located(early, truth).tolist() == [True] and not bool(p.tracked(early, truth))
+        assert set(p.CRITERIA) == {"tracked", "located", "good"}
         # the detected pixel is the highest of the nine blocks around the target, not of the
         # frame: a brighter pixel outside them (another target) is ignored
         asf = torch.zeros(2, 3, 40, 60)
@@ -195,6 +201,15 @@ class TestBSweep:
         assert text.count("| outside the memory range of eq. (12)-(14) |") == 2 * 2 * 2 + 2
         assert "same, on the paper's 0.2 grid" in text and "Why the ranges differ" in text
         assert {r["tracked"] for r in rows} <= {"0", "1"}
+        for key in ("located", "top_on_target", "good"):
+            assert {r[key] for r in rows} <= {"0", "1"}, key
+        # good = located and the Max_Numbers highest pixels on the target
+        assert all(int(r["good"]) == int(r["located"]) * int(r["top_on_target"]) for r in rows)
+        for r in rows:  # the terms of eq. (17), means over the last frames
+            assert float(r["ntb_std"]) > 0 and math.isfinite(float(r["snr_tb"]))
+        assert "## b range by criterion, beside Table 2 of [NR08]" in text
+        assert "good range: located and MN highest on target" in text
+        assert "## Why our A_S peaks early" in text and "standing pixel's gain" in text
         assert all(math.isfinite(float(r["a_s"])) for r in rows)
         # b = 0 switches the accumulation off: A_S is the single frame's for every variant
         for scene in ("NA23A", "NPA"):
@@ -222,6 +237,18 @@ class TestBSweep:
         md = module.main(["--quick", "--seeds", "1", "--out", str(tmp_path), "--no-progress"])
         rows = check_outputs("dpa-b-sweep", md, tmp_path)
         assert {r["seed"] for r in rows} == {str(module.SEED_BASE)}
+
+    def test_noise_free_gain(self):
+        module = load("dpa-b-sweep")
+        gains = module.noise_free_gain(bs=(0.0, 2.4, 5.8), seeds=(0,), quick=True)
+        w9 = float(paper().weights()[8].max())
+        assert [r["standing"] for r in gains] == pytest.approx([0.0, 2.4 * w9, 5.8 * w9])
+        assert gains[0]["target"] == pytest.approx(1.0)  # b = 0: the single-frame value
+        # memory raises the target's score, and the standing trail's faster (b max W(9) = 1
+        # at b = 5.77): the best non-target pixel gains on the target as b grows
+        assert gains[0]["target"] < gains[1]["target"] < gains[2]["target"]
+        assert gains[0]["other"] < gains[1]["other"] < gains[2]["other"]
+        assert "| 2.4 |" in module._gain_table(gains)
 
     @pytest.mark.slow
     def test_full(self, tmp_path):
