@@ -69,9 +69,12 @@ Our readings and choices where the chapter is silent or the OCR lost the text:
   2.5 times the chapter's accuracies) in all three coordinates, transitively, give one report
   at their mean true (range, azimuth, range-rate) plus the noise of one target (equal echo
   powers: the chapter gives no radar cross-sections), detected with PD once; see
-  :mod:`hocnet.tracking.sensors`. Its declared type is drawn from the confusion row of one
-  member picked uniformly (the strongest echo, all powers being equal), which is also its
-  ``target_id``; ``Report.unresolved`` lists all members. Off by default because, measured on
+  :mod:`hocnet.tracking.sensors`. Its declared type is drawn from the confusion row of the
+  strongest echo, with equal powers the group's first member in target order (the lowest
+  number), which is also its ``target_id`` (a stable label, so that a track following the
+  unresolved group is scored as following that member and the other is untracked meanwhile);
+  ``Report.unresolved`` lists all members. The type report is thus never a mixed one (all ten
+  targets are "wheeled vehicle" in the GMTI frame anyway). Off by default because, measured on
   our trajectories, no two targets are ever within one cell at a GMTI scan: the convoy drives
   10 s (120 m) apart on a highway nearly radial to the sensor, i.e. about 117 m apart in range
   with equal range-rates, and at the overtakes and crossings the range-rates differ by 3.7 m/s
@@ -837,19 +840,19 @@ def gmti_range_rate(sensor_xy: Sequence[float], position: Any, velocity: Any) ->
 
 def _resolution_groups(
     cfg: GMTIConfig, polar: Sequence[np.ndarray]
-) -> tuple[list[int], np.ndarray]:
-    """Group labels of the targets of one scan and the centroid of each group (equal powers)."""
+) -> tuple[list[int], np.ndarray, list[int]]:
+    """Group of each target of one scan, centroid and dominant member of each group."""
     n = len(polar)
     if cfg.resolution is None or n < 2:
-        return list(range(n)), np.asarray(polar, dtype=np.float64).reshape(n, 3)
+        return list(range(n)), np.asarray(polar, dtype=np.float64).reshape(n, 3), list(range(n))
     import torch
 
     from hocnet.tracking.sensors import gmti_merge_unresolved
 
-    merged, groups, _ = gmti_merge_unresolved(
+    merged, groups, dominant = gmti_merge_unresolved(
         torch.as_tensor(np.stack(polar), dtype=torch.float64), cfg.resolution
     )
-    return groups.tolist(), merged.numpy()
+    return groups.tolist(), merged.numpy(), dominant.tolist()
 
 
 def simulate_gmti(
@@ -912,12 +915,11 @@ def simulate_gmti(
             seen.append(
                 (tid, tr, np.array([math.sqrt(dx * dx + dy * dy + h * h), math.atan2(dy, dx), rr]))
             )
-        groups, centroid = _resolution_groups(cfg, [s[2] for s in seen])
+        groups, centroid, dominant = _resolution_groups(cfg, [s[2] for s in seen])
         for k, (tid, tr, polar) in enumerate(seen):
             # every target consumes the draws it would without resolution (detection, noise,
             # class), so that a merge leaves the rest of the run's draws unchanged (paired runs)
-            u = rng.random()
-            if u >= cfg.pd:
+            if rng.random() >= cfg.pd:
                 continue
             noise = rng.standard_normal(3) * (
                 cfg.sigma_range,
@@ -934,8 +936,7 @@ def simulate_gmti(
                     continue
                 polar = centroid[groups[k]]
                 ids = tuple(sorted(seen[m][0] for m in members))
-                # type of one member picked uniformly (equal powers): u / pd is U[0, 1)
-                tid, tr = seen[members[min(int(u / cfg.pd * len(members)), len(members) - 1)]][:2]
+                tid, tr = seen[dominant[groups[k]]][:2]  # equal powers: the first member
             r = polar[0] + noise[0]
             az = polar[1] + noise[1]
             g = math.sqrt(max(r * r - h * h, 0.0))
