@@ -75,11 +75,15 @@ Our readings and choices where the chapter is silent or the OCR lost the text:
   unresolved group is scored as following that member and the other is untracked meanwhile);
   ``Report.unresolved`` lists all members. The type report is thus never a mixed one (all ten
   targets are "wheeled vehicle" in the GMTI frame anyway). Off by default because, measured on
-  our trajectories, no two targets are ever within one cell at a GMTI scan: the convoy drives
-  10 s (120 m) apart on a highway nearly radial to the sensor, i.e. about 117 m apart in range
-  with equal range-rates, and at the overtakes and crossings the range-rates differ by 3.7 m/s
-  or more. :func:`pd_targets` with a shorter ``convoy_headway`` (e.g. 4 s: 47 m in range) puts
-  the convoy inside one range cell, the chapter's "close formation".
+  our trajectories (tests), no two convoy vehicles are ever within one cell at a GMTI scan: the
+  convoy drives 10 s (120 m) apart on a highway nearly radial to the sensor (its segments are
+  12 to 31 degrees off the line of sight), i.e. 102 to 120 m apart in range with equal
+  range-rates, and
+  at the overtakes (2 past 7 and 3, 1 past the convoy) the range-rates differ by 3.7 m/s or
+  more. The only unresolved pair is the car 6 with the truck 7 at the J1 crossing, at one scan
+  (t = 320 s). :func:`pd_targets` with a shorter ``convoy_headway`` (4 s: 48 m on the road, 47
+  m in range) puts the convoy inside one range cell, the chapter's "close formation"; 5 s (59
+  m) does not.
 """
 
 from __future__ import annotations
