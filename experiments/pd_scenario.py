@@ -41,7 +41,14 @@ import torch
 
 from hocnet.tracking.evaluation import assign_tracks, gospa, monte_carlo_metrics
 from hocnet.tracking.pipeline import PDTrackerConfig, run_pd_tracker
-from hocnet.tracking.scenario import PD_DURATION, VIDEO_CLASSES, pd_scenario, plot_scenario
+from hocnet.tracking.scenario import (
+    PD_DURATION,
+    VIDEO_CLASSES,
+    GMTIConfig,
+    pd_scenario,
+    pd_targets,
+    plot_scenario,
+)
 
 NAME = "pd-scenario"
 DESCRIPTION = (
@@ -158,11 +165,25 @@ def _gospa_run(truth: Any, tracks: Any, duration: float) -> dict[str, float]:
     return {k: float(np.mean(g[k])) for k in ("distance", "localisation", "missed", "false")}
 
 
-def _one_seed(args: tuple[int, float, PDTrackerConfig]) -> dict[str, Any]:
+def _scenario_kwargs(gmti_resolution: float | None = None, convoy_headway: float = 10.0) -> dict:
+    """Scenario variants: GMTI resolution cells of ``gmti_resolution`` sigmas, convoy headway."""
+    kw: dict[str, Any] = {}
+    if gmti_resolution is not None:
+        g = GMTIConfig()
+        k = gmti_resolution
+        kw["gmti"] = dataclasses.replace(
+            g, resolution=(k * g.sigma_range, k * g.sigma_azimuth, k * g.sigma_range_rate)
+        )
+    if convoy_headway != 10.0:
+        kw["targets"] = pd_targets(convoy_headway)
+    return kw
+
+
+def _one_seed(args: tuple) -> dict[str, Any]:
     """One Monte-Carlo run (both configurations) of seed ``args[0]`` (a worker of evaluate)."""
-    seed, duration, config = args
+    seed, duration, config, *variant = args
     torch.set_num_threads(1)
-    sc = pd_scenario(seed=seed, duration=duration)
+    sc = pd_scenario(seed=seed, duration=duration, **_scenario_kwargs(*variant))
     out: dict[str, Any] = {"seed": seed, "scenario": sc}
     for name in CONFIGS:
         with C.Timer() as timer:
@@ -194,6 +215,7 @@ def evaluate(
     *,
     jobs: int = 1,
     max_seconds: float | None = None,
+    variant: tuple[float | None, float] = (None, 10.0),
 ) -> dict[str, Any]:
     """All Monte-Carlo runs: tracks per configuration, GOSPA per run, timings.
 
@@ -210,7 +232,7 @@ def evaluate(
     scenarios = []
     example: dict[str, Any] = {}
     all_seeds = C.seed_list(SEED_BASE, n_runs)
-    tasks = [(seed, duration, config) for seed in all_seeds]
+    tasks = [(seed, duration, config, *variant) for seed in all_seeds]
     start = time.monotonic()
     pool = None
     if jobs > 1:
@@ -403,6 +425,8 @@ def run(
     config: PDTrackerConfig | None = None,
     jobs: int = 1,
     max_seconds: float | None = None,
+    gmti_resolution: float | None = None,
+    convoy_headway: float = 10.0,
 ) -> pathlib.Path:
     """Run the experiment; write ``pd-scenario.md``, ``.csv`` and ``.png``.
 
@@ -416,6 +440,11 @@ def run(
         jobs: worker processes running the seeds in parallel.
         max_seconds: stop collecting seeds after this wall-clock time (the number of runs done
             is the one reported).
+        gmti_resolution: scenario variant, GMTI resolution cells of this many sigmas of the
+            chapter's accuracies (``hocnet.tracking.scenario.GMTIConfig.resolution``; our
+            addition); ``None``: off.
+        convoy_headway: scenario variant, seconds between the convoy's departures
+            (``hocnet.tracking.scenario.pd_targets``; 10 s is the default scenario).
 
     Returns:
         Path of the markdown file.
@@ -428,7 +457,15 @@ def run(
     )
     cfg = PDTrackerConfig() if config is None else config
     with C.single_thread(), C.Timer() as timer:
-        res = evaluate(n, duration, progress, cfg, jobs=jobs, max_seconds=max_seconds)
+        res = evaluate(
+            n,
+            duration,
+            progress,
+            cfg,
+            jobs=jobs,
+            max_seconds=max_seconds,
+            variant=(gmti_resolution, convoy_headway),
+        )
     n = len(res["seeds"])
     gl = goals(res)
     per_run = {c: C.mean(res["seconds"][c]) for c in CONFIGS}
@@ -460,6 +497,8 @@ def run(
         + (f" --seeds {seeds}" if seeds is not None else "")
         + (f" --jobs {jobs}" if jobs > 1 else "")
         + (f" --max-seconds {max_seconds:g}" if max_seconds is not None else "")
+        + (f" --gmti-resolution {gmti_resolution:g}" if gmti_resolution is not None else "")
+        + (f" --convoy-headway {convoy_headway:g}" if convoy_headway != 10.0 else "")
         + "`"
         + (
             f" ({n} of the {len(C.seed_list(SEED_BASE, seeds or FULL_RUNS))} runs asked for "
@@ -619,10 +658,25 @@ def main(argv: Sequence[str] | None = None) -> pathlib.Path:
     extra.add_argument(
         "--max-seconds", type=float, default=None, help="stop collecting seeds after this time"
     )
+    extra.add_argument(
+        "--gmti-resolution",
+        type=float,
+        default=None,
+        help="GMTI resolution cells of this many sigmas (scenario variant; default: off)",
+    )
+    extra.add_argument(
+        "--convoy-headway", type=float, default=10.0, help="convoy departures (s; default 10)"
+    )
     known, rest = extra.parse_known_args(argv if argv is not None else sys.argv[1:])
     if known.jobs < 1:
         extra.error(f"--jobs: expected >= 1, got {known.jobs}")
-    fn = functools.partial(run, jobs=known.jobs, max_seconds=known.max_seconds)
+    fn = functools.partial(
+        run,
+        jobs=known.jobs,
+        max_seconds=known.max_seconds,
+        gmti_resolution=known.gmti_resolution,
+        convoy_headway=known.convoy_headway,
+    )
     return C.main_for(NAME, DESCRIPTION, fn, rest)
 
 

@@ -62,10 +62,33 @@ Our readings and choices where the chapter is silent or the OCR lost the text:
   least recently (ties: the nearest), then stays busy 4 s.
 - Overtaking vehicles share the road's centre line (no lanes): their positions coincide at the
   overtaking instant.
+- GMTI resolution (our addition, off by default: ``GMTIConfig(resolution=GMTI_RESOLUTION)``
+  turns it on): the chapter blames its convoy ambiguity on "the close formation between targets
+  with the GMTI sensor resolution" (24.6.3) but prints no resolution. Targets closer than one
+  cell (:data:`GMTI_RESOLUTION`: 50 m in range, 0.002 rad in azimuth, 2.5 m/s in range-rate,
+  2.5 times the chapter's accuracies) in all three coordinates, transitively, give one report
+  at their mean true (range, azimuth, range-rate) plus the noise of one target (equal echo
+  powers: the chapter gives no radar cross-sections), detected with PD once; see
+  :mod:`hocnet.tracking.sensors`. Its declared type is drawn from the confusion row of the
+  strongest echo, with equal powers the group's first member in target order (the lowest
+  number), which is also its ``target_id`` (a stable label, so that a track following the
+  unresolved group is scored as following that member and the other is untracked meanwhile);
+  ``Report.unresolved`` lists all members. The type report is thus never a mixed one (all ten
+  targets are "wheeled vehicle" in the GMTI frame anyway). Off by default because, measured on
+  our trajectories (tests), no two convoy vehicles are ever within one cell at a GMTI scan: the
+  convoy drives 10 s (120 m) apart on a highway nearly radial to the sensor (its segments are
+  12 to 31 degrees off the line of sight), i.e. 102 to 120 m apart in range with equal
+  range-rates, and
+  at the overtakes (2 past 7 and 3, 1 past the convoy) the range-rates differ by 3.7 m/s or
+  more. The only unresolved pair is the car 6 with the truck 7 at the J1 crossing, at one scan
+  (t = 320 s). :func:`pd_targets` with a shorter ``convoy_headway`` (4 s: 48 m on the road, 47
+  m in range) puts the convoy inside one range cell, the chapter's "close formation"; 5 s (59
+  m) does not.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -79,6 +102,7 @@ from hocnet._check import check_number, check_seed
 __all__ = [
     "GMTI_CLASSES",
     "GMTI_CONFUSION",
+    "GMTI_RESOLUTION",
     "PD_DURATION",
     "PD_INTERACTIONS",
     "PD_TARGETS",
@@ -102,6 +126,7 @@ __all__ = [
     "pd_ground_truth",
     "pd_road_network",
     "pd_scenario",
+    "pd_targets",
     "plot_scenario",
     "simulate_gmti",
     "simulate_ugs",
@@ -370,6 +395,35 @@ PD_TARGETS: tuple[TargetSpec, ...] = (
     ),
 )
 
+#: Departure order of the convoy (3 leads out, then 7, 2 and 4), one ``convoy_headway`` apart.
+_CONVOY_ORDER: tuple[int, ...] = (3, 7, 2, 4)
+
+
+def pd_targets(convoy_headway: float = 10.0) -> tuple[TargetSpec, ...]:
+    """The ten targets with the convoy 3, 7, 2, 4 leaving ``convoy_headway`` s apart.
+
+    ``convoy_headway = 10`` (default) gives :data:`PD_TARGETS` (120 m apart at 12 m/s, about
+    117 m in GMTI range). Shorter headways give the chapter's "close formation" (our variant;
+    e.g. 4 s: 48 m on the road, 47 m in range, inside a 50 m range cell of
+    :data:`GMTI_RESOLUTION`). Only the departure times of 7, 2 and 4 change (``k *
+    convoy_headway`` for the ``k``-th vehicle); speed profiles are relative to the departure,
+    so 2 still overtakes 7 and 3, but the other interactions' times and distances move away
+    from :data:`PD_INTERACTIONS` (measured for the default).
+
+    Raises:
+        ValueError: negative or non-finite ``convoy_headway``.
+
+    Examples:
+        >>> [s.t_start for s in pd_targets(4.0) if s.target_id in (3, 7, 2, 4)]
+        [8.0, 0.0, 12.0, 4.0]
+    """
+    h = check_number("convoy_headway", convoy_headway, low=0.0)
+    rank = {tid: k for k, tid in enumerate(_CONVOY_ORDER)}
+    return tuple(
+        dataclasses.replace(s, t_start=rank[s.target_id] * h) if s.target_id in rank else s
+        for s in PD_TARGETS
+    )
+
 
 @dataclass(frozen=True)
 class TargetTruth:
@@ -570,7 +624,10 @@ class Report:
             (:data:`VIDEO_CLASSES`, also used by the UGS).
         declared: declared class index in that frame.
         p_declared: ``P{c}``, the probability that the declaration is right (eq. 24.22).
-        target_id: the originating target, ``None`` for a false alarm (for evaluation only).
+        target_id: the originating target, ``None`` for a false alarm (for evaluation only);
+            for an unresolved GMTI report, the member whose type it carries.
+        unresolved: the targets merged in this report by the GMTI resolution, sorted (``()``
+            for a report of one target or a false alarm; for evaluation only).
     """
 
     time: float
@@ -583,6 +640,7 @@ class Report:
     declared: int
     p_declared: float
     target_id: int | None
+    unresolved: tuple[int, ...] = ()
 
     @property
     def kind(self) -> str:
@@ -626,6 +684,9 @@ class GMTIConfig:
         fa_max_range_rate: largest false-alarm range-rate magnitude (m/s, ours).
         area: surveillance area ``(x_min, x_max, y_min, y_max)`` (m).
         confusion: ``(3, 3)`` confusion matrix on :data:`GMTI_CLASSES`.
+        resolution: resolution cells ``(range m, azimuth rad, range-rate m/s)`` (our addition,
+            module docstring), e.g. :data:`GMTI_RESOLUTION`; ``None`` (default): every target
+            resolved.
     """
 
     position: tuple[float, float, float] = (-50_000.0, -60_000.0, 4000.0)
@@ -640,7 +701,13 @@ class GMTIConfig:
     fa_max_range_rate: float = 30.0
     area: tuple[float, float, float, float] = SURVEILLANCE_AREA
     confusion: tuple[tuple[float, ...], ...] = tuple(map(tuple, GMTI_CONFUSION.tolist()))
+    resolution: tuple[float, float, float] | None = None
 
+
+#: GMTI resolution cells (range m, azimuth rad, range-rate m/s): 2.5 times the chapter's accuracies
+#: 20 m, 0.0008 rad and 1 m/s (our choice,
+#: :func:`hocnet.tracking.sensors.gmti_resolution_cells`; the chapter prints no resolution).
+GMTI_RESOLUTION: tuple[float, float, float] = (50.0, 0.002, 2.5)
 
 #: UAV footprints ``(t_start, t_end, centre_x, centre_y, width, height)`` in s and m (ours): the
 #: camera looks at the junctions as the convoy reaches them and never at target 6.
@@ -775,6 +842,23 @@ def gmti_range_rate(sensor_xy: Sequence[float], position: Any, velocity: Any) ->
     return (p * v).sum(-1) / np.linalg.norm(p, axis=-1)
 
 
+def _resolution_groups(
+    cfg: GMTIConfig, polar: Sequence[np.ndarray]
+) -> tuple[list[int], np.ndarray, list[int]]:
+    """Group of each target of one scan, centroid and dominant member of each group."""
+    n = len(polar)
+    if cfg.resolution is None or n < 2:
+        return list(range(n)), np.asarray(polar, dtype=np.float64).reshape(n, 3), list(range(n))
+    import torch
+
+    from hocnet.tracking.sensors import gmti_merge_unresolved
+
+    merged, groups, dominant = gmti_merge_unresolved(
+        torch.as_tensor(np.stack(polar), dtype=torch.float64), cfg.resolution
+    )
+    return groups.tolist(), merged.numpy(), dominant.tolist()
+
+
 def simulate_gmti(
     truth: Mapping[int, TargetTruth],
     config: GMTIConfig | None = None,
@@ -787,7 +871,12 @@ def simulate_gmti(
     Each scan ``t_k`` (every ``period`` s) sees every target present at ``t_k`` whose
     range-rate (eq. 24.18) is at least ``mdv`` in magnitude with probability ``pd``; it measures
     slant range and azimuth with Gaussian errors, converts them to the ground ``(x, y)`` and adds
-    a noisy range-rate. The number of false alarms per scan is Poisson with mean
+    a noisy range-rate. With ``config.resolution`` (our addition, module docstring), targets
+    outside the notch that are unresolved give one report per group, at the group's mean true
+    (range, azimuth, range-rate), detected and measured with the draws of its first member in
+    the scan (the others' draws are made and discarded, so that the clutter and every later
+    scan are those of the run without resolution: paired runs).
+    The number of false alarms per scan is Poisson with mean
     ``fa_density * area``, uniform over the area. Declared classes follow the confusion matrix
     rows (false alarms: uniform). Reports arrive at once (``arrival == time``); within a scan
     their order is random.
@@ -818,18 +907,45 @@ def simulate_gmti(
     sensor_pos = np.array(cfg.position, dtype=np.float64)
     reports: list[Report] = []
     for t in _grid_times(cfg.first_scan, cfg.period, duration):
-        scan: list[Report] = []
+        scan: list[Report | None] = []
+        # true (range, azimuth, range-rate) of the targets outside the clutter notch
+        seen: list[tuple[int, TargetTruth, np.ndarray]] = []
         for tid, tr, i in _states_at(truth, t):
             p, v = tr.positions[i], tr.velocities[i]
             rr = float(gmti_range_rate((xc, yc), p, v))
-            if abs(rr) < cfg.mdv or rng.random() >= cfg.pd:
+            if abs(rr) < cfg.mdv:
                 continue
             dx, dy = p[0] - xc, p[1] - yc
-            r = math.sqrt(dx * dx + dy * dy + h * h) + cfg.sigma_range * rng.standard_normal()
-            az = math.atan2(dy, dx) + cfg.sigma_azimuth * rng.standard_normal()
+            seen.append(
+                (tid, tr, np.array([math.sqrt(dx * dx + dy * dy + h * h), math.atan2(dy, dx), rr]))
+            )
+        groups, centroid, dominant = _resolution_groups(cfg, [s[2] for s in seen])
+        for k, (tid, tr, polar) in enumerate(seen):
+            # every target consumes the draws it would without resolution (detection, noise,
+            # class), so that a merge leaves the rest of the run's draws unchanged (paired runs)
+            if rng.random() >= cfg.pd:
+                continue
+            noise = rng.standard_normal(3) * (
+                cfg.sigma_range,
+                cfg.sigma_azimuth,
+                cfg.sigma_range_rate,
+            )
+            members = [m for m in range(len(seen)) if groups[m] == groups[k]]
+            ids: tuple[int, ...] = ()
+            if len(members) > 1:
+                if members[0] != k:
+                    # merged into its group's report, drawn at its first member
+                    rng.choice(C.shape[0], p=C[tr.gmti_class] / C[tr.gmti_class].sum())
+                    scan.append(None)  # keeps the scan's shuffle the same
+                    continue
+                polar = centroid[groups[k]]
+                ids = tuple(sorted(seen[m][0] for m in members))
+                tid, tr = seen[dominant[groups[k]]][:2]  # equal powers: the first member
+            r = polar[0] + noise[0]
+            az = polar[1] + noise[1]
             g = math.sqrt(max(r * r - h * h, 0.0))
             xy = np.array([xc + g * math.cos(az), yc + g * math.sin(az)])
-            z = np.array([xy[0], xy[1], rr + cfg.sigma_range_rate * rng.standard_normal()])
+            z = np.array([xy[0], xy[1], polar[2] + noise[2]])
             c = int(rng.choice(C.shape[0], p=C[tr.gmti_class] / C[tr.gmti_class].sum()))
             scan.append(
                 Report(
@@ -843,6 +959,7 @@ def simulate_gmti(
                     c,
                     float(C[c, c]),
                     tid,
+                    ids,
                 )
             )
         for _ in range(int(rng.poisson(cfg.fa_density * area))):
@@ -864,7 +981,8 @@ def simulate_gmti(
                     None,
                 )
             )
-        reports.extend(scan[k] for k in rng.permutation(len(scan)))
+        shuffled = (scan[k] for k in rng.permutation(len(scan)))
+        reports.extend(r for r in shuffled if r is not None)
     return reports
 
 
@@ -1084,6 +1202,7 @@ def pd_scenario(
     gmti: GMTIConfig | None = None,
     video: VideoConfig | None = None,
     ugs: UGSConfig | None = None,
+    targets: Sequence[TargetSpec] = PD_TARGETS,
 ) -> PDScenario:
     """Ground truth and all sensor reports of one run of our [PD] 24.6 scenario.
 
@@ -1096,6 +1215,8 @@ def pd_scenario(
         gmti: GMTI parameters (default :class:`GMTIConfig`, the chapter's).
         video: UAV video parameters (default :class:`VideoConfig`).
         ugs: UGS parameters (default :class:`UGSConfig`).
+        targets: the scripted targets (default :data:`PD_TARGETS`; :func:`pd_targets` for a
+            closer convoy).
 
     Returns:
         A :class:`PDScenario` whose ``reports`` are in arrival order.
@@ -1109,7 +1230,7 @@ def pd_scenario(
     gmti = GMTIConfig() if gmti is None else gmti
     video = VideoConfig() if video is None else video
     ugs = UGSConfig() if ugs is None else ugs
-    truth = pd_ground_truth(duration)
+    truth = pd_ground_truth(duration, targets=targets)
     subs = [int(s.generate_state(1, np.uint64)[0]) for s in np.random.SeedSequence(seed).spawn(3)]
     reports = (
         simulate_gmti(truth, gmti, duration=duration, seed=subs[0])

@@ -6,6 +6,7 @@ import pytest
 from hocnet.tracking.scenario import (
     _POINTS,
     GMTI_CLASSES,
+    GMTI_RESOLUTION,
     PD_INTERACTIONS,
     PD_TARGETS,
     UAV_FOOTPRINTS,
@@ -22,6 +23,7 @@ from hocnet.tracking.scenario import (
     pd_ground_truth,
     pd_road_network,
     pd_scenario,
+    pd_targets,
     plot_scenario,
     simulate_gmti,
     simulate_ugs,
@@ -513,3 +515,146 @@ class TestPlot:
         )
         assert path.stat().st_size > 10_000
         assert len(fig.axes) == 1
+
+
+# ---- GMTI resolution and the convoy headway (our additions) ---------------------------------
+
+
+def _scan_polar(truth, cfg, t):
+    """(target, true range, azimuth, range-rate) of the targets outside the notch at scan t."""
+    xc, yc, h = cfg.position
+    out = []
+    for tid, tr in truth.items():
+        i = _at(tr, t)
+        if i is None:
+            continue
+        p = tr.positions[i]
+        rr = float(gmti_range_rate((xc, yc), p, tr.velocities[i]))
+        if abs(rr) >= cfg.mdv:
+            r = math.sqrt((p[0] - xc) ** 2 + (p[1] - yc) ** 2 + h * h)
+            out.append((tid, r, math.atan2(p[1] - yc, p[0] - xc), rr))
+    return out
+
+
+def _close_pairs(truth, cfg, cells):
+    """Pairs closer than one cell in every coordinate at some scan: {(a, b): [times]}."""
+    pairs = {}
+    for t in np.arange(cfg.first_scan, 1200.0 + 1e-9, cfg.period):
+        pol = _scan_polar(truth, cfg, t)
+        for a in range(len(pol)):
+            for b in range(a + 1, len(pol)):
+                d = np.abs(np.subtract(pol[a][1:], pol[b][1:]))
+                if (d < cells).all():
+                    pairs.setdefault((pol[a][0], pol[b][0]), []).append(float(t))
+    return pairs
+
+
+class TestResolution:
+    def test_cells_are_2_5_sigma_and_off_by_default(self, runs):
+        from hocnet.tracking.sensors import gmti_resolution_cells
+
+        cfg = GMTIConfig()
+        cells = gmti_resolution_cells(cfg.sigma_range, cfg.sigma_azimuth, cfg.sigma_range_rate)
+        assert GMTI_RESOLUTION == pytest.approx(cells, rel=1e-12)
+        assert cfg.resolution is None
+        assert all(r.unresolved == () for sc in runs for r in sc.reports)
+
+    def test_default_convoy_never_within_a_cell(self, truth):
+        # why the resolution is off by default: in our trajectories only the car 6 and the
+        # truck 7 at the J1 crossing (t = 320 s) come within one cell; no convoy pair does
+        pairs = _close_pairs(truth, GMTIConfig(), np.array(GMTI_RESOLUTION))
+        assert pairs == {(6, 7): [320.0]}
+
+    def test_close_convoy_within_a_cell(self):
+        # 4 s headway: 48 m on the road, 47 m in range (< 50 m), equal range-rates
+        truth4 = pd_ground_truth(targets=pd_targets(4.0))
+        pairs = _close_pairs(truth4, GMTIConfig(), np.array(GMTI_RESOLUTION))
+        assert set(pairs) == {(2, 4), (2, 7), (3, 7), (6, 7)}
+        assert len(pairs[(3, 7)]) == 118  # every scan from 20 s to the end
+        assert pairs[(2, 7)][-1] == 160.0  # until 2 accelerates away (150 s after leaving)
+        # 5 s headway: 59 m in range, outside the cell: as the default scenario
+        truth5 = pd_ground_truth(targets=pd_targets(5.0))
+        assert set(_close_pairs(truth5, GMTIConfig(), np.array(GMTI_RESOLUTION))) == {(6, 7)}
+
+    def test_pd_targets(self):
+        assert pd_targets() == PD_TARGETS
+        t4 = {s.target_id: s for s in pd_targets(4.0)}
+        assert [t4[k].t_start for k in (3, 7, 2, 4)] == [0.0, 4.0, 8.0, 12.0]
+        for s in PD_TARGETS:
+            if s.target_id not in (2, 3, 4, 7):
+                assert t4[s.target_id] == s
+            assert t4[s.target_id].speed == s.speed and t4[s.target_id].route == s.route
+        with pytest.raises(ValueError, match="`convoy_headway`"):
+            pd_targets(-1.0)
+
+    @pytest.mark.parametrize("headway", [10.0, 4.0])
+    def test_merged_reports_and_paired_draws(self, headway):
+        targets = pd_targets(headway)
+        on = GMTIConfig(resolution=GMTI_RESOLUTION)
+        truth4 = pd_ground_truth(targets=targets)
+        a = simulate_gmti(truth4, GMTIConfig(), seed=5)
+        b = simulate_gmti(truth4, on, seed=5)
+        groups = {}
+        for t in np.arange(0.0, 1200.0 + 1e-9, 10.0):
+            pol = _scan_polar(truth4, on, t)
+            labels = _loop_labels([p[1:] for p in pol], GMTI_RESOLUTION)
+            for lab in set(labels):
+                members = [pol[k] for k in range(len(pol)) if labels[k] == lab]
+                if len(members) > 1:
+                    groups[(float(t), tuple(sorted(m[0] for m in members)))] = members
+        merged = [r for r in b if r.unresolved]
+        assert merged or headway == 10.0
+        absorbed = set()
+        for r in merged:
+            members = groups[(r.time, r.unresolved)]  # a group of the loop reference
+            assert r.target_id == r.unresolved[0]  # equal powers: the first member carries it
+            mean = np.mean([m[1:] for m in members], axis=0)
+            xc, yc, h = on.position
+            rng_ = math.sqrt((r.z[0] - xc) ** 2 + (r.z[1] - yc) ** 2 + h * h)
+            az = math.atan2(r.z[1] - yc, r.z[0] - xc)
+            assert abs(rng_ - mean[0]) < 5 * on.sigma_range
+            assert abs(az - mean[1]) < 5 * on.sigma_azimuth
+            assert abs(r.z[2] - mean[2]) < 5 * on.sigma_range_rate
+            absorbed |= {(r.time, m) for m in r.unresolved}
+        # no member of a merged group is reported on its own
+        assert not any((r.time, r.target_id) in absorbed for r in b if not r.unresolved)
+        # paired runs: the reports of targets outside the merged groups are unchanged
+        keep_a = [r for r in a if (r.time, r.target_id) not in absorbed]
+        keep_b = [r for r in b if not r.unresolved]
+        in_group = {(t, m) for (t, ids) in groups for m in ids}
+        keep_a = [r for r in keep_a if (r.time, r.target_id) not in in_group]
+        keep_b = [r for r in keep_b if (r.time, r.target_id) not in in_group]
+        assert len(keep_a) == len(keep_b) > 100
+        for p, q in zip(keep_a, keep_b, strict=True):
+            assert p.time == q.time and p.target_id == q.target_id and p.declared == q.declared
+            np.testing.assert_array_equal(p.z, q.z)
+
+    def test_headway_zero_merges_the_whole_convoy(self):
+        sc = pd_scenario(
+            seed=3, gmti=GMTIConfig(resolution=GMTI_RESOLUTION), targets=pd_targets(0.0)
+        )
+        first = [r for r in sc.reports if r.kind == "gmti" and r.time == 10.0 and r.target_id]
+        convoy = [r for r in first if r.target_id in (2, 3, 4, 7)]
+        assert len(convoy) <= 1
+        assert all(r.unresolved == (2, 3, 4, 7) for r in convoy)
+
+
+def _loop_labels(polar, cells):
+    n = len(polar)
+    close = [
+        [
+            i != j and all(abs(polar[i][d] - polar[j][d]) < cells[d] for d in range(3))
+            for j in range(n)
+        ]
+        for i in range(n)
+    ]
+    label = list(range(n))
+    changed = True
+    while changed:
+        changed = False
+        for i in range(n):
+            for j in range(n):
+                if close[i][j] and label[j] < label[i]:
+                    label[i] = label[j]
+                    changed = True
+    return label

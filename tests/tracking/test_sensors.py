@@ -12,8 +12,12 @@ from hocnet.tracking.sensors import (
     gmti_aekf_matrix,
     gmti_jacobian,
     gmti_measure,
+    gmti_merge_unresolved,
     gmti_report_to_tcf,
+    gmti_resolution_cells,
+    gmti_resolution_groups,
     gmti_tcf_to_report,
+    gmti_unresolved,
     make_sensor,
 )
 
@@ -176,3 +180,144 @@ def test_video_coverage_and_stop_detectability():
         VideoSensor(coverage=3.0)
     assert stop_detectable(VideoSensor()) and not stop_detectable(GMTISensor(SENSOR))
     assert stop_detectable(GMTISensor(SENSOR, mdv=0.0))
+
+
+# ---- GMTI resolution (our addition) ---------------------------------------------------------
+
+CELLS = (50.0, 0.002, 2.5)
+
+
+def loop_unresolved(rep, cells):
+    """Straight from the hard-cell definition, one pair at a time."""
+    n = len(rep)
+    out = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        for j in range(n):
+            if i == j:
+                continue
+            daz = (rep[i][1] - rep[j][1] + math.pi) % (2 * math.pi) - math.pi
+            out[i, j] = (
+                abs(rep[i][0] - rep[j][0]) < cells[0]
+                and abs(daz) < cells[1]
+                and abs(rep[i][2] - rep[j][2]) < cells[2]
+            )
+    return out
+
+
+def loop_groups(rep, cells):
+    """Union-find over the pairwise relation; label = smallest index of the group."""
+    close = loop_unresolved(rep, cells)
+    parent = list(range(len(rep)))
+
+    def find(i):
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for i in range(len(rep)):
+        for j in range(len(rep)):
+            if close[i, j]:
+                a, b = find(i), find(j)
+                parent[max(a, b)] = min(a, b)
+    return [find(i) for i in range(len(rep))]
+
+
+def clustered_reports(rng, n):
+    """Reports in a few clumps so that some pairs and chains are unresolved."""
+    centres = rng.uniform([70000.0, -0.2, -10.0], [80000.0, 0.2, 10.0], size=(3, 3))
+    rep = centres[rng.integers(3, size=n)] + rng.normal(size=(n, 3)) * (40.0, 0.0015, 2.0)
+    return rep
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_unresolved_and_groups_against_loops(seed):
+    rng = np.random.default_rng(seed)
+    rep = clustered_reports(rng, 12)
+    got = gmti_unresolved(torch.tensor(rep), CELLS).numpy()
+    want = loop_unresolved(rep, CELLS)
+    np.testing.assert_array_equal(got, want)
+    assert want.any() and not want.all()  # the case is not trivial
+    groups = gmti_resolution_groups(torch.tensor(rep), CELLS).tolist()
+    assert groups == loop_groups(rep, CELLS)
+
+
+def test_groups_transitive_batched_and_empty():
+    chain = torch.tensor([[1000.0, 0.0, 5.0], [1040.0, 0.0, 5.0], [1080.0, 0.0, 5.0]])
+    assert gmti_unresolved(chain, CELLS)[0, 2].item() is False  # 80 m: resolved pairwise
+    assert gmti_resolution_groups(chain, CELLS).tolist() == [0, 0, 0]  # ... but chained
+    batch = torch.stack([chain, chain * torch.tensor([1.0, 1.0, 0.0]) + torch.tensor([0, 0, 1.0])])
+    batch[1, 1, 2] = 9.0  # range-rate 8 m/s apart: resolved by Doppler
+    assert gmti_resolution_groups(batch, CELLS).tolist() == [[0, 0, 0], [0, 1, 2]]
+    assert gmti_resolution_groups(torch.zeros(0, 3), CELLS).shape == (0,)
+    assert gmti_resolution_groups(torch.zeros(2, 0, 3), CELLS).shape == (2, 0)
+    merged, groups, dom = gmti_merge_unresolved(torch.zeros(0, 3), CELLS)
+    assert merged.shape == (0, 3) and groups.shape == (0,) and dom.shape == (0,)
+    # azimuth wraps at +-pi
+    wrap = torch.tensor([[1000.0, math.pi - 0.0005, 5.0], [1000.0, -math.pi + 0.0005, 5.0]])
+    assert gmti_resolution_groups(wrap, CELLS).tolist() == [0, 0]
+    m = gmti_merge_unresolved(wrap, CELLS)[0]
+    assert abs(abs(m[0, 1].item()) - math.pi) < 1e-12
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_merge_is_power_weighted_centroid(seed):
+    rng = np.random.default_rng(10 + seed)
+    rep = clustered_reports(rng, 10)
+    w = rng.uniform(0.5, 3.0, size=10)
+    labels = loop_groups(rep, CELLS)
+    for weights in (None, w):
+        merged, groups, dom = gmti_merge_unresolved(torch.tensor(rep), CELLS, weights)
+        ww = np.ones(10) if weights is None else w
+        firsts = sorted(set(labels))
+        assert merged.shape == (len(firsts), 3)
+        for gi, f in enumerate(firsts):
+            members = [i for i in range(10) if labels[i] == f]
+            assert [i for i in range(10) if groups[i] == gi] == members
+            want = (rep[members] * ww[members, None]).sum(0) / ww[members].sum()
+            np.testing.assert_allclose(merged[gi].numpy(), want, rtol=1e-12, atol=1e-12)
+            assert dom[gi].item() == members[int(np.argmax(ww[members]))]
+
+
+def test_zero_cells_resolve_everything_and_bad_input():
+    rep = torch.tensor([[1000.0, 0.0, 5.0], [1000.0, 0.0, 5.0]])
+    merged, groups, _ = gmti_merge_unresolved(rep, (0.0, 0.0, 0.0))
+    assert groups.tolist() == [0, 1] and torch.equal(merged, rep.double())
+    assert gmti_merge_unresolved(rep, CELLS)[1].tolist() == [0, 0]
+    with pytest.raises(ValueError, match="`cells`"):
+        gmti_unresolved(rep, (50.0, -1.0, 2.0))
+    with pytest.raises(ValueError, match="`cells`"):
+        gmti_unresolved(rep, (50.0, 1.0))
+    with pytest.raises(ValueError, match="`report`"):
+        gmti_unresolved(torch.tensor([1.0, 2.0, 3.0]), CELLS)
+    with pytest.raises(ValueError, match="`report`"):
+        gmti_unresolved(torch.tensor([[1.0, float("nan"), 3.0]]), CELLS)
+    with pytest.raises(ValueError, match="`weights`"):
+        gmti_merge_unresolved(rep, CELLS, [1.0, 0.0])
+    with pytest.raises(ValueError, match="`weights`"):
+        gmti_merge_unresolved(rep, CELLS, [1.0])
+    with pytest.raises(ValueError, match="`report`"):
+        gmti_merge_unresolved(rep[None], CELLS)
+    with pytest.raises(ValueError, match="`sigma_range`"):
+        gmti_resolution_cells(-1.0, 0.0008, 1.0)
+    assert gmti_resolution_cells(20.0, 0.0008, 1.0, k=3.0) == pytest.approx((60.0, 0.0024, 3.0))
+
+
+def test_sensor_resolve():
+    x = torch.tensor(
+        [[0.0, 10.0, 0.0, 10.0], [30.0, 10.0, 20.0, 10.0], [0.0, -10.0, 0.0, -10.0]],
+        dtype=torch.float64,
+    )
+    off = GMTISensor(SENSOR)
+    merged, groups, _ = off.resolve(x)
+    assert groups.tolist() == [0, 1, 2]
+    want = torch.cat([gmti_tcf_to_report(x, torch.tensor(SENSOR))[:, :2], off.measure(x)[:, 2:]], 1)
+    torch.testing.assert_close(merged, want, rtol=1e-12, atol=1e-9)
+    on = GMTISensor(SENSOR, resolution=gmti_resolution_cells(20.0, 0.0008, 1.0))
+    assert on.resolution == (50.0, 0.002, 2.5)
+    merged, groups, _ = on.resolve(x)
+    assert groups.tolist() == [0, 0, 1]  # 36 m apart with one velocity; the third drives away
+    torch.testing.assert_close(merged[0], want[:2].mean(0), rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError, match="`cells`"):
+        GMTISensor(SENSOR, resolution=(1.0, 2.0))
+    with pytest.raises(ValueError, match="`x`"):
+        on.resolve(x[None])
