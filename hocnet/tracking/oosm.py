@@ -51,10 +51,13 @@ from hocnet.tracking.kalman import DTYPE, as_float64
 __all__ = [
     "Retrodiction",
     "check_oosm_time",
+    "cv_discrete_lag_noise",
     "cv_transition",
     "cwna_noise",
+    "equivalent_memory",
     "innovation_memory",
     "oosm_a1",
+    "oosm_al1",
     "oosm_apply",
     "oosm_retrodict",
     "oosm_too_old",
@@ -473,3 +476,208 @@ def oosm_a1(
     H = as_float64("H", H, min_dim=2)
     hx = (H @ r.x.unsqueeze(-1)).squeeze(-1)
     return oosm_apply(x, P, r, z, hx, H, R)
+
+
+# ------------------------------------------------------------------------------------------
+# Multi-step lag: the equivalent-measurement algorithm "Al1" (our addition to the module)
+# ------------------------------------------------------------------------------------------
+#
+# Bar-Shalom, Chen and Mallick, "One-step solution for the multistep out-of-sequence-measurement
+# problem in tracking", IEEE TAES 40(1), 2004: a measurement from ``tau`` with
+# ``t_{k-l} <= tau < t_{k-l+1}`` (lag of ``l`` sampling intervals) is processed in one step,
+# without reprocessing the measurements of ``(t_{k-l}, t_k]``, by replacing all of them by one
+# *equivalent measurement* of the state at ``t_k`` (``H* = I``) that carries the same information:
+# ``P(k|k)^-1 = P(k|k-l)^-1 + R*^-1`` and ``x(k|k) = x(k|k-l) + P(k|k-l) S*^-1 (z* - x(k|k-l))``
+# with ``S* = P(k|k-l) + R*``. The interval ``[t_{k-l}, t_k]`` is then one "step" of A1 whose
+# prior is ``x(k|k-l), P(k|k-l)`` (stored by the filter: the prediction over the lag interval)
+# and whose memory ``g = H' S^-1 nu``, ``G = H' S^-1 H`` is that of the equivalent measurement.
+# From ``P(k|k) = P(k|k-l) - P(k|k-l) S*^-1 P(k|k-l)`` it follows, without forming ``R*``
+# (infinite where the interval brought no information):
+#
+#     G* = S*^-1 = P(k|k-l)^-1 [P(k|k-l) - P(k|k)] P(k|k-l)^-1,
+#     g* = S*^-1 nu* = P(k|k-l)^-1 [x(k|k) - x(k|k-l)]
+#
+# (pseudo-inverses for a singular prior). Our reading of the paper's Al1 (we could not consult
+# its text, only its abstract and introduction: the equations above are derived here from the
+# equivalent-measurement idea it names, and are tested against the exact re-run). It is exact
+# for ``l = 1`` (``G* = H' S^-1 H``, ``g* = H' S^-1 nu``: A1), without process noise, and when the
+# interval ``(t_{k-l}, t_k)`` holds no measurement; otherwise approximate, because the
+# equivalent measurement's noise is taken independent of the process noise after ``tau`` while
+# the real measurements at ``t_{k-l+1} .. t_{k-1}`` are correlated with it.
+# Storage: ``x(k|k-j), P(k|k-j)`` for ``j = 1 .. N`` (``N`` the largest lag to serve), predicted
+# forward at every step; Bar-Shalom's suboptimal "Bl1" (which simplifies the retrodiction to
+# save storage) is not implemented: the storage here is ``N`` states per track, negligible.
+
+
+def equivalent_memory(
+    x: Any, P: Any, x_prior: Any, P_prior: Any, *, rtol: float = 1e-12
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A1 memory ``g*, G*`` of the equivalent measurement of a lag interval (Al1, our reading).
+
+    ``G* = P_prior^+ (P_prior - P) P_prior^+`` and ``g* = P_prior^+ (x - x_prior)`` (see the
+    comment above this function; Bar-Shalom, Chen and Mallick 2004). ``P_prior - P`` is
+    symmetrised and its negative eigenvalues (round-off, or an estimate not conditioned on the
+    prior, e.g. after IMM mixing) clipped to 0 so that ``G*`` is positive semi-definite.
+
+    Args:
+        x: ``(..., n)`` ``x(k|k)``.
+        P: ``(..., n, n)`` ``P(k|k)``.
+        x_prior: ``(..., n)`` ``x(k|k-l)``, the prediction over the lag interval.
+        P_prior: ``(..., n, n)`` ``P(k|k-l)``.
+        rtol: relative cut-off of the pseudo-inverse of ``P_prior``.
+
+    Returns:
+        ``(g*, G*)`` of shapes ``(..., n)`` and ``(..., n, n)``, float64.
+
+    Examples:
+        >>> g, G = equivalent_memory(torch.ones(1), 0.5 * torch.eye(1), torch.zeros(1),
+        ...                          torch.eye(1))
+        >>> g.tolist(), G.tolist()  # a measurement z = 2 with R = 1 on a prior N(0, 1)
+        ([1.0], [[0.5]])
+    """
+    x = as_float64("x", x, min_dim=1)
+    P = as_float64("P", P, min_dim=2, square=True)
+    xp = as_float64("x_prior", x_prior, min_dim=1)
+    Pp = as_float64("P_prior", P_prior, min_dim=2, square=True)
+    check_number("rtol", rtol, low=0.0)
+    Pp = 0.5 * (Pp + Pp.transpose(-1, -2))
+    Pinv = torch.linalg.pinv(Pp, hermitian=True, rtol=rtol)
+    dP = Pp - P
+    ev, V = torch.linalg.eigh(0.5 * (dP + dP.transpose(-1, -2)))
+    dP = (V * ev.clamp(min=0.0).unsqueeze(-2)) @ V.transpose(-1, -2)
+    G = Pinv @ dP @ Pinv
+    g = (Pinv @ (x - xp).unsqueeze(-1)).squeeze(-1)
+    return g, 0.5 * (G + G.transpose(-1, -2))
+
+
+def cv_discrete_lag_noise(
+    tau: Any, boundaries: Any, accel_cov: Any
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``Q(k, tau)`` and ``C0 = cov(x(k), w(k, tau))`` of the piecewise-constant CV noise, l steps.
+
+    With one white acceleration ``a_p ~ N(0, Sigma)`` per step ``(b_p, b_{p+1}]`` ([PD] 24.5,
+    the discrete model), the state at ``t_k`` contains ``F(t_k - b_{p+1}) Gamma(D_p) a_p``
+    (``D_p`` the step length) and the noise accumulated from ``tau`` to ``t_k`` contains
+    ``F(t_k - b_{p+1}) Gamma(d_p) a_p`` with ``d_p`` the part of the step after ``tau``:
+    ``Q = sum_p F_p Gamma(d_p) Sigma Gamma(d_p)' F_p'`` and
+    ``C0 = sum_p F_p Gamma(D_p) Sigma Gamma(d_p)' F_p'`` (our derivation; for one step this is
+    the ``C0`` of :func:`_retrodict`). One ``Sigma`` for all steps (the caller's choice).
+
+    Args:
+        tau: ``(...)`` measurement times, s.
+        boundaries: ``(..., N + 1)`` increasing step times ``t_{k-N} .. t_k`` (steps wholly
+            before ``tau`` contribute nothing).
+        accel_cov: ``(..., 2, 2)`` acceleration covariance (m/s^2)^2 in x, y.
+
+    Returns:
+        ``(Q, C0)``, each ``(..., 4, 4)`` for the state ``[x, vx, y, vy]``.
+
+    Examples:
+        >>> Q, C0 = cv_discrete_lag_noise(torch.tensor(15.0), torch.tensor([10.0, 20.0]),
+        ...                               torch.eye(2))
+        >>> Q[0, 0].item(), C0[0, 0].item()  # (5^2/2)^2 and (10^2/2)(5^2/2)
+        (156.25, 625.0)
+    """
+    tau = as_float64("tau", tau)
+    b = as_float64("boundaries", boundaries, min_dim=1)
+    S = as_float64("accel_cov", accel_cov, min_dim=2, square=True)
+    tk = b[..., -1]
+    shape = torch.broadcast_shapes(tau.shape, b.shape[:-1], S.shape[:-2])
+    Q = torch.zeros(*shape, 4, 4, dtype=DTYPE)
+    C0 = torch.zeros(*shape, 4, 4, dtype=DTYPE)
+    for p in range(b.shape[-1] - 1):
+        lo, hi = b[..., p], b[..., p + 1]
+        D = (hi - lo).clamp(min=0.0)
+        d = (hi - torch.maximum(lo, tau)).clamp(min=0.0)
+        Fp = _cv_F(tk - hi)
+        Gd, GD = Fp @ _cv_gamma(d), Fp @ _cv_gamma(D)
+        Q = Q + Gd @ S @ Gd.transpose(-1, -2)
+        C0 = C0 + GD @ S @ Gd.transpose(-1, -2)
+    return 0.5 * (Q + Q.transpose(-1, -2)), C0
+
+
+def _cv_F(dt: torch.Tensor) -> torch.Tensor:
+    F = torch.eye(4, dtype=DTYPE).expand(*dt.shape, 4, 4).clone()
+    F[..., 0, 1] = F[..., 2, 3] = dt
+    return F
+
+
+def _cv_gamma(dt: torch.Tensor) -> torch.Tensor:
+    Gm = torch.zeros(*dt.shape, 4, 2, dtype=DTYPE)
+    Gm[..., 0, 0] = Gm[..., 2, 1] = 0.5 * dt * dt
+    Gm[..., 1, 0] = Gm[..., 3, 1] = dt
+    return Gm
+
+
+def oosm_al1(
+    x: Any,
+    P: Any,
+    x_prior: Any,
+    P_prior: Any,
+    F_back: Any,
+    Q: Any,
+    z: Any,
+    H: Any,
+    R: Any,
+    *,
+    C0: Any | None = None,
+    t: Any | None = None,
+    t_first: Any | None = None,
+    t_last: Any | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Multi-step-lag OOSM update "Al1" (equivalent measurement, our reading), batched.
+
+    The A1 retrodiction and update (:func:`oosm_retrodict`, :func:`oosm_apply`) over the lag
+    interval ``[t_{k-l}, t_k]`` treated as one step, with the memory of the equivalent
+    measurement (:func:`equivalent_memory`): no reprocessing of the measurements of the
+    interval. Exact for ``l = 1`` (equals :func:`oosm_a1`), without process noise, or without
+    measurements strictly inside the interval; an approximation otherwise (Bar-Shalom, Chen and
+    Mallick, IEEE TAES 40(1), 2004; see the comment above :func:`equivalent_memory`).
+
+    Args:
+        x: ``(..., n)`` ``x(k|k)``.
+        P: ``(..., n, n)`` ``P(k|k)``.
+        x_prior: ``(..., n)`` ``x(k|k-l)`` (prediction from ``t_{k-l}`` to ``t_k``).
+        P_prior: ``(..., n, n)`` ``P(k|k-l)``.
+        F_back: ``(..., n, n)`` ``F(tau, k)``.
+        Q: ``(..., n, n)`` ``Q(k, tau)``, the process noise accumulated from ``tau`` to ``t_k``.
+        z: ``(..., m)`` the delayed measurement, ``z = H x(tau) + w``.
+        H: ``(..., m, n)``.
+        R: ``(..., m, m)``.
+        C0: ``(..., n, n)`` ``cov(x(k), w(k, tau) | Z^{k-l})``; default ``Q`` (continuous white
+            noise; see :func:`cv_discrete_lag_noise` for the piecewise-constant model).
+        t: optional ``tau`` (s); with ``t_first`` (``t_{k-l}``) and ``t_last`` (``t_k``),
+            ``t_{k-l} <= tau <= t_k`` is checked first (:func:`check_oosm_time`).
+        t_first: ``t_{k-l}`` (s), with ``t``.
+        t_last: ``t_k`` (s), with ``t``.
+
+    Returns:
+        ``(x(k|tau), P(k|tau), log N(z - H x(tau|k); 0, S(tau)))``.
+
+    Raises:
+        ValueError: ``tau`` outside the stored lag interval (nothing is modified), a
+            non-positive-definite innovation covariance.
+
+    Examples:
+        >>> H = torch.tensor([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+        >>> x, P, ll = oosm_al1(torch.zeros(4), torch.eye(4), torch.zeros(4), 2 * torch.eye(4),
+        ...                     cv_transition(-15.0), cwna_noise(15.0, 0.01), torch.ones(2), H,
+        ...                     torch.eye(2))
+        >>> x.shape, bool(P.trace() < 4)
+        (torch.Size([4]), True)
+    """
+    if t is not None:
+        check_oosm_time(t, t_first, t_last)
+    x = as_float64("x", x, min_dim=1)
+    P = as_float64("P", P, min_dim=2, square=True)
+    g, G = equivalent_memory(x, P, x_prior, P_prior)
+    Pp = as_float64("P_prior", P_prior, min_dim=2, square=True)
+    Fb = as_float64("F_back", F_back, min_dim=2, square=True)
+    Qt = as_float64("Q", Q, min_dim=2, square=True)
+    C = None if C0 is None else as_float64("C0", C0, min_dim=2, square=True)
+    r = _retrodict(x, P, Pp, g, G, Fb, Qt, C)
+    H = as_float64("H", H, min_dim=2)
+    z = as_float64("z", z, min_dim=1)
+    R = as_float64("R", R, min_dim=2, square=True)
+    hx = (H @ r.x.unsqueeze(-1)).squeeze(-1)
+    return _apply(x, P, r, z - hx, H, R)
