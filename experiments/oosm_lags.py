@@ -25,7 +25,7 @@ from hocnet.tracking import pipeline as P
 from hocnet.tracking.scenario import pd_scenario
 
 SEED_BASE = 2400
-NEAR = 150.0
+NEAR = 300.0
 
 
 def report_lags(sc) -> dict[str, list[tuple[float, int]]]:
@@ -63,6 +63,14 @@ def instrumented_run(sc, *, type_tracking: bool, max_lag: int | None) -> dict:
                 near = [] if d is None else torch.nonzero(d[i] < NEAR).flatten().tolist()
                 for j in near:
                     rec["retro_reports"].add((state["scan"], j))
+                if "lag_t" in states:
+                    lt = states["lag_t"][i]
+                    n = int((lt > self.time + 1e-9).sum())
+                    birth = n < lt.numel() and bool(torch.isinf(lt[n]))
+                    key = "birth" if birth else f"{n + 1} step(s)"
+                    rec.setdefault("lag_steps", collections.Counter())[key] += 1
+                    if near:
+                        rec.setdefault("lag_steps_near", collections.Counter())[key] += 1
                 if bool(bad[i]):
                     lag_s = float(states["t"][i] - self.time)
                     steps = None
@@ -125,15 +133,20 @@ def main(argv: Sequence[str] | None = None) -> None:
         lag_s = np.array([v for _, v, _ in rows]) if rows else np.zeros(0)
         steps = collections.Counter(s for _, _, s in rows)
         rep = collections.Counter(k for _, _, k in rec["reports"])
+        lo, hi, mean = (lag_s.min(), lag_s.max(), lag_s.mean()) if lag_s.size else (0.0, 0.0, 0.0)
         print(
             f"  tracker: {rec['run'].out_of_lag} out-of-lag rows ({dict(by_kind)}), "
             f"reports with an out-of-lag row within {NEAR:g} m: {dict(rep)} of "
             f"{len(rec['retro_reports'])} (report, scan) pairs with an OOSM row nearby; "
-            f"row lags {lag_s.min() if lag_s.size else 0:.0f}..{lag_s.max() if lag_s.size else 0:.0f} s "
-            f"(mean {lag_s.mean() if lag_s.size else 0:.1f}); steps {dict(steps)}"
+            f"row lags {lo:.0f}..{hi:.0f} s (mean {mean:.1f}); steps {dict(steps)}"
         )
         ls = collections.Counter(round(v) for v in rec.get("last_step", []))
         print(f"  last step length (t - t_prev) of the out-of-lag rows, s: {dict(ls)}")
+        if "lag_steps" in rec:
+            print(
+                f"  OOSM rows by lag (memory of {a.max_lag} steps): {dict(rec['lag_steps'])}; "
+                f"with the report within {NEAR:g} m: {dict(rec.get('lag_steps_near', {}))}"
+            )
         sys.stdout.flush()
 
 

@@ -1392,7 +1392,7 @@ def _vsimm_oosm_lag(
     birth: the limit of Al1 for a diffuse prior at ``t_{k-l}`` (``P(k|k-l) -> inf``:
     ``P_xv -> 0``, ``P_vv -> Q``): ``x(tau|k) = F(tau, k) x(k|k)``,
     ``P(tau|k) = F (P(k|k) + Q) F'``, ``C = P(k|k) F'`` (our derivation; for a new row's zero
-    acceleration covariance, ``Q`` uses each mode's along-road deviation in both axes). Older
+    acceleration covariance, ``Q`` uses each mode's un-relaxed road noise of 24.6). Older
     than ``t_{k-N}``: ``too_old``. The rest (projection on the road, update, mode
     probabilities, memory refresh) as :func:`vsimm_oosm`.
     """
@@ -1404,12 +1404,12 @@ def _vsimm_oosm_lag(
     mt = torch.as_tensor(memory[0], dtype=DTYPE)  # -inf allowed (before the birth)
     mx = as_float64("lag_memory.x", memory[1])
     mP = as_float64("lag_memory.P", memory[2])
-    if mt.dim() != 2 or mt.shape[0] != B or mx.shape[:1] + mx.shape[2:] != (B, r, 4):
+    N = mt.shape[-1] if mt.dim() == 2 else -1
+    if mt.shape != (B, N) or N < 1 or mx.shape != (B, N, r, 4) or mP.shape != (B, N, r, 4, 4):
         raise ValueError(
-            f"`lag_memory`: expected t (B, N), x (B, N, r, 4) with B = {B}, r = {r}, got "
-            f"{tuple(mt.shape)} and {tuple(mx.shape)}"
+            f"`lag_memory`: expected t (B, N), x (B, N, r, 4), P (B, N, r, 4, 4) with B = {B}, "
+            f"r = {r}, got {tuple(mt.shape)}, {tuple(mx.shape)} and {tuple(mP.shape)}"
         )
-    N = mt.shape[1]
     check_oosm_time(tau, tau, state.t)  # only a time newer than t_k is an error here
     tol = 1e-9 * (1.0 + state.t.abs())
     n_new = (mt > (tau + tol).unsqueeze(-1)).sum(-1)
@@ -1452,8 +1452,14 @@ def _vsimm_oosm_lag(
     lag = state.t - tau
     Fb, _ = _mode_F(config.kinds, -lag)
     _, Gm = _mode_F(config.kinds, lag)
-    sa, _, _ = config.sigma_tensors()
-    base = (sa * sa).view(1, r, 1, 1) * torch.eye(2, dtype=DTYPE)
+    sa, sc, road = config.sigma_tensors()
+    u = net.direction[state.segment.clamp(min=0)]  # (B, r, 2)
+    nrm = torch.stack([-u[..., 1], u[..., 0]], -1)
+    uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+    nn = nrm.unsqueeze(-1) * nrm.unsqueeze(-2)
+    sa2, sc2 = (sa * sa).view(1, r, 1, 1), (sc * sc).view(1, r, 1, 1)
+    on_road = (road.view(1, r) & (state.segment >= 0)).view(B, r, 1, 1)
+    base = torch.where(on_road, sa2 * uu + sc2 * nn, sa2 * torch.eye(2, dtype=DTYPE))
     empty = state.accel_cov.abs().sum((-1, -2), keepdim=True) == 0
     accel = torch.where(birth.view(B, 1, 1, 1) & empty, base, state.accel_cov)
     if config.noise == "discrete":
