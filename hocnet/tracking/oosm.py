@@ -60,6 +60,7 @@ __all__ = [
     "oosm_al1",
     "oosm_apply",
     "oosm_retrodict",
+    "oosm_retrodict_rts",
     "oosm_too_old",
     "project_retrodiction",
 ]
@@ -681,3 +682,92 @@ def oosm_al1(
     R = as_float64("R", R, min_dim=2, square=True)
     hx = (H @ r.x.unsqueeze(-1)).squeeze(-1)
     return _apply(x, P, r, z - hx, H, R)
+
+
+def oosm_retrodict_rts(
+    x: Any,
+    P: Any,
+    xf: Any,
+    Pf: Any,
+    xp: Any,
+    Pp: Any,
+    F: Any,
+    x_tau: Any,
+    P_tau: Any,
+    P_tau_next: Any,
+    *,
+    rtol: float = 1e-12,
+) -> Retrodiction:
+    """Exact multi-step retrodiction from stored filter output (Rauch-Tung-Striebel), batched.
+
+    The storage-based alternative to :func:`oosm_al1` (our addition): with the filtered
+    ``x(j|j), P(j|j)`` and the predictions ``x(j+1|j), P(j+1|j)`` of the ``l`` steps after
+    ``t_{k-l}`` stored, the fixed-interval smoother (Rauch, Tung and Striebel 1965) runs back from
+    ``x(k|k)`` without reprocessing any measurement: ``J_j = cov(x_j, x_{j+1}) P(j+1|j)^-1``,
+    ``x(j|k) = x(j|j) + J_j (x(j+1|k) - x(j+1|j))``,
+    ``P(j|k) = P(j|j) + J_j (P(j+1|k) - P(j+1|j)) J_j'`` and the cross covariance
+    ``cov(x_k, x_j | Z^k) = cov(x_k, x_{j+1} | Z^k) J_j'``; the last step goes to ``tau`` inside
+    ``(t_{k-l}, t_{k-l+1}]``, with ``J = cov(x(tau), x_{k-l+1} | Z^{k-l}) P(k-l+1|k-l)^-1``
+    (valid because the states after ``t_{k-l+1}`` depend on ``x(tau)`` only through
+    ``x_{k-l+1}``, for the continuous and for the piecewise-constant noise alike). Exact for a
+    linear Gaussian model; the result feeds :func:`oosm_apply`. ``l = 1`` is A1.
+
+    Args:
+        x: ``(..., n)`` ``x(k|k)``.
+        P: ``(..., n, n)`` ``P(k|k)``.
+        xf: ``(..., l, n)`` ``x(j|j)`` for ``j = k-l .. k-1`` (oldest first).
+        Pf: ``(..., l, n, n)``.
+        xp: ``(..., l, n)`` ``x(j+1|j)`` for the same ``j``.
+        Pp: ``(..., l, n, n)``.
+        F: ``(..., l, n, n)`` ``F(j+1, j)``.
+        x_tau: ``(..., n)`` ``x(tau|k-l)``, the prediction from ``t_{k-l}`` to ``tau``.
+        P_tau: ``(..., n, n)`` ``P(tau|k-l)``.
+        P_tau_next: ``(..., n, n)`` ``cov(x(tau), x_{k-l+1} | Z^{k-l})``: ``P(tau|k-l) F'`` (``F``
+            from ``tau`` to ``t_{k-l+1}``) for continuous noise; for the piecewise-constant noise
+            ``F(d) P(k-l|k-l) F(D)' + Gamma(d) Sigma Gamma(D)'`` (``d = tau - t_{k-l}``, ``D``
+            the step).
+        rtol: relative cut-off of the pseudo-inverses of ``P(j+1|j)``.
+
+    Returns:
+        :class:`Retrodiction` ``(x(tau|k), P(tau|k), cov(x_k, x(tau) | Z^k))``.
+
+    Examples:
+        >>> I = torch.eye(1)
+        >>> r = oosm_retrodict_rts(torch.ones(1), I, torch.zeros(1, 1), I[None], torch.zeros(1, 1),
+        ...                        2 * I[None], I[None], torch.zeros(1), I, I)
+        >>> r.x.tolist(), r.P.tolist(), r.C.tolist()  # x(tau) = x(k-1): smoothed
+        ([0.5], [[0.75]], [[0.5]])
+    """
+    x = as_float64("x", x, min_dim=1)
+    P = as_float64("P", P, min_dim=2, square=True)
+    xf = as_float64("xf", xf, min_dim=2)
+    Pf = as_float64("Pf", Pf, min_dim=3, square=True)
+    xp = as_float64("xp", xp, min_dim=2)
+    Pp = as_float64("Pp", Pp, min_dim=3, square=True)
+    F = as_float64("F", F, min_dim=3, square=True)
+    xt = as_float64("x_tau", x_tau, min_dim=1)
+    Pt = as_float64("P_tau", P_tau, min_dim=2, square=True)
+    Ptn = as_float64("P_tau_next", P_tau_next, min_dim=2)
+    n_steps = xf.shape[-2]
+    if n_steps < 1 or Pf.shape[-3] != n_steps or xp.shape[-2] != n_steps:
+        raise ValueError(
+            f"`xf`, `Pf`, `xp`, `Pp`, `F`: expected l >= 1 stored steps each, got "
+            f"{tuple(xf.shape)}, {tuple(Pf.shape)}, {tuple(xp.shape)}"
+        )
+
+    def gain(cross: torch.Tensor, Ppred: torch.Tensor) -> torch.Tensor:
+        Ps = 0.5 * (Ppred + Ppred.transpose(-1, -2))
+        return cross @ torch.linalg.pinv(Ps, hermitian=True, rtol=rtol)
+
+    xs, Ps, Cr = x, P, P
+    for i in range(n_steps - 1, 0, -1):
+        J = gain(Pf[..., i, :, :] @ F[..., i, :, :].transpose(-1, -2), Pp[..., i, :, :])
+        Jt = J.transpose(-1, -2)
+        xs = xf[..., i, :] + (J @ (xs - xp[..., i, :]).unsqueeze(-1)).squeeze(-1)
+        Ps = Pf[..., i, :, :] + J @ (Ps - Pp[..., i, :, :]) @ Jt
+        Cr = Cr @ Jt
+    J = gain(Ptn, Pp[..., 0, :, :])
+    Jt = J.transpose(-1, -2)
+    xr = xt + (J @ (xs - xp[..., 0, :]).unsqueeze(-1)).squeeze(-1)
+    Pr = Pt + J @ (Ps - Pp[..., 0, :, :]) @ Jt
+    return Retrodiction(xr, 0.5 * (Pr + Pr.transpose(-1, -2)), Cr @ Jt)

@@ -1,4 +1,5 @@
 import copy
+import itertools
 
 import numpy as np
 import pytest
@@ -663,3 +664,130 @@ def test_vsimm_oosm_memory_too_old_policies_leave_state_untouched():
     em = VSIMMLagMemory(*(f[:0] for f in mem))
     new, out = vsimm_oosm(e, torch.zeros(0, 2), torch.zeros(0), video, net, cfg, lag_memory=em)
     assert new.x.shape[0] == 0 and out.log_likelihood.shape == (0,)
+
+
+# ------------------------------------------------------------------------------------------
+# The storage-based exact alternative: RTS retrodiction from stored filter output
+# ------------------------------------------------------------------------------------------
+
+from hocnet.tracking.oosm import oosm_apply, oosm_retrodict_rts  # noqa: E402
+
+
+def stored_run(rng, steps, noise):
+    """Filter over ``steps`` with a z at each step after the first; store what RTS needs.
+
+    ``noise(dt)`` gives (F, Q); returns x0, P0 at steps[0], the zs, and per step the filtered
+    and predicted moments (oldest first).
+    """
+    x, P = (
+        rng.normal(size=4) * [100, 10, 100, 10],
+        np.diag(rng.uniform([50, 2, 50, 2], [300, 20, 300, 20])),
+    )
+    x0, P0 = x.copy(), P.copy()
+    xf, Pf, xp, Pp, Fs, zs = [], [], [], [], [], []
+    Hn, Rn = H.numpy(), R.numpy()
+    for t0, t1 in itertools.pairwise(steps):
+        F, Q = noise(t1 - t0)
+        xf.append(x)
+        Pf.append(P)
+        x, P = F @ x, F @ P @ F.T + Q
+        xp.append(x)
+        Pp.append(P)
+        Fs.append(F)
+        z = Hn @ x + rng.normal(size=2) * 30
+        zs.append((t1, z))
+        S = Hn @ P @ Hn.T + Rn
+        W = P @ Hn.T @ np.linalg.inv(S)
+        x, P = x + W @ (z - Hn @ x), P - W @ S @ W.T
+    return x0, P0, zs, x, P, [np.array(v) for v in (xf, Pf, xp, Pp, Fs)]
+
+
+@pytest.mark.parametrize("lag", [1, 2, 3])
+def test_rts_retrodiction_is_exact_for_continuous_noise(lag):
+    # the storage-based retrodiction + the A1 update equals the re-run for any lag; Al1 does not
+    rng = np.random.default_rng(30 + lag)
+    q = 0.3
+    steps = [0.0, 10.0, 20.0, 30.0, 40.0]
+    for _ in range(4):
+        x0, P0, zs, xk, Pk, (xf, Pf, xp, Pp, Fs) = stored_run(
+            rng, steps, lambda d: (np_F(d), np_cwna(d, q))
+        )
+        first = steps[-1 - lag]
+        tau = float(rng.uniform(first, first + 10.0))
+        i0 = len(steps) - 1 - lag  # index of t_{k-l} in the stored steps
+        d = tau - first
+        x_tau = np_F(d) @ xf[i0]
+        P_tau = np_F(d) @ Pf[i0] @ np_F(d).T + np_cwna(d, q)
+        Ptn = P_tau @ np_F(10.0 - d).T
+        T = torch.tensor
+        r = oosm_retrodict_rts(
+            T(xk), T(Pk), T(xf[i0:]), T(Pf[i0:]), T(xp[i0:]), T(Pp[i0:]), T(Fs[i0:]),
+            T(x_tau), T(P_tau), T(Ptn),
+        )  # fmt: skip
+        z_tau = rng.normal(size=2) * 30 + H.numpy() @ x_tau
+        xr, Pr, _ = oosm_apply(T(xk), T(Pk), r, T(z_tau), H @ r.x, H, R)
+        x_ref, P_ref = kf_rerun(x0, P0, 0.0, [*zs, (tau, z_tau)], steps[-1], q)
+        np.testing.assert_allclose(xr.numpy(), x_ref, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pr.numpy(), P_ref, rtol=1e-7, atol=1e-6)
+
+
+def batch_posterior_discrete(x0, P0, S, bounds, meas, t_out):
+    """Slow reference for the piecewise-constant acceleration: Gaussian conditioning of
+    ``u = [x(bounds[0]), a_1 .. a_n]`` on measurements ``(t, z)``, mean and covariance of x(t_out).
+    """
+    n = len(bounds) - 1
+
+    def A(t):  # x(t) = A(t) u
+        M = np.zeros((4, 4 + 2 * n))
+        M[:, :4] = np_F(t - bounds[0])
+        for p in range(n):
+            lo, hi = bounds[p], bounds[p + 1]
+            if t <= lo:
+                break
+            end = min(t, hi)
+            M[:, 4 + 2 * p : 6 + 2 * p] = np_F(t - end) @ np_gamma(end - lo)
+        return M
+
+    mu = np.concatenate([x0, np.zeros(2 * n)])
+    C = np.zeros((4 + 2 * n, 4 + 2 * n))
+    C[:4, :4] = P0
+    for p in range(n):
+        C[4 + 2 * p : 6 + 2 * p, 4 + 2 * p : 6 + 2 * p] = S
+    for t, z in meas:
+        Hm = H.numpy() @ A(t)
+        Sz = Hm @ C @ Hm.T + R.numpy()
+        K = C @ Hm.T @ np.linalg.inv(Sz)
+        mu, C = mu + K @ (z - Hm @ mu), C - K @ Sz @ K.T
+    Ao = A(t_out)
+    return Ao @ mu, Ao @ C @ Ao.T
+
+
+def test_rts_retrodiction_is_exact_for_piecewise_constant_noise():
+    rng = np.random.default_rng(40)
+    S = np.diag([0.2, 0.1])
+    steps = [0.0, 10.0, 20.0, 30.0]
+
+    def noise(d):
+        G = np_gamma(d)
+        return np_F(d), G @ S @ G.T
+
+    for _ in range(4):
+        x0, P0, zs, xk, Pk, (xf, Pf, xp, Pp, Fs) = stored_run(rng, steps, noise)
+        tau = float(rng.uniform(0.0, 10.0))  # a 3-step lag
+        d = tau
+        x_tau = np_F(d) @ xf[0]
+        P_tau = np_F(d) @ Pf[0] @ np_F(d).T + np_gamma(d) @ S @ np_gamma(d).T
+        Ptn = np_F(d) @ Pf[0] @ np_F(10.0).T + np_gamma(d) @ S @ np_gamma(10.0).T
+        T = torch.tensor
+        r = oosm_retrodict_rts(
+            T(xk), T(Pk), T(xf), T(Pf), T(xp), T(Pp), T(Fs), T(x_tau), T(P_tau), T(Ptn)
+        )
+        z_tau = rng.normal(size=2) * 30 + H.numpy() @ x_tau
+        xr, Pr, _ = oosm_apply(T(xk), T(Pk), r, T(z_tau), H @ r.x, H, R)
+        x_ref, P_ref = batch_posterior_discrete(x0, P0, S, steps, [*zs, (tau, z_tau)], 30.0)
+        np.testing.assert_allclose(xr.numpy(), x_ref, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pr.numpy(), P_ref, rtol=1e-7, atol=1e-6)
+        # the batch reference without z(tau) is the stored filter (the reference is right)
+        x_nd, P_nd = batch_posterior_discrete(x0, P0, S, steps, zs, 30.0)
+        np.testing.assert_allclose(xk, x_nd, rtol=1e-7, atol=1e-6)
+        np.testing.assert_allclose(Pk, P_nd, rtol=1e-7, atol=1e-6)
