@@ -95,9 +95,12 @@ from hocnet.tracking.scenario import (
 from hocnet.tracking.sensors import GMTISensor, VideoSensor
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
+    VSIMMLagMemory,
     VSIMMState,
     _mode_F,
     vsimm_init,
+    vsimm_lag_memory,
+    vsimm_lag_memory_step,
     vsimm_oosm,
     vsimm_predict,
     vsimm_update,
@@ -115,6 +118,7 @@ __all__ = [
 
 _VS_KEYS = VSIMMState._fields  # mu, x, P, segment, section, track, mu_section, t, t_prev, ...
 _FLAGS = ("retro", "lag_ok")
+_LAG_KEYS = ("lag_t", "lag_x", "lag_P")  # VSIMMLagMemory fields (PDTrackerConfig.max_lag)
 _PRED_KEYS = ("p_cbar", "p_x", "p_P", "p_segment", "p_on", "p_accel", "p_t")
 
 
@@ -160,6 +164,12 @@ class PDTrackerConfig:
             behind at a junction falls into the stop model, whose miss likelihood is 1 (24.31),
             and is never deleted).
         coast_penalty: see ``max_coast``.
+        max_lag: OOSM of the delayed reports (our addition): ``None`` (Bar-Shalom's one-step
+            A1 only; a report older than a row's last step, or than its birth, is not
+            associated with it), or ``N >= 1``: each row keeps a lag memory of its last ``N``
+            steps (:class:`~hocnet.tracking.vsimm.VSIMMLagMemory`) and reports up to ``N`` steps
+            old use the multi-step Al1, reports older than the row's birth a diffuse-prior
+            retrodiction (``vsimm_oosm(lag_memory=...)``).
 
     ``merge_scans`` (3) merges duplicate leaves of one target tree (the MHT's merge once grouped
     leaves of *different* families and emptied the convoy's cluster during an overtaking; fixed
@@ -191,6 +201,7 @@ class PDTrackerConfig:
     segment_by_measurement: bool = False
     max_coast: float = 60.0
     coast_penalty: float = 20.0
+    max_lag: int | None = None
     vsimm: VSIMMConfig = field(init=False)
 
     def __post_init__(self) -> None:
@@ -413,6 +424,8 @@ class VSIMMRoadFilter:
         )
         d = self._dict(vs)
         d["t_det"] = torch.full((K,), self.time, dtype=DTYPE)
+        if self.cfg.max_lag is not None:
+            d.update(zip(_LAG_KEYS, vsimm_lag_memory(vs, self.cfg.max_lag)))
         return self._with_pred(d)
 
     def _with_pred(self, d: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -435,6 +448,8 @@ class VSIMMRoadFilter:
         retro = t > self.time + 1e-9
         s["retro"] = retro
         s["lag_ok"] = ~retro | (s["t_prev"] <= self.time + 1e-9)
+        if "lag_t" in s:
+            s["lag_ok"] = ~retro | (s["lag_t"][:, -1] <= self.time + 1e-9)
         fwd = torch.nonzero(~retro).flatten()
         if len(fwd):
             vs = self._vs(self._take(s, fwd))
@@ -514,7 +529,8 @@ class VSIMMRoadFilter:
                 self._vs(s), self._vs_pred(s), zz[fwd], sensor, self.net, self.vcfg
             )
             ll[fwd] = out.log_likelihood
-            parts.append((fwd, self._sanitize(self._dict(new), s["p_x"], s["p_P"], detection=True)))
+            new_d = self._sanitize(self._dict(new), s["p_x"], s["p_P"], detection=True)
+            parts.append((fwd, self._lag_step(new_d, s)))
         back = torch.nonzero(retro).flatten()
         if len(back):
             s = self._take(states, back)
@@ -536,12 +552,17 @@ class VSIMMRoadFilter:
         (counted in :attr:`oosm_failures`).
         """
         try:
-            new, out = vsimm_oosm(self._vs(s), z, self.time, sensor, self.net, self.vcfg)
+            mem = VSIMMLagMemory(*(s[k] for k in _LAG_KEYS)) if "lag_t" in s else None
+            new, out = vsimm_oosm(
+                self._vs(s), z, self.time, sensor, self.net, self.vcfg, lag_memory=mem
+            )
             ev = torch.linalg.eigvalsh(new.P)
             scale = new.P.diagonal(dim1=-2, dim2=-1).sum(-1).clamp(min=1.0)
             if bool((ev.min(-1).values < -1e-6 * scale).any()):
                 raise ValueError("retrodicted covariance not positive semi-definite")
-            return self._sanitize(self._dict(new), s["x"], s["P"]), out.log_likelihood
+            new_d = self._sanitize(self._dict(new), s["x"], s["P"])
+            new_d.update({k: s[k] for k in _LAG_KEYS if k in s})
+            return new_d, out.log_likelihood
         except ValueError:
             if z.shape[0] == 1:
                 self.oosm_failures += 1
@@ -642,7 +663,9 @@ class VSIMMRoadFilter:
                 self.vcfg,
                 detected=torch.zeros(K, dtype=torch.bool),
             )
-            new_d = self._sanitize(self._dict(new), states["p_x"], states["p_P"])
+            new_d = self._lag_step(
+                self._sanitize(self._dict(new), states["p_x"], states["p_P"]), states
+            )
             new_d["t_det"] = states["t_det"]
             coast = (self.time - states["t_det"]) > self.cfg.max_coast
             return self._with_pred(new_d), out.log_likelihood - self.cfg.coast_penalty * coast
@@ -670,6 +693,17 @@ class VSIMMRoadFilter:
         P5 = torch.zeros(K, 5, 5, dtype=DTYPE)
         P5[:, :4, :4] = P
         return x5, P5
+
+    def _lag_step(
+        self, new_d: dict[str, torch.Tensor], s: dict[str, torch.Tensor]
+    ) -> dict[str, torch.Tensor]:
+        """``new_d`` with the lag memory of rows ``s`` advanced by their in-sequence step."""
+        if "lag_t" not in s:
+            return new_d
+        mem = vsimm_lag_memory_step(
+            VSIMMLagMemory(*(s[k] for k in _LAG_KEYS)), self._vs(s), self._vs_pred(s), self.vcfg
+        )
+        return {**new_d, **dict(zip(_LAG_KEYS, mem))}
 
 
 @dataclass

@@ -82,6 +82,7 @@ from hocnet.tracking.sprt import sprt_thresholds
 __all__ = [
     "VSIMMAssociation",
     "VSIMMConfig",
+    "VSIMMLagMemory",
     "VSIMMOOSMUpdate",
     "VSIMMPrediction",
     "VSIMMState",
@@ -92,6 +93,8 @@ __all__ = [
     "vsimm_association_log_likelihood",
     "vsimm_expand_sections",
     "vsimm_init",
+    "vsimm_lag_memory",
+    "vsimm_lag_memory_step",
     "vsimm_oosm",
     "vsimm_predict",
     "vsimm_section_sprt",
@@ -1157,6 +1160,7 @@ def vsimm_oosm(
     *,
     detected: Any | None = None,
     too_old: str = "raise",
+    lag_memory: VSIMMLagMemory | None = None,
 ) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
@@ -1188,6 +1192,10 @@ def vsimm_oosm(
             (default, backward compatible) or ``"drop"``: the row is left unchanged as if not
             detected, and the result is a :class:`VSIMMOOSMUpdate` whose ``dropped`` mask
             counts them (the policy a pipeline should use).
+        lag_memory: optional :class:`VSIMMLagMemory` of depth ``N`` (our addition): rows
+            whose ``t`` is older than the one-step lag use the multi-step Al1 (``t >= t_{k-N}``)
+            or, before the row's birth, a diffuse-prior retrodiction (``_vsimm_oosm_lag``);
+            ``too_old`` then applies to ``t < t_{k-N}``. ``None``: the one-step A1 only.
 
     Returns:
         ``(new_state, VSIMMUpdate)`` (``VSIMMOOSMUpdate`` with ``too_old="drop"``); undetected
@@ -1211,6 +1219,10 @@ def vsimm_oosm(
         ...
         ValueError: `t`: expected an out-of-sequence measurement within the one-step lag ... 15 s
     """
+    if lag_memory is not None:
+        return _vsimm_oosm_lag(
+            state, lag_memory, z, t, sensor, net, config, detected=detected, too_old=too_old
+        )
     B, r = state.mu.shape
     tau = _times("t", t, B)
     check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
@@ -1242,6 +1254,227 @@ def vsimm_oosm(
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
+    allowed = net.section_mask(state.section).unsqueeze(1)
+    loc = net.locate(r0.x, allowed=allowed)
+    on = state.segment >= 0
+    D, L = net.constraint(loc.segment)
+    xs, A = _projection(r0.x, r0.P, D, L)
+    At = A.transpose(-1, -2)
+    onx = on.unsqueeze(-1)
+    r1 = Retrodiction(
+        torch.where(onx, xs, r0.x),
+        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
+        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
+    )
+    xc = _combine(state.mu, r1.x, r1.P)[0]
+    zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc))
+    hx, H, R = sensor.linearize(r1.x, zt.unsqueeze(1))
+    H = H.expand(B, r, m, 4)
+    R = R.expand(B, r, m, m)
+    x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
+    pd = _mode_pd(sensor, config, r1.x, r1.P)
+    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
+    Dk, Lk = net.constraint(state.segment.clamp(min=0))
+    xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
+    Pk = Ak @ P_upd @ Ak.transpose(-1, -2)
+    x_upd = torch.where(onx, xk, x_upd)
+    P_upd = torch.where(onx.unsqueeze(-1), 0.5 * (Pk + Pk.transpose(-1, -2)), P_upd)
+    a = mode_ll + torch.log(state.mu)
+    total = torch.logsumexp(a, -1, keepdim=True)
+    ok = torch.isfinite(total).squeeze(-1) & det
+    mu = torch.where(ok.unsqueeze(-1), torch.exp(a - total), state.mu)
+    x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
+    P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
+    g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
+    new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
+    ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
+    if too_old == "drop":
+        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
+    return new, VSIMMUpdate(ll_out, mode_ll)
+
+
+# ------------------------------------------------------------------------------------------
+# Multi-step-lag OOSM on the road (our addition; see hocnet.tracking.oosm.oosm_al1)
+# ------------------------------------------------------------------------------------------
+
+
+class VSIMMLagMemory(NamedTuple):
+    """Lag memory of ``B`` rows for the multi-step OOSM (Al1, see ``oosm.oosm_al1``).
+
+    Entry ``j - 1`` (``j = 1 .. N``) holds the time ``t_{k-j}`` of the ``j``-th step back and the
+    mode-matched prediction over the ``j`` last steps, ``x(k|k-j)`` and ``P(k|k-j)`` (entry 0 is
+    the last prediction, after mixing; older entries are predicted step by step with each mode's
+    own ``F`` and ``Q``, without mixing: our approximation). ``t = -inf`` marks steps before the
+    row's birth (a delayed report older than the birth is retrodicted with a diffuse prior).
+
+    Attributes:
+        t: ``(B, N)`` float64 step times ``t_{k-1}, ..., t_{k-N}`` (s), ``-inf`` before birth.
+        x: ``(B, N, r, 4)`` ``x(k|k-j)``.
+        P: ``(B, N, r, 4, 4)`` ``P(k|k-j)``.
+    """
+
+    t: torch.Tensor
+    x: torch.Tensor
+    P: torch.Tensor
+
+
+def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
+    """Empty lag memory of depth ``N = depth`` for new rows (every entry before the birth).
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> s = vsimm_init(net, torch.zeros(1, 4), 100 * torch.eye(4), VSIMMConfig())
+        >>> vsimm_lag_memory(s, 3).t.tolist()
+        [[-inf, -inf, -inf]]
+    """
+    if not isinstance(depth, int) or isinstance(depth, bool) or depth < 1:
+        raise ValueError(f"`depth`: expected an int >= 1, got {depth!r}")
+    B = state.mu.shape[0]
+    return VSIMMLagMemory(
+        torch.full((B, depth), -math.inf, dtype=DTYPE),
+        state.x.unsqueeze(1).repeat(1, depth, 1, 1),
+        state.P.unsqueeze(1).repeat(1, depth, 1, 1, 1),
+    )
+
+
+def vsimm_lag_memory_step(
+    memory: VSIMMLagMemory, state: VSIMMState, pred: VSIMMPrediction, config: VSIMMConfig
+) -> VSIMMLagMemory:
+    """Lag memory after the in-sequence step ``state`` -> ``pred`` (update or miss).
+
+    New entry 0: ``(state.t, pred.x, pred.P)``; entry ``j`` <- entry ``j - 1`` predicted over
+    ``pred.t - state.t`` with each mode's ``F`` and ``Q`` (``pred.accel_cov``); the oldest entry
+    is forgotten.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
+        >>> cfg = VSIMMConfig()
+        >>> s = vsimm_init(net, torch.zeros(1, 4), 100 * torch.eye(4), cfg)
+        >>> m = vsimm_lag_memory_step(vsimm_lag_memory(s, 2), s, vsimm_predict(s, net, cfg, 10.0),
+        ...                           cfg)
+        >>> m.t.tolist()
+        [[0.0, -inf]]
+    """
+    B = state.mu.shape[0]
+    dt = pred.t - state.t
+    F, Gm = _mode_F(config.kinds, dt)
+    Q = _process_noise(config.kinds, config.noise, dt, Gm, pred.accel_cov)
+    ox = (F.unsqueeze(1) @ memory.x[:, :-1].unsqueeze(-1)).squeeze(-1)
+    oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1) + Q.unsqueeze(1)
+    return VSIMMLagMemory(
+        torch.cat([state.t.view(B, 1), memory.t[:, :-1]], 1),
+        torch.cat([pred.x.unsqueeze(1), ox], 1),
+        torch.cat([pred.P.unsqueeze(1), 0.5 * (oP + oP.transpose(-1, -2))], 1),
+    )
+
+
+def _vsimm_oosm_lag(
+    state: VSIMMState,
+    memory: VSIMMLagMemory,
+    z: Any,
+    t: Any,
+    sensor: Any,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+    *,
+    detected: Any | None,
+    too_old: str,
+) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
+    """:func:`vsimm_oosm` with a lag memory: A1 (one step), Al1 (``l <= N``), diffuse (birth).
+
+    Per row the lag ``l = 1 + #{j : t_{k-j} > tau}``. ``l = 1``: the A1 of :func:`vsimm_oosm`
+    (memory ``g, G, P(k|k-1)`` of the state, road pseudo-measurement included). ``1 < l <= N``:
+    Al1, the A1 retrodiction over ``[t_{k-l}, t_k]`` with the equivalent-measurement memory
+    (:func:`hocnet.tracking.oosm.equivalent_memory` of ``x(k|k), P(k|k)`` and the stored
+    ``x(k|k-l), P(k|k-l)``) and, for ``config.noise="discrete"``, the cross covariance of the
+    per-step accelerations (:func:`hocnet.tracking.oosm.cv_discrete_lag_noise`, with the last
+    step's acceleration covariance for every step: our approximation). ``tau`` before the row's
+    birth: the limit of Al1 for a diffuse prior at ``t_{k-l}`` (``P(k|k-l) -> inf``:
+    ``P_xv -> 0``, ``P_vv -> Q``): ``x(tau|k) = F(tau, k) x(k|k)``,
+    ``P(tau|k) = F (P(k|k) + Q) F'``, ``C = P(k|k) F'`` (our derivation; for a new row's zero
+    acceleration covariance, ``Q`` uses each mode's un-relaxed road noise of 24.6). Older
+    than ``t_{k-N}``: ``too_old``. The rest (projection on the road, update, mode
+    probabilities, memory refresh) as :func:`vsimm_oosm`.
+    """
+    from hocnet.tracking.oosm import cv_discrete_lag_noise, equivalent_memory
+
+    B, r = state.mu.shape
+    tau = _times("t", t, B)
+    check_choice("too_old", too_old, ("raise", "drop"))
+    mt = torch.as_tensor(memory[0], dtype=DTYPE)  # -inf allowed (before the birth)
+    mx = as_float64("lag_memory.x", memory[1])
+    mP = as_float64("lag_memory.P", memory[2])
+    N = mt.shape[-1] if mt.dim() == 2 else -1
+    if mt.shape != (B, N) or N < 1 or mx.shape != (B, N, r, 4) or mP.shape != (B, N, r, 4, 4):
+        raise ValueError(
+            f"`lag_memory`: expected t (B, N), x (B, N, r, 4), P (B, N, r, 4, 4) with B = {B}, "
+            f"r = {r}, got {tuple(mt.shape)}, {tuple(mx.shape)} and {tuple(mP.shape)}"
+        )
+    check_oosm_time(tau, tau, state.t)  # only a time newer than t_k is an error here
+    tol = 1e-9 * (1.0 + state.t.abs())
+    n_new = (mt > (tau + tol).unsqueeze(-1)).sum(-1)
+    old = n_new >= N
+    det = (
+        torch.ones(B, dtype=torch.bool)
+        if detected is None
+        else torch.as_tensor(detected, dtype=torch.bool)
+    )
+    if det.shape != (B,):
+        raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    if too_old == "raise" and bool((old & det).any()):
+        i = int(torch.nonzero(old & det)[0])
+        raise ValueError(
+            f"`t`: expected an out-of-sequence measurement within the {N}-step lag memory "
+            f"(t >= {float(mt[i, -1]):g} s), got t = {float(tau[i]):g} s with lag "
+            f"{float(state.t[i] - tau[i]):g} s"
+        )
+    dropped = old & det
+    det = det & ~dropped
+    tau = torch.where(dropped, state.t, tau)
+    n_new = torch.where(dropped, torch.zeros_like(n_new), n_new)
+    idx = n_new.clamp(max=N - 1)
+    rows = torch.arange(B)
+    t_first = mt[rows, idx]
+    birth = torch.isinf(t_first) & ~dropped
+    one = (n_new == 0) & ~birth
+    m = sensor.dim
+    zt = torch.as_tensor(z, dtype=DTYPE)
+    if zt.shape != (B, m):
+        raise ValueError(
+            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
+        )
+    check_measurements("z", zt[det], m)
+    g_eq, G_eq = equivalent_memory(state.x, state.P, mx[rows, idx], mP[rows, idx])
+    o1 = one.view(B, 1, 1)
+    Pp = torch.where(o1.unsqueeze(-1), state.P_pred, mP[rows, idx])
+    g = torch.where(o1, state.g, g_eq)
+    G = torch.where(o1.unsqueeze(-1), state.G, G_eq)
+    lag = state.t - tau
+    Fb, _ = _mode_F(config.kinds, -lag)
+    _, Gm = _mode_F(config.kinds, lag)
+    sa, sc, road = config.sigma_tensors()
+    u = net.direction[state.segment.clamp(min=0)]  # (B, r, 2)
+    nrm = torch.stack([-u[..., 1], u[..., 0]], -1)
+    uu = u.unsqueeze(-1) * u.unsqueeze(-2)
+    nn = nrm.unsqueeze(-1) * nrm.unsqueeze(-2)
+    sa2, sc2 = (sa * sa).view(1, r, 1, 1), (sc * sc).view(1, r, 1, 1)
+    on_road = (road.view(1, r) & (state.segment >= 0)).view(B, r, 1, 1)
+    base = torch.where(on_road, sa2 * uu + sc2 * nn, sa2 * torch.eye(2, dtype=DTYPE))
+    empty = state.accel_cov.abs().sum((-1, -2), keepdim=True) == 0
+    accel = torch.where(birth.view(B, 1, 1, 1) & empty, base, state.accel_cov)
+    if config.noise == "discrete":
+        bnd = torch.cat([mt.flip(-1), state.t.view(B, 1)], -1)
+        bnd = torch.where(torch.isinf(bnd), tau.view(B, 1), bnd)
+        Q, C0 = cv_discrete_lag_noise(tau.view(B, 1), bnd.unsqueeze(1), accel)
+        stop = _stop_mask(config).view(1, r, 1, 1)
+        Q = torch.where(stop, torch.zeros_like(Q), Q)
+        C0 = torch.where(stop, torch.zeros_like(C0), C0)
+    else:
+        Q = _process_noise(config.kinds, config.noise, lag, Gm, accel)
+        C0 = Q
+    C0 = torch.where(birth.view(B, 1, 1, 1), torch.zeros_like(C0), C0)
+    r0 = _retrodict(state.x, state.P, Pp, g, G, Fb, Q, C0)
+    # from here on as vsimm_oosm (projection on the road at tau, update, projection at t_k)
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
     on = state.segment >= 0

@@ -126,3 +126,45 @@ def test_short_run_tracks_the_convoy_purely(short):
 def test_without_type_tracking_no_types(short):
     out = run_pd_tracker(short, type_tracking=False)
     assert all(bool((t.types == -1).all()) for t in out.tracks.values())
+
+
+def test_lag_memory_serves_reports_older_than_a_rows_birth():
+    # max_lag=None: the one-step A1; a delayed report older than a row's birth (a track started
+    # on a later GMTI report) is not associated with it. With a lag memory every OOSM row is
+    # served (one step: A1; before the birth: the diffuse-prior retrodiction)
+    sc = pd_scenario(seed=2400, duration=300.0)
+    before = run_pd_tracker(sc, type_tracking=False)
+    after = run_pd_tracker(sc, type_tracking=False, config=PDTrackerConfig(max_lag=2))
+    assert before.out_of_lag > 0
+    assert after.out_of_lag == 0
+    assert after.oosm_failures == 0
+    assert after.tracks
+    for trk in after.tracks.values():
+        assert np.isfinite(trk.positions).all()
+
+
+def test_lag_memory_rows_carry_the_memory():
+    net = RoadNetwork([[[0.0, 0.0], [2000.0, 0.0]]])
+    cfg = PDTrackerConfig(max_lag=3)
+    filt = VSIMMRoadFilter(
+        net,
+        cfg,
+        GMTISensor((0.0, -5000.0, 3000.0)),
+        VideoSensor(10.0, name="video"),
+        VideoSensor(10.0, name="ugs"),
+        (),
+    )
+    R = torch.eye(3, dtype=torch.float64).expand(1, 3, 3) * 100
+    filt.set_scan("video", 10.0)
+    s = filt.initiate(torch.tensor([[100.0, 0.0, 0.0]], dtype=torch.float64), R)
+    assert s["lag_t"].shape == (1, 3) and bool(torch.isinf(s["lag_t"]).all())
+    filt.set_scan("video", 20.0)
+    s = filt.predict(s, 10.0)
+    s, _ = filt.update(s, torch.tensor([[210.0, 0.0, 0.0]], dtype=torch.float64), R)
+    assert s["lag_t"][0].tolist()[0] == 10.0 and s["t"].tolist() == [20.0]
+    filt.set_scan("video", 5.0)  # older than the birth: served, state updated
+    s2 = filt.predict(s, 0.0)
+    assert bool(s2["retro"][0]) and bool(s2["lag_ok"][0])
+    s3, ll = filt.update(s2, torch.tensor([[50.0, 0.0, 0.0]], dtype=torch.float64), R)
+    assert torch.isfinite(ll).all() and not torch.equal(s3["x"], s["x"])
+    assert torch.equal(s3["lag_t"], s["lag_t"])
