@@ -126,3 +126,50 @@ def test_short_run_tracks_the_convoy_purely(short):
 def test_without_type_tracking_no_types(short):
     out = run_pd_tracker(short, type_tracking=False)
     assert all(bool((t.types == -1).all()) for t in out.tracks.values())
+
+
+def _turn_at_junction(junction_hypotheses: bool):
+    """A target at 15 m/s east on road A turns right (south) at the junction (1000, 0)."""
+    net = RoadNetwork(
+        [
+            [[0.0, 0.0], [1000.0, 0.0]],
+            [[1000.0, 0.0], [2000.0, 0.0]],
+            [[1000.0, 0.0], [1000.0, -1000.0]],
+        ],
+        [{"road_class": "highway"}] * 2 + [{"road_class": "byway"}],
+    )
+    gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
+    cfg = PDTrackerConfig(junction_hypotheses=junction_hypotheses)
+    f = VSIMMRoadFilter(
+        net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
+    )
+    truth = [(t, torch.tensor([[600.0 + 15 * (t + 20), 15.0, 0.0, 0.0]])) for t in (-20, -10, 0)]
+    truth.append((10.0, torch.tensor([[1000.0, 0.0, -50.0, -15.0]])))
+    s = None
+    for t, x in truth:
+        z = gmti.measure(x.double())
+        R = gmti.covariance(z)
+        f.set_scan("gmti", float(t))
+        if s is None:
+            s = f.initiate(z, R)
+            continue
+        pred = f.predict(s, 10.0)
+        zp, hph = f.innovation(pred)
+        nu = z[0] - zp[0]
+        d2 = float(nu @ torch.linalg.solve(hph[0] + R[0], nu))
+        s, _ = f.update(pred, z, R)
+    x, _ = f.mean_cov(s)
+    return d2, x[0], f
+
+
+def test_junction_hypotheses_follow_a_turn():
+    # issue 12: predicted straight on, the turning target's report (range-rate -11.6 m/s against
+    # +9.6 m/s predicted) fell outside the 0.999 gate (chi-square 16.3 with 3 degrees of
+    # freedom): the track missed it, fell into the stop model and coasted away from the target
+    d2_on, x_on, f_on = _turn_at_junction(True)
+    d2_off, _, _ = _turn_at_junction(False)
+    gate = 16.27
+    assert d2_on < gate < d2_off
+    assert f_on.junction_switches == 1
+    assert math.hypot(x_on[0] - 1000.0, x_on[2] + 50.0) < 15.0  # on the southern branch
+    assert x_on[3] < -10.0 and abs(x_on[1]) < 1.0  # heading south
