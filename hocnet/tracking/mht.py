@@ -762,9 +762,7 @@ class MHT:
         for s, p, j in zip(child_scores, parent_of, meas_of):
             if p >= 0:
                 par = leaves[p]
-                status, max_score = self._sprt(
-                    par.status, s, max(par.max_score, s), par.score
-                )
+                status, max_score = self._sprt(par.status, s, max(par.max_score, s), par.score)
                 if status == "deleted":
                     children.append(None)
                     continue
