@@ -109,10 +109,12 @@ PARAMETER_NOTES = {
     "are merged (the chapter's merging, 24.4.4 step 6). The MHT's merge once grouped leaves of "
     "different trees and emptied the convoy's cluster during the overtaking (every convoy "
     "track deleted at once, t = 230 s of seed 0); fixed in hocnet.tracking.mht, merging is on.",
-    "max_coast / coast_penalty": "ours: a confirmed track without any detection for 60 s gets "
-    "a score penalty of 20 (deleted). Without it a track left behind at a junction switches "
+    "max_coast / coast_penalty": "ours: a confirmed track without any detection for 30 s "
+    "(three GMTI revisits; three misses of a moving target have probability 1e-3) gets a "
+    "score penalty of 20 (deleted). Without it a track left behind at a junction switches "
     "to the stop model, whose missed-detection likelihood is 1 (24.31), and coasts for the "
-    "rest of the run km away from any target.",
+    "rest of the run km away from any target; with 60 s (before issue 12's fixes) such "
+    "tracks still coasted up to 1.2 km from their target and dominated the ARMSE.",
     "junction_hypotheses / junction_accept / junction_other_kind": "ours (24.38-24.40 inside a "
     "leaf): past a junction every other road section leaving it is predicted too; gating on "
     "their mixture, the score with the mixture likelihood, the leaf moves to a branch when its "

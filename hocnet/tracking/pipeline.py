@@ -175,7 +175,11 @@ class PDTrackerConfig:
         max_coast: a track without a detection for longer than this (s) gets ``coast_penalty``
             subtracted from every GMTI missed-detection increment (ours: without it a track left
             behind at a junction falls into the stop model, whose miss likelihood is 1 (24.31),
-            and is never deleted).
+            and is never deleted). 30 s (three GMTI revisits: three misses of a moving target
+            have probability 1e-3 at PD = 0.9; issue 12: with 60 s the tracks left behind at a
+            junction or by a missed turn coasted up to 1.2 km from their target before deletion
+            and dominated the ARMSE); a stop longer than that ends the track and a new one
+            starts when the target moves again.
         coast_penalty: see ``max_coast``.
         junction_hypotheses: road-section hypotheses at junctions (24.38-24.40 inside one leaf,
             our reading; see the module docstring). ``False``: only the segment nearest to the
@@ -223,7 +227,7 @@ class PDTrackerConfig:
     hypothesis_ratio: float = 1e-4
     type_term: str = "estimate"
     segment_by_measurement: bool = False
-    max_coast: float = 60.0
+    max_coast: float = 30.0
     coast_penalty: float = 20.0
     junction_hypotheses: bool = True
     junction_margin: float = 0.0

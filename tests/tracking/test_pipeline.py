@@ -173,3 +173,21 @@ def test_junction_hypotheses_follow_a_turn():
     assert f_on.junction_switches == 1
     assert math.hypot(x_on[0] - 1000.0, x_on[2] + 50.0) < 15.0  # on the southern branch
     assert x_on[3] < -10.0 and abs(x_on[1]) < 1.0  # heading south
+
+
+def test_coasting_track_is_penalised_after_max_coast():
+    # issue 12: a track left behind by its target falls into the stop model (miss likelihood 1,
+    # 24.31) and coasts; 30 s without any detection (three GMTI revisits) now ends it
+    net = RoadNetwork([[[0.0, 0.0], [5000.0, 0.0]]])
+    cfg = PDTrackerConfig()
+    assert cfg.max_coast == 30.0
+    f = _filter(net, "gmti", 0.0)
+    z = f.sensors["gmti"].measure(torch.tensor([[1000.0, 15.0, 0.0, 0.0]], dtype=torch.float64))
+    s = f.initiate(z, f.sensors["gmti"].covariance(z))
+    penalties = []
+    for t in (10.0, 20.0, 30.0, 40.0):
+        f.set_scan("gmti", t)
+        pred = f.predict(s, 10.0)
+        s, log_miss = f.miss(pred, cfg.pd)
+        penalties.append(float(log_miss[0]) < -cfg.coast_penalty)
+    assert penalties == [False, False, False, True]
