@@ -40,7 +40,14 @@ Popoli, *Design and Analysis of Modern Tracking Systems*, 1999, ch. 6 and 16, it
   (default, Blackman and Popoli 1999 section 6.2) ``L = ln(lambda_nt / lambda_fa)``, the prior
   log-odds new target against false alarm; ``initial_score="printed"`` keeps the chapter's
   printed ``L(0) = ln(lambda_fa / (lambda_fa + lambda_nt))``. The SPRT is not applied on the
-  birth scan (one plot cannot be tested; our reading).
+  birth scan (one plot cannot be tested; our reading), nor, with ``hold_uninformative=True``
+  (default), on a scan that leaves a tentative track's score unchanged (``Delta L = 0``: a scan
+  of a sensor that cannot see the track, e.g. a UGS silence or a video frame whose footprint
+  does not contain it; such a scan is no sample of the sequential test; our reading). Without it
+  (``hold_uninformative=False``, the former behaviour) a track born below ``ln lower`` was
+  deleted by the next scan of any sensor that did not detect it: in the [PD] 24.6 experiment,
+  where delayed video / UGS scans come between the GMTI scans, no new track could start on a
+  target after its first track was lost (seed 2400: target 6, 200 s untracked).
 * SPRT ([PD] section 24.4.3, Wald 1947): the lower bound ``beta / (1 - alpha)`` and the upper
   bound ``(1 - beta) / alpha`` (:func:`~hocnet.tracking.sprt.sprt_thresholds`) with ``alpha``
   the probability of confirming a false track and ``beta`` of deleting a true one. **The
@@ -466,6 +473,8 @@ class MHT:
             type reports in the score (they still update the tracks' bbas).
         missed_pd: score misses ``ln(1 - missed_pd)`` instead of the filter's miss likelihood
             (``None``, default).
+        hold_uninformative: do not apply the SPRT deletion to a tentative track in a scan that
+            left its score unchanged (module docstring; default ``True``).
 
     Raises:
         TypeError, ValueError: bad parameters.
@@ -498,6 +507,7 @@ class MHT:
         initial_score: str = "log_odds",
         type_term: str | None = "estimate",
         missed_pd: float | None = None,
+        hold_uninformative: bool = True,
     ) -> None:
         from scipy.stats import chi2
 
@@ -543,6 +553,7 @@ class MHT:
             if missed_pd is None
             else check_number("missed_pd", missed_pd, low=0.0, high=1.0, high_inclusive=False)
         )
+        self.hold_uninformative = bool(hold_uninformative)
         if self.initial_score == "log_odds":
             self.l_init = math.log(self.lambda_nt / self.lambda_fa)
         else:
@@ -751,7 +762,7 @@ class MHT:
         for s, p, j in zip(child_scores, parent_of, meas_of):
             if p >= 0:
                 par = leaves[p]
-                status, max_score = self._sprt(par.status, s, max(par.max_score, s))
+                status, max_score = self._sprt(par.status, s, max(par.max_score, s), par.score)
                 if status == "deleted":
                     children.append(None)
                     continue
@@ -891,13 +902,20 @@ class MHT:
         key = torch.argsort(l_idx * len(z) + j_idx)  # track-major order, as a dense scan gives
         return l_idx[key], j_idx[key]
 
-    def _sprt(self, parent_status: str, score: float, max_score: float) -> tuple[str, float]:
+    def _sprt(
+        self,
+        parent_status: str,
+        score: float,
+        max_score: float,
+        parent_score: float | None = None,
+    ) -> tuple[str, float]:
         """Status of a child track by the SPRT (the deletion rule of the module docstring)."""
         if parent_status == "confirmed":
             return ("deleted" if score <= max_score - self.drop else "confirmed"), max_score
         if score >= self.log_b:
             return "confirmed", score
-        if score <= self.log_a:
+        held = self.hold_uninformative and parent_score is not None and score == parent_score
+        if score <= self.log_a and not held:
             return "deleted", max_score
         return "tentative", max_score
 

@@ -42,9 +42,26 @@ Our readings and choices (the chapter leaves them to its references):
   with that row (it can still start a track); :attr:`VSIMMRoadFilter.out_of_lag` counts them.
 - **Road sections.** Each leaf runs one VS-IMM over the whole network (section ``-1``): every
   mode's active segment is the segment nearest to its predicted state (24.4.3), relaxed near
-  segment ends (24.9-24.12). The junction hypotheses of 24.38-24.40 are not expanded inside the
-  MHT (its leaves branch on measurements only); the road section of a leaf's most probable
-  road mode is exposed as ``"section"`` for the MHT's modified N-scan pruning (24.4.4 step 5).
+  segment ends (24.9-24.12); past a junction the prediction is carried onto the new segment
+  (:func:`~hocnet.tracking.vsimm.junction_transition`). The road section of a leaf's most
+  probable road mode is exposed as ``"section"`` for the MHT's modified N-scan pruning (24.4.4
+  step 5).
+- **Junction hypotheses** (``junction_hypotheses``, our reading of 24.38-24.40 inside a leaf):
+  when a row's prediction reaches a junction, the VS-IMM is also predicted on each other road
+  section leaving it (one IMM per hypothesis ``h``, 24.4.3). Gating uses the moment-matched
+  mixture of the hypotheses' predicted measurements (so that a report on any branch can be
+  associated); an update computes every hypothesis, scores the leaf with the mixture likelihood
+  ``sum_h Omega_h Lambda_h`` (24.38 with ``mu_h(k-1)`` the section the track comes from,
+  ``Omega`` 1 to a road of the same class and ``junction_other_kind`` to another, normalised)
+  and keeps the branch hypothesis whose posterior passes the SPRT bound 24.39 against the
+  nearest-segment one (``junction_accept``), else the nearest-segment one: the SPRT decided
+  on one measurement (the chapter continues the test over several scans; our leaves carry one
+  hypothesis), the MHT's branching on measurements carrying the rest of the ambiguity. A missed
+  detection keeps the nearest-segment hypothesis. Without it (the previous behaviour) a track
+  whose target turned at a junction was predicted straight on, missed the target's next report
+  (a GMTI range-rate innovation of 16 m/s at a right-angle turn: seed 2400, target 6,
+  t = 680 s), fell into the stop model and coasted for ``max_coast``, up to 1.2 km from the
+  target.
 - **Track initiation** on one report: position from the report; for a GMTI report the speed
   along the nearest road from the range-rate ``s = rho_dot / (u . l)`` (``u`` road direction,
   ``l`` line of sight) when ``|u . l| >= 0.2``, with standard deviation
@@ -162,7 +179,11 @@ class PDTrackerConfig:
         max_coast: a track without a detection for longer than this (s) gets ``coast_penalty``
             subtracted from every GMTI missed-detection increment (ours: without it a track left
             behind at a junction falls into the stop model, whose miss likelihood is 1 (24.31),
-            and is never deleted).
+            and is never deleted). 30 s (three GMTI revisits: three misses of a moving target
+            have probability 1e-3 at PD = 0.9; issue 12: with 60 s the tracks left behind at a
+            junction or by a missed turn coasted up to 1.2 km from their target before deletion
+            and dominated the ARMSE); a stop longer than that ends the track and a new one
+            starts when the target moves again.
         coast_penalty: see ``max_coast``.
         max_lag: OOSM of the delayed reports (our addition): ``None`` (Bar-Shalom's one-step
             A1 only; a report older than a row's last step, or than its birth, is not
@@ -170,6 +191,23 @@ class PDTrackerConfig:
             steps (:class:`~hocnet.tracking.vsimm.VSIMMLagMemory`) and reports up to ``N`` steps
             old use the multi-step Al1, reports older than the row's birth a diffuse-prior
             retrodiction (``vsimm_oosm(lag_memory=...)``).
+        junction_hypotheses: road-section hypotheses at junctions (24.38-24.40 inside one leaf,
+            our reading; see the module docstring). ``False``: only the segment nearest to the
+            prediction (the previous behaviour).
+        junction_margin: a row gets the hypotheses when the constant-velocity prediction of its
+            most probable moving mode is past, or less than this distance (m) before, the
+            junction ahead of it (0: past it; before the junction a branch hypothesis has the
+            old velocity and the same position as the straight one, and won ties at random:
+            seed 2400, target 1, t = 420 s with 50 m).
+        junction_other_kind: ``Omega`` of 24.38 from the section the track comes from to a
+            section of another ``road_class`` (highway -> byway), relative to 1 for the same
+            class (:func:`~hocnet.tracking.vsimm.section_transition`; our value).
+        junction_accept: the upper SPRT bound of 24.39 for leaving the nearest-segment
+            hypothesis: a branch is taken when its posterior ``mu_h`` is at least this many
+            times that of the nearest segment (``(1 - beta) / alpha`` with the section SPRT's
+            ``alpha = beta = 0.01`` of :func:`~hocnet.tracking.vsimm.vsimm_section_sprt`); below
+            it the nearest segment is kept (taking the best branch at any ratio chose a wrong
+            branch whose range-rate matched as well: seed 2400, target 8, t = 280 s).
 
     ``merge_scans`` (3) merges duplicate leaves of one target tree (the MHT's merge once grouped
     leaves of *different* families and emptied the convoy's cluster during an overtaking; fixed
@@ -199,9 +237,13 @@ class PDTrackerConfig:
     hypothesis_ratio: float = 1e-4
     type_term: str = "estimate"
     segment_by_measurement: bool = False
-    max_coast: float = 60.0
+    max_coast: float = 30.0
     coast_penalty: float = 20.0
     max_lag: int | None = None
+    junction_hypotheses: bool = True
+    junction_margin: float = 0.0
+    junction_other_kind: float = 0.2
+    junction_accept: float = 99.0
     vsimm: VSIMMConfig = field(init=False)
 
     def __post_init__(self) -> None:
@@ -344,6 +386,11 @@ class VSIMMRoadFilter:
         self.oosm_failures = 0
         self.sanitized = 0
         self.max_jump = 1000.0
+        self.junction_switches = 0
+        deg = int(net.node_degree.max()) if net.node_degree.numel() else 0
+        self._n_alt = max(deg - 1, 0) if config.junction_hypotheses else 0
+        self._road_class = [p.get("road_class") for p in net.section_properties]
+        self._log_accept = math.log(config.junction_accept)
         self._stop = self.vcfg.kinds.index("stop") if "stop" in self.vcfg.kinds else None
         self.segment_by_measurement = config.segment_by_measurement
         n = net.num_segments
@@ -437,6 +484,14 @@ class VSIMMRoadFilter:
         d["p_on"] = torch.ones_like(d["mu"])
         d["p_accel"] = d["accel_cov"]
         d["p_t"] = d["t"]
+        r, H = d["mu"].shape[1], self._n_alt
+        d["p_ax"] = torch.zeros(K, H, r, 4, dtype=DTYPE)
+        d["p_aP"] = torch.zeros(K, H, r, 4, 4, dtype=DTYPE)
+        d["p_aseg"] = torch.zeros(K, H, r, dtype=torch.int64)
+        d["p_aon"] = torch.ones(K, H, r, dtype=DTYPE)
+        d["p_aacc"] = torch.zeros(K, H, r, 2, 2, dtype=DTYPE)
+        d["p_avalid"] = torch.zeros(K, H, dtype=torch.bool)
+        d["p_alw"] = torch.zeros(K, H + 1, dtype=DTYPE)
         d["retro"] = torch.zeros(K, dtype=torch.bool)
         d["lag_ok"] = torch.ones(K, dtype=torch.bool)
         return d
@@ -458,7 +513,99 @@ class VSIMMRoadFilter:
             for k, v in zip(_PRED_KEYS, pred):
                 s[k] = s[k].clone()
                 s[k][fwd] = v
+            if self.cfg.junction_hypotheses and self._n_alt:
+                self._predict_alternatives(s, fwd, vs, pred)
         return s
+
+    def _junction_sections(self, vs: VSIMMState, pred: Any) -> list[list[int]]:
+        """Per row, the road sections to add as hypotheses (empty away from junctions)."""
+        road = torch.tensor([k == "road" for k in self.vcfg.kinds])
+        B = vs.mu.shape[0]
+        mu = torch.where(road, vs.mu, torch.full_like(vs.mu, -1.0))
+        best = mu.argmax(-1)
+        rows = torch.arange(B)
+        so = vs.segment[rows, best]
+        x = vs.x[rows, best]
+        dt = (pred.t - vs.t).view(B, 1)
+        out: list[list[int]] = [[] for _ in range(B)]
+        lw: list[list[float]] = [[] for _ in range(B)]
+        if not B:
+            return out, lw
+        w = self.net.direction[so.clamp(min=0)]
+        v = x[:, [1, 3]]
+        fwd = (v * w).sum(-1) >= 0
+        w = torch.where(fwd[:, None], w, -w)
+        ahead = torch.where(
+            fwd,
+            self.net.segment_nodes[so.clamp(min=0), 1],
+            self.net.segment_nodes[so.clamp(min=0), 0],
+        )
+        p = x[:, [0, 2]] + v * dt
+        over = ((p - self.net.nodes[ahead]) * w).sum(-1)
+        deg = self.net.node_degree[ahead]
+        near = (so >= 0) & (deg >= 3) & (over > -self.cfg.junction_margin) & (v.norm(dim=-1) > 0.5)
+        sec_of = self.net.segment_section
+        cls = self._road_class
+        for b in torch.nonzero(near).flatten().tolist():
+            came = int(sec_of[so[b]])
+            straight = int(sec_of[pred.segment[b, best[b]].clamp(min=0)])
+            alts = [
+                h for h in self.net.junction_sections(int(ahead[b])) if h not in (came, straight)
+            ]
+            alts = alts[: self._n_alt]
+            if not alts:
+                continue
+            out[b] = alts
+            w = [
+                1.0 if cls[h] == cls[came] else self.cfg.junction_other_kind
+                for h in [straight, *alts]
+            ]
+            lw[b] = [math.log(max(x, 1e-300) / sum(w)) for x in w]
+        return out, lw
+
+    def _predict_alternatives(
+        self, s: dict[str, torch.Tensor], fwd: torch.Tensor, vs: VSIMMState, pred: Any
+    ) -> None:
+        """Predictions of the junction hypotheses of the rows ``fwd`` into ``s["p_a*"]``."""
+        alts, lw = self._junction_sections(vs, pred)
+        pairs = [(b, h, sec) for b, secs in enumerate(alts) for h, sec in enumerate(secs)]
+        if not pairs:
+            return
+        s["p_alw"] = s["p_alw"].clone()
+        for b, w in enumerate(lw):
+            if w:
+                s["p_alw"][fwd[b], : len(w)] = torch.tensor(w, dtype=DTYPE)
+        rows = torch.tensor([b for b, _, _ in pairs])
+        sub = vs.select(rows)._replace(section=torch.tensor([sec for _, _, sec in pairs]))
+        ap = vsimm_predict(sub, self.net, self.vcfg, self.time)
+        stop = torch.tensor([k == "stop" for k in self.vcfg.kinds])
+        keep = stop.view(1, -1)
+        ax = torch.where(keep[..., None], pred.x[rows], ap.x)
+        aP = torch.where(keep[..., None, None], pred.P[rows], _psd(ap.P))
+        aseg = torch.where(keep, pred.segment[rows], ap.segment)
+        aon = torch.where(keep, pred.p_on[rows], ap.p_on)
+        aacc = torch.where(keep[..., None, None], pred.accel_cov[rows], ap.accel_cov)
+        grow = fwd[rows]
+        hh = torch.tensor([h for _, h, _ in pairs])
+        for key, val in (
+            ("p_ax", ax),
+            ("p_aP", aP),
+            ("p_aseg", aseg),
+            ("p_aon", aon),
+            ("p_aacc", aacc),
+        ):
+            s[key] = s[key].clone()
+            s[key][grow, hh] = val
+        s["p_avalid"] = s["p_avalid"].clone()
+        s["p_avalid"][grow, hh] = True
+
+    def _hypothesis(self, s: dict[str, torch.Tensor], h: int) -> dict[str, torch.Tensor]:
+        """Rows ``s`` with the prediction of junction hypothesis ``h`` in the ``p_*`` fields."""
+        out = dict(s)
+        out["p_x"], out["p_P"] = s["p_ax"][:, h], s["p_aP"][:, h]
+        out["p_segment"], out["p_on"] = s["p_aseg"][:, h], s["p_aon"][:, h]
+        out["p_accel"] = s["p_aacc"][:, h]
+        return out
 
     def _retro_estimate(self, s: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Combined estimate extrapolated back to the scan time (gating of OOSM rows)."""
@@ -485,7 +632,35 @@ class VSIMMRoadFilter:
         return xp, Pp
 
     def innovation(self, states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Predicted measurement ``(K, 3)`` and ``H P H'`` ``(K, 3, 3)`` of the combined state."""
+        """Predicted measurement ``(K, 3)`` and ``H P H'`` ``(K, 3, 3)`` of the combined state.
+
+        Rows with junction hypotheses: the moment-matched mixture (equal weights) of the
+        hypotheses' predicted measurements (module docstring).
+        """
+        zp, hph = self._innovation(states)
+        valid = states["p_avalid"] if "p_avalid" in states else None
+        if valid is None or not bool(valid.any()):
+            return zp, hph
+        rows = torch.nonzero(valid.any(-1)).flatten()
+        sub = self._take(states, rows)
+        lw = states["p_alw"][rows]
+        zs, hs, ws = [zp[rows]], [hph[rows]], [lw[:, 0].exp()]
+        for h in range(valid.shape[1]):
+            sh = self._hypothesis(sub, h)
+            z_h, s_h = self._innovation(sh)
+            zs.append(z_h)
+            hs.append(s_h)
+            ws.append(torch.where(sub["p_avalid"][:, h], lw[:, h + 1].exp(), 0.0))
+        Z, S, W = torch.stack(zs, 1), torch.stack(hs, 1), torch.stack(ws, 1)
+        W = W / W.sum(1, keepdim=True)
+        zm = (W[..., None] * Z).sum(1)
+        d = Z - zm[:, None]
+        Sm = (W[..., None, None] * (S + d[..., :, None] * d[..., None, :])).sum(1)
+        zp, hph = zp.clone(), hph.clone()
+        zp[rows], hph[rows] = zm, 0.5 * (Sm + Sm.transpose(-1, -2))
+        return zp, hph
+
+    def _innovation(self, states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         xp, Pp = self._predicted_combined(states)
         K = xp.shape[0]
         if self.kind == "gmti":
@@ -523,13 +698,11 @@ class VSIMMRoadFilter:
         fwd = torch.nonzero(~retro).flatten()
         if len(fwd):
             s = self._take(states, fwd)
-            if self.segment_by_measurement:
-                s = self._measurement_segments(s, zz[fwd])
-            new, out = vsimm_update(
-                self._vs(s), self._vs_pred(s), zz[fwd], sensor, self.net, self.vcfg
-            )
-            ll[fwd] = out.log_likelihood
-            new_d = self._sanitize(self._dict(new), s["p_x"], s["p_P"], detection=True)
+            new_d, ll_f = self._forward_update(s, zz[fwd], sensor)
+            valid = s["p_avalid"]
+            if bool(valid.any()):
+                new_d, ll_f = self._junction_update(s, zz[fwd], sensor, new_d, ll_f)
+            ll[fwd] = ll_f
             parts.append((fwd, self._lag_step(new_d, s)))
         back = torch.nonzero(retro).flatten()
         if len(back):
@@ -541,6 +714,48 @@ class VSIMMRoadFilter:
         merged["t_det"] = merged["t_det"].clamp(min=self.time)
         corr = -math.log(self.cfg.pd) + math.log(self.cfg.lambda_fa / self._lambda[self.kind])
         return self._with_pred(merged), ll + corr
+
+    def _forward_update(
+        self, s: dict[str, torch.Tensor], z: torch.Tensor, sensor: Any
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """VS-IMM update of in-sequence rows ``s`` with ``z``: new state dict and ``ln Lambda``."""
+        if self.segment_by_measurement:
+            s = self._measurement_segments(s, z)
+        new, out = vsimm_update(self._vs(s), self._vs_pred(s), z, sensor, self.net, self.vcfg)
+        d = self._sanitize(self._dict(new), s["p_x"], s["p_P"], detection=True)
+        return d, out.log_likelihood
+
+    def _junction_update(
+        self,
+        s: dict[str, torch.Tensor],
+        z: torch.Tensor,
+        sensor: Any,
+        new_d: dict[str, torch.Tensor],
+        ll: torch.Tensor,
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """Junction hypotheses: mixture likelihood, state of the most probable hypothesis."""
+        valid = s["p_avalid"]
+        lw = torch.where(valid.any(-1, keepdim=True), s["p_alw"], 0.0)
+        total = ll + lw[:, 0]
+        base = total.clone()
+        best = total.clone()
+        new_d = {k: v.clone() for k, v in new_d.items()}
+        for h in range(valid.shape[1]):
+            rows = torch.nonzero(valid[:, h]).flatten()
+            if not len(rows):
+                continue
+            sh = self._hypothesis(self._take(s, rows), h)
+            d_h, ll_h = self._forward_update(sh, z[rows], sensor)
+            ll_h = ll_h + lw[rows, h + 1]
+            total[rows] = torch.logaddexp(total[rows], ll_h)
+            better = (ll_h > best[rows]) & (ll_h >= base[rows] + self._log_accept)
+            if bool(better.any()):
+                rb = rows[better]
+                best[rb] = ll_h[better]
+                for k, v in d_h.items():
+                    new_d[k][rb] = v[better]
+        self.junction_switches += int((best > ll + lw[:, 0]).sum())
+        return new_d, total
 
     def _oosm(
         self, s: dict[str, torch.Tensor], z: torch.Tensor, sensor: Any
@@ -717,6 +932,8 @@ class TrackerRun:
         max_leaves: largest number of leaf tracks held at once.
         sanitized: mode estimates replaced by their prediction (module docstring).
         oosm_failures: OOSM updates that fell back to the extrapolated estimate.
+        junction_switches: updates that moved a row onto another road section at a junction
+            (``junction_hypotheses``).
     """
 
     tracks: dict[int, EstimatedTrack]
@@ -725,6 +942,7 @@ class TrackerRun:
     max_leaves: int
     sanitized: int = 0
     oosm_failures: int = 0
+    junction_switches: int = 0
 
 
 def _declared_type(bba: torch.Tensor | None, rng: np.random.Generator) -> int:
@@ -827,5 +1045,11 @@ def run_pd_tracker(
             types.append(typ)
         tracks[tid] = EstimatedTrack(times, pos, ids, types)
     return TrackerRun(
-        tracks, len(scans), filt.out_of_lag, max_leaves, filt.sanitized, filt.oosm_failures
+        tracks,
+        len(scans),
+        filt.out_of_lag,
+        max_leaves,
+        filt.sanitized,
+        filt.oosm_failures,
+        filt.junction_switches,
     )

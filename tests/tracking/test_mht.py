@@ -598,3 +598,36 @@ def _gauss(x: torch.Tensor, P: torch.Tensor, z: torch.Tensor, R: torch.Tensor) -
     return -0.5 * (
         nu @ np.linalg.solve(S, nu) + math.log(np.linalg.det(S)) + 2 * math.log(2 * math.pi)
     )
+
+
+class _SilentCV(CVKalmanFilter):
+    """CV filter whose missed detections carry no information while ``silent`` (Delta L = 0)."""
+
+    silent = False
+
+    def miss(self, states, pd):
+        st, log_miss = super().miss(states, pd)
+        return (st, torch.zeros_like(log_miss)) if self.silent else (st, log_miss)
+
+
+@pytest.mark.parametrize("hold", [True, False])
+def test_uninformative_scan_does_not_delete_a_tentative_track(hold: bool) -> None:
+    # issue 12: in the [PD] 24.6 run a new track is born below ln lower (beta = 0.1) and the
+    # next scan is often a delayed UGS / video scan that cannot see it (Delta L = 0); it used
+    # to delete every such track, so a lost target was never tracked again
+    f = _SilentCV()
+    kw = dict(R=torch.eye(2), pd=0.9, lambda_fa=1e-3, lambda_nt=1e-5, beta=0.1, merge_scans=0)
+    mht = MHT(f, hold_uninformative=hold, **kw)
+    assert mht.l_init < mht.log_a
+    mht.step(torch.zeros(1, 2), time=0.0)
+    f.silent = True
+    mht.step(torch.zeros(0, 2), time=0.0)
+    assert mht.n_leaves == (1 if hold else 0)
+    if hold:
+        f.silent = False
+        mht.step(torch.zeros(1, 2), time=1.0)  # the next detection extends it
+        assert any(leaf.history == (0, -1, 0) for leaf in mht._leaves)
+        mht2 = MHT(_SilentCV(), hold_uninformative=True, **kw)
+        mht2.step(torch.zeros(1, 2), time=0.0)
+        mht2.step(torch.zeros(0, 2), time=1.0)  # an informative miss still deletes it
+        assert mht2.n_leaves == 0

@@ -168,3 +168,68 @@ def test_lag_memory_rows_carry_the_memory():
     s3, ll = filt.update(s2, torch.tensor([[50.0, 0.0, 0.0]], dtype=torch.float64), R)
     assert torch.isfinite(ll).all() and not torch.equal(s3["x"], s["x"])
     assert torch.equal(s3["lag_t"], s["lag_t"])
+
+
+def _turn_at_junction(junction_hypotheses: bool):
+    """A target at 15 m/s east on road A turns right (south) at the junction (1000, 0)."""
+    net = RoadNetwork(
+        [
+            [[0.0, 0.0], [1000.0, 0.0]],
+            [[1000.0, 0.0], [2000.0, 0.0]],
+            [[1000.0, 0.0], [1000.0, -1000.0]],
+        ],
+        [{"road_class": "highway"}] * 2 + [{"road_class": "byway"}],
+    )
+    gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
+    cfg = PDTrackerConfig(junction_hypotheses=junction_hypotheses)
+    f = VSIMMRoadFilter(
+        net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
+    )
+    truth = [(t, torch.tensor([[600.0 + 15 * (t + 20), 15.0, 0.0, 0.0]])) for t in (-20, -10, 0)]
+    truth.append((10.0, torch.tensor([[1000.0, 0.0, -50.0, -15.0]])))
+    s = None
+    for t, x in truth:
+        z = gmti.measure(x.double())
+        R = gmti.covariance(z)
+        f.set_scan("gmti", float(t))
+        if s is None:
+            s = f.initiate(z, R)
+            continue
+        pred = f.predict(s, 10.0)
+        zp, hph = f.innovation(pred)
+        nu = z[0] - zp[0]
+        d2 = float(nu @ torch.linalg.solve(hph[0] + R[0], nu))
+        s, _ = f.update(pred, z, R)
+    x, _ = f.mean_cov(s)
+    return d2, x[0], f
+
+
+def test_junction_hypotheses_follow_a_turn():
+    # issue 12: predicted straight on, the turning target's report (range-rate -11.6 m/s against
+    # +9.6 m/s predicted) fell outside the 0.999 gate (chi-square 16.3 with 3 degrees of
+    # freedom): the track missed it, fell into the stop model and coasted away from the target
+    d2_on, x_on, f_on = _turn_at_junction(True)
+    d2_off, _, _ = _turn_at_junction(False)
+    gate = 16.27
+    assert d2_on < gate < d2_off
+    assert f_on.junction_switches == 1
+    assert math.hypot(x_on[0] - 1000.0, x_on[2] + 50.0) < 15.0  # on the southern branch
+    assert x_on[3] < -10.0 and abs(x_on[1]) < 1.0  # heading south
+
+
+def test_coasting_track_is_penalised_after_max_coast():
+    # issue 12: a track left behind by its target falls into the stop model (miss likelihood 1,
+    # 24.31) and coasts; 30 s without any detection (three GMTI revisits) now ends it
+    net = RoadNetwork([[[0.0, 0.0], [5000.0, 0.0]]])
+    cfg = PDTrackerConfig()
+    assert cfg.max_coast == 30.0
+    f = _filter(net, "gmti", 0.0)
+    z = f.sensors["gmti"].measure(torch.tensor([[1000.0, 15.0, 0.0, 0.0]], dtype=torch.float64))
+    s = f.initiate(z, f.sensors["gmti"].covariance(z))
+    penalties = []
+    for t in (10.0, 20.0, 30.0, 40.0):
+        f.set_scan("gmti", t)
+        pred = f.predict(s, 10.0)
+        s, log_miss = f.miss(pred, cfg.pd)
+        penalties.append(float(log_miss[0]) < -cfg.coast_penalty)
+    assert penalties == [False, False, False, True]

@@ -11,6 +11,7 @@ from hocnet.tracking.sprt import sprt_thresholds
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     VSIMMState,
+    junction_transition,
     section_probabilities,
     section_transition,
     sprt_decide,
@@ -851,3 +852,87 @@ def test_vsimm_update_stop_mode_projection_stays_bounded_under_gmti():
             bound = pred.P.diagonal(dim1=-2, dim2=-1)
             assert torch.isfinite(s.x).all()
             assert bool((var <= bound * (1 + 1e-9) + 1e-9).all()), (k, t, var.max())
+
+
+def _corner(angle_deg: float = 30.0) -> RoadNetwork:
+    a = math.radians(angle_deg)
+    return RoadNetwork(
+        [[[0.0, 0.0], [1000.0, 0.0], [1000.0 + 1000 * math.cos(a), 1000 * math.sin(a)]]]
+    )
+
+
+def _corner_prediction(junction: str):
+    net = _corner()
+    cfg = VSIMMConfig(junction=junction)
+    P0 = torch.diag(torch.tensor([25.0, 1.0, 25.0, 1.0], dtype=torch.float64))
+    s = vsimm_init(net, torch.tensor([[900.0, 20.0, 0.0, 0.0]]), P0, cfg, mu0=[0.0, 0.9, 0.1])
+    return net, cfg, s, vsimm_predict(s, net, cfg, 10.0)
+
+
+def test_junction_transition_follows_the_road_past_a_corner():
+    # issue 12: 100 m past a 30 degree corner the road modes are on the new segment, 100 m from
+    # the corner, with the speed kept and the velocity along the new segment
+    net, _cfg, s, pred = _corner_prediction("rotate")
+    u = net.direction[1]
+    for i in (1, 2):
+        assert int(pred.segment[0, i]) == 1
+        p = pred.x[0, i, [0, 2]]
+        v = pred.x[0, i, [1, 3]]
+        assert torch.allclose(p, torch.tensor([1000.0, 0.0], dtype=torch.float64) + 100.0 * u)
+        assert torch.allclose(v, 20.0 * u)
+    assert torch.allclose(pred.x[0, 0], s.x[0, 0])  # the stop mode does not move
+    # the covariance is rotated with the state: the along-road variance stays along the road
+    T, _b = junction_transition(
+        net, s.segment, pred.segment, s.x, torch.tensor([[[1100.0, 20.0, 0.0, 0.0]] * 3])
+    )
+    assert torch.allclose(
+        T[0, 1, [0, 2]][:, [0, 2]] @ torch.tensor([1.0, 0.0], dtype=torch.float64), u
+    )
+    assert torch.equal(T[0, 0], torch.eye(4, dtype=torch.float64))  # same segment: identity
+    # away from a shared node (or on the same segment) nothing changes
+    T2, b2 = junction_transition(net, s.segment, s.segment, s.x, s.x)
+    assert torch.equal(T2, torch.eye(4, dtype=torch.float64).expand_as(T2)) and not b2.any()
+
+
+def _turn_update_error(junction: str, noise: tuple[float, float]) -> float:
+    """Position error after one GMTI update 40 m past an 11 degree turn (issue 12, seed 2402,
+    target 1, t = 810 s: roads at 33.7 and 45 degrees, 22 m/s, a steady-state covariance with
+    the along-road position and velocity correlated)."""
+    w = torch.tensor(
+        [math.cos(math.radians(33.7)), math.sin(math.radians(33.7))], dtype=torch.float64
+    )
+    u = torch.tensor(
+        [math.cos(math.radians(45.0)), math.sin(math.radians(45.0))], dtype=torch.float64
+    )
+    J = 1000.0 * w
+    net = RoadNetwork([[[0.0, 0.0], J.tolist(), (J + 1000.0 * u).tolist()]])
+    cfg = VSIMMConfig(junction=junction)
+    Pr = torch.tensor(  # road frame [along pos, along vel, across pos, across vel]
+        [[70.0, 4.0, 0, 0], [4.0, 0.5, 0, 0], [0, 0, 5.0, 0.2], [0, 0, 0.2, 0.02]],
+        dtype=torch.float64,
+    )
+    Rot = torch.zeros(4, 4, dtype=torch.float64)  # road frame -> [x, vx, y, vy]
+    Rot[0, 0], Rot[2, 0], Rot[0, 2], Rot[2, 2] = w[0], w[1], -w[1], w[0]
+    Rot[1, 1], Rot[3, 1], Rot[1, 3], Rot[3, 3] = w[0], w[1], -w[1], w[0]
+    p0 = J - 180.0 * w
+    x0 = torch.tensor([[p0[0], 22 * w[0], p0[1], 22 * w[1]]], dtype=torch.float64)
+    s = vsimm_init(net, x0, Rot @ Pr @ Rot.T, cfg, mu0=[0.0, 0.95, 0.05])
+    pred = vsimm_predict(s, net, cfg, 10.0)
+    tp = J + 40.0 * u
+    truth = torch.tensor([[tp[0], 22 * u[0], tp[1], 22 * u[1]]], dtype=torch.float64)
+    gmti = GMTISensor(GMTI_POS)
+    z = gmti.measure(truth)
+    z[0, 0] += noise[0]
+    z[0, 1] += noise[1]
+    new, _ = vsimm_update(s, pred, z, gmti, net, cfg)
+    return float((new.combined()[0][0, [0, 2]] - truth[0, [0, 2]]).norm())
+
+
+@pytest.mark.parametrize("noise", [(0.0, 0.0), (-51.0, 44.0)])
+def test_junction_transition_keeps_the_update_on_the_target(noise):
+    # the failure it fixes: the CV prediction past a turn kept the old velocity and the road
+    # projection (24.14-24.16) read the 8 m/s velocity mismatch as an estimation error, moving
+    # the position along the new road through the position-velocity correlation (78 m here,
+    # 116 m in the run); the rotated prediction is on the target
+    assert _turn_update_error("rotate", noise) < 2.0
+    assert _turn_update_error("none", noise) > 50.0
