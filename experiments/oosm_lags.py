@@ -8,24 +8,45 @@ leaves) for which a delayed report was out of the OOSM lag, the reports concerne
 out-of-lag row within ``NEAR`` m of the report), the lag of those rows in seconds and in filter
 steps (the step count needs the multi-step lag memory: ``--max-lag N``, else only ``> 1``).
 
-Run: ``OMP_NUM_THREADS=1 python experiments/oosm_lags.py [--seeds 2] [--max-lag 1] [--pcr5]``.
+Full runs (1200 s scenario, 2 seeds; measured numbers in ``experiments/results/oosm-lags.md``,
+a note written by hand from the printed output)::
+
+    OMP_NUM_THREADS=1 python experiments/oosm_lags.py --seeds 2                # one-step A1
+    OMP_NUM_THREADS=1 python experiments/oosm_lags.py --seeds 2 --max-lag 3    # lag memory
+
+Options: ``--seeds N`` (default 2; 1 with ``--quick``), ``--duration S`` (default 1200 s),
+``--max-lag N``, ``--pcr5`` (with the type tracker), ``--quick`` (smoke run: a
+``QUICK_DURATION`` s scenario, the first with video and UGS reports, and 1 seed; a few
+seconds), ``--out DIR`` (optional: also write the printed output to ``DIR/oosm-lags.txt``).
+The output is printed; nothing is written without ``--out``, and a ``--quick`` run refuses an
+``--out`` inside ``experiments/results``.
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import pathlib
 import sys
 from collections.abc import Sequence
 
+# the helpers next to this file, also when the script is loaded by path
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import _expkit as C
 import numpy as np
 import torch
 
 from hocnet.tracking import pipeline as P
 from hocnet.tracking.scenario import pd_scenario
 
+NAME = "oosm-lags"
 SEED_BASE = 2400
 NEAR = 300.0
+FULL_SEEDS = 2
+FULL_DURATION = 1200.0
+QUICK_SEEDS = 1
+QUICK_DURATION = 400.0
+"""Smoke-run scenario length (s): video reports start at 245 s, UGS reports at 388 s."""
 
 
 def report_lags(sc) -> dict[str, list[tuple[float, int]]]:
@@ -106,23 +127,62 @@ def instrumented_run(sc, *, type_tracking: bool, max_lag: int | None) -> dict:
     return rec
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=2)
-    ap.add_argument("--duration", type=float, default=1200.0)
+def out_path(out: str | None, quick: bool, filename: str, error) -> pathlib.Path | None:
+    """``out/filename`` (folder created), ``None`` without ``out``; ``error`` if not allowed.
+
+    A ``--quick`` run never writes into ``experiments/results`` (the committed full results).
+    """
+    if out is None:
+        return None
+    if not str(out).strip():
+        error("--out: expected a folder name, got an empty string")
+    folder = pathlib.Path(out).resolve()
+    if quick and folder.is_relative_to(C.RESULTS_DIR.resolve()):
+        error(f"--out: a --quick run does not write into {C.RESULTS_DIR}, got {out}")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / filename
+
+
+def main(argv: Sequence[str] | None = None) -> str:
+    """Command line entry point; prints the measurements and returns the printed text."""
+    ap = argparse.ArgumentParser(prog=NAME, description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--seeds", type=int, default=None, help=f"seeds (default {FULL_SEEDS}, quick 1)"
+    )
+    ap.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help=f"scenario length in s (default {FULL_DURATION:g}, quick {QUICK_DURATION:g})",
+    )
     ap.add_argument("--max-lag", type=int, default=None)
     ap.add_argument("--pcr5", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="smoke run (short scenario, 1 seed)")
+    ap.add_argument("--out", default=None, help=f"also write the output to DIR/{NAME}.txt")
     a = ap.parse_args(argv)
+    if a.seeds is None:
+        a.seeds = QUICK_SEEDS if a.quick else FULL_SEEDS
+    if a.seeds < 1:
+        ap.error(f"--seeds: expected >= 1, got {a.seeds}")
+    if a.duration is None:
+        a.duration = QUICK_DURATION if a.quick else FULL_DURATION
+    path = out_path(a.out, a.quick, f"{NAME}.txt", ap.error)
     torch.set_num_threads(1)
+    lines: list[str] = []
+
+    def emit(line: str) -> None:
+        lines.append(line)
+        print(line)
+
     for i in range(a.seeds):
         seed = SEED_BASE + i
         sc = pd_scenario(seed=seed, duration=a.duration)
         lags = report_lags(sc)
-        print(f"seed {seed}: {len(sc.reports)} reports")
+        emit(f"seed {seed}: {len(sc.reports)} reports")
         for kind, v in sorted(lags.items()):
             arr = np.array(v)
             hist = collections.Counter(int(n) for n in arr[:, 1])
-            print(
+            emit(
                 f"  {kind}: {len(v)} reports; lag behind the last GMTI scan "
                 f"{arr[:, 0].min():.0f}..{arr[:, 0].max():.0f} s (mean {arr[:, 0].mean():.1f}); "
                 f"GMTI scans after tau: {dict(sorted(hist.items()))}"
@@ -134,20 +194,25 @@ def main(argv: Sequence[str] | None = None) -> None:
         steps = collections.Counter(s for _, _, s in rows)
         rep = collections.Counter(k for _, _, k in rec["reports"])
         lo, hi, mean = (lag_s.min(), lag_s.max(), lag_s.mean()) if lag_s.size else (0.0, 0.0, 0.0)
-        print(
+        emit(
             f"  tracker: {rec['run'].out_of_lag} out-of-lag rows ({dict(by_kind)}), "
             f"reports with an out-of-lag row within {NEAR:g} m: {dict(rep)} of "
             f"{len(rec['retro_reports'])} (report, scan) pairs with an OOSM row nearby; "
             f"row lags {lo:.0f}..{hi:.0f} s (mean {mean:.1f}); steps {dict(steps)}"
         )
         ls = collections.Counter(round(v) for v in rec.get("last_step", []))
-        print(f"  last step length (t - t_prev) of the out-of-lag rows, s: {dict(ls)}")
+        emit(f"  last step length (t - t_prev) of the out-of-lag rows, s: {dict(ls)}")
         if "lag_steps" in rec:
-            print(
+            emit(
                 f"  OOSM rows by lag (memory of {a.max_lag} steps): {dict(rec['lag_steps'])}; "
                 f"with the report within {NEAR:g} m: {dict(rec.get('lag_steps_near', {}))}"
             )
         sys.stdout.flush()
+    text = "\n".join(lines) + "\n"
+    if path is not None:
+        path.write_text(text)
+        print(f"{NAME}: written to {path}", file=sys.stderr)
+    return text
 
 
 if __name__ == "__main__":
