@@ -12,7 +12,6 @@ import json
 import pathlib
 import re
 import sys
-import time
 
 import pytest
 
@@ -39,10 +38,8 @@ def results_snapshot() -> dict[str, tuple[int, int, str]]:
 
 
 def run_main(module, argv):
-    """``module.main(argv)`` and the wall-clock seconds it took."""
-    start = time.perf_counter()
-    out = module.main(argv)
-    return out, time.perf_counter() - start
+    """``module.main(argv)`` (speed is measured in benchmarks/, not asserted here)."""
+    return module.main(argv)
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -70,8 +67,7 @@ def test_quick_refuses_results_dir(script, capsys):
 def test_oosm_lags_quick(tmp_path, capsys):
     module = load_script("oosm_lags.py")
     before = results_snapshot()
-    text, seconds = run_main(module, ["--quick", "--max-lag", "2", "--out", str(tmp_path)])
-    assert seconds < 60  # loose bound on a shared CPU; typically a few seconds
+    text = run_main(module, ["--quick", "--max-lag", "2", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
     assert printed == text == (tmp_path / "oosm-lags.txt").read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["oosm-lags.txt"]
@@ -94,8 +90,7 @@ def test_oosm_lags_quick(tmp_path, capsys):
 def test_oosm_compare_quick(tmp_path, capsys):
     module = load_script("oosm_compare.py")
     before = results_snapshot()
-    text, seconds = run_main(module, ["--quick", "--out", str(tmp_path)])
-    assert seconds < 60  # loose bound on a shared CPU; typically ~10 s
+    text = run_main(module, ["--quick", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
     assert printed == text == (tmp_path / "oosm-compare.txt").read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["oosm-compare.json", "oosm-compare.txt"]
@@ -122,8 +117,7 @@ def test_oosm_compare_quick(tmp_path, capsys):
 def test_pd_resolution_crosstalk_quick(tmp_path, capsys):
     module = load_script("pd_resolution_crosstalk.py")
     before = results_snapshot()
-    counts, seconds = run_main(module, ["off", "10", "--quick", "--out", str(tmp_path)])
-    assert seconds < 60  # loose bound on a shared CPU; typically a few seconds
+    counts = run_main(module, ["off", "10", "--quick", "--out", str(tmp_path)])
     printed = capsys.readouterr().out
     assert json.loads(printed) == counts
     written = tmp_path / "pd-resolution-crosstalk-off-10.json"
