@@ -96,18 +96,20 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    passes (a known limit of the step).
    Also kept (``RESCUE_BRANCH``, our addition, issue 7): a best whole track whose new points
    are its first or last points (at least two, all image points, all its triples in kept
-   sequences): a track starting or ending next to others, its other points on kept tracks that
-   mix it with its neighbours. ``RESCUE_SHORT`` (off: it costs up to 0.57 points of clutter
-   rejection on Table III) would also keep lone 5-6-point tracks whose ends are image points.
-   Measured, issue 7 (``detect`` defaults, before -> after ``GUARD_MIXED`` and
-   ``RESCUE_BRANCH``): the review's partial scenes (tracks starting at scans 0-4, 60 seeds)
-   3 eligible target points lost in 2 scenes -> 0; 200 fresh scenes of that kind
+   sequences, its other points on more than one accepted track, ``BRANCH_MIXED``): a track
+   starting or ending next to others, its other points on kept tracks that mix it with its
+   neighbours. ``RESCUE_SHORT`` (off: it costs up to 0.57 points of clutter rejection on Table
+   III) would also keep lone 5-6-point tracks whose ends are image points. Measured, issue 7
+   (``detect`` defaults, before -> after ``GUARD_MIXED``, ``RESCUE_BRANCH`` and the clustered
+   candidate cap): the review's partial scenes (tracks starting at scans 0-4, 60 seeds) 3
+   eligible target points lost in 2 scenes -> 0; 200 fresh scenes of that kind
    (``tests/hoc/test_identify.py::partial_track_scene``, ``ends=False``) 20 in 12 -> 15 in 8;
-   with early ends too (``ends=True``) 217 in 57 -> 200 in 52 (189 of the 200 on 5-6-point
+   with early ends too (``ends=True``) 217 in 57 -> 209 in 55 (195 of the 209 on 5-6-point
    tracks: not solved); clutter rejection Table III (seeds 3000-3019, 0.8 / 1.4 / 2.0 %)
-   98.98 / 98.35 / 96.69 -> 98.92 / 98.26 / 96.58 % (``table3-paper``) and 99.05 / 98.52 /
+   98.98 / 98.35 / 96.69 -> 98.92 / 98.28 / 96.61 % (``table3-paper``) and 99.05 / 98.52 /
    96.74 -> 98.98 / 98.42 / 96.68 % (``table3-int``); Table II (seeds 2000-2005) 99.58 /
-   98.12 -> 99.58 / 98.12 % at 1.4 / 2.0 %; no target point lost on any of them.
+   98.12 -> 99.58 / 98.12 % at 1.4 / 2.0 %; no target point lost on any of them; the paper
+   read literally unchanged on all of them.
 
 **Not implemented.** Cases 3b and 4b of section III-B (a target point missed by the sensor):
 a track is a chain of triples on consecutive scans, one point per scan, so a track with a
@@ -264,27 +266,40 @@ RESCUE_BRANCH = True
 """Track ends step: also keep a best whole track that leaves (or joins) accepted tracks.
 
 Our addition (issue 7, partial tracks; :func:`_is_branch`): its points on no accepted track
-are its first or last points, at least two, all image points, and all its triples are in kept
-sequences. Review ``scene(49, partial=True)``: a 6-point track from scan 4 whose first four
-points lie on kept tracks mixing it with its neighbours; its best whole track (2.73, one-scan
-scores) brings its last two points, inside the scans those tracks cover, so the extension rule
-rejected it and both were lost.
+are its first or last points, at least two, all image points; all its triples are in kept
+sequences; and no single accepted track holds all its other points (``BRANCH_MIXED``). Review
+``scene(49, partial=True)``: a 6-point track from scan 4 whose first four points lie on kept
+tracks mixing it with its neighbours; its best whole track (2.73 on one-scan scores) brings
+its last two points, inside the scans those tracks cover, so the extension rule rejected it
+and both were lost.
+"""
+
+BRANCH_MIXED = True
+"""``RESCUE_BRANCH`` only when no single accepted track holds all the branch's other points.
+
+A branch leaving one accepted track is an alternative end point of that track, which
+``dedupe`` judges already; a true track whose start lies on tracks that mix it with its
+neighbours shares points with several. Measured, ``fig5-paper`` seeds 5000-5004, windows
+1-10 / 3-12 / 5-14 / 7-16, rejection of moving clutter (the stationary clutter is kept by
+every configuration): 98.25 % without ``RESCUE_BRANCH`` and ``GUARD_MIXED``, 97.99 % with
+both, 98.21 % with both and ``BRANCH_MIXED``; the review's partial scenes lose no eligible
+point either way.
 """
 
 RESCUE_SHORT = False
 """Track ends step (off by default): also keep a best whole track sharing no point with an
 accepted one, of any accepted length, when its first and last points are image points.
 
-Our addition, measured and left off: the tracks of 5-6 points that start late or end early
-near others are what the defaults still lose (issue 7), and only their end points are image
-points (forward ``Y^(2)`` marks the first scan of a 5-point run, backward the last), so
-``RESCUE_ALONE`` (``min_points + 2`` points, all in the image) never keeps them. Measured
-(``detect`` defaults otherwise): 200 scenes of three tracks starting at scans 0-4 and ending
-at scans t0 + 4 - 9 (``tests/hoc/test_identify.py::partial_track_scene``), eligible target
-points lost 200 -> 68; but clutter rejection on Table III (seeds 3000-3019) 98.92 / 98.26 /
-96.58 -> 98.84 / 98.15 / 96.15 % (``table3-paper``, 0.8 / 1.4 / 2.0 %) and 98.98 / 98.42 /
-96.68 -> 98.90 / 98.17 / 96.11 % (``table3-int``): up to 0.57 points, more than one point
-below the paper's identification column at 2.0 %.
+Our addition, measured (before ``BRANCH_MIXED``) and left off: the tracks of 5-6 points
+that start late or end early near others are what the defaults still lose (issue 7), and only
+their end points are image points (forward ``Y^(2)`` marks the first scan of a 5-point run,
+backward the last), so ``RESCUE_ALONE`` (``min_points + 2`` points, all in the image) never
+keeps them. Measured (``detect`` defaults otherwise): 200 scenes of three tracks starting at
+scans 0-4 and ending at scans t0 + 4 - 9 (``tests/hoc/test_identify.py::partial_track_scene``),
+eligible target points lost 200 -> 68; but clutter rejection on Table III (seeds 3000-3019)
+98.92 / 98.26 / 96.58 -> 98.84 / 98.15 / 96.15 % (``table3-paper``, 0.8 / 1.4 / 2.0 %) and
+98.98 / 98.42 / 96.68 -> 98.90 / 98.17 / 96.11 % (``table3-int``): up to 0.57 points, more
+than one point below the paper's identification column at 2.0 %.
 """
 
 RESIDUAL_MARGIN = 0.5
@@ -717,9 +732,13 @@ def _enumerate_paths(
     window 5-14 of seed 5001: 830 556 chains, 763 169 of them in the ten largest clusters of
     stationary clutter) the cap was spent before a small cluster holding a splitting branch was
     reached, and the branch's chain was never a candidate (its point after the split lost;
-    ``tests/hoc/test_identify.py::TestSplitBranchFig5``). The bound on the work is unchanged:
-    at most ``max_candidates`` chains enumerated in full, plus one best-continuation chain per
-    open chain of the loop.
+    ``tests/hoc/test_identify.py::TestSplitBranchFig5``). Measured over the 20 seeds of
+    hoc-fig5 (``fig5-paper``, 1 %, seeds 5000-5019, windows 1-10 / 3-12 / 5-14 / 7-16, batch
+    ``detect`` defaults, every window at the cap): target points of tracks with >= 5 points in
+    the window lost 11 in 10 windows -> 0 in 80; rejection of moving clutter (seeds
+    5000-5004) 98.36 -> 98.25 % (small clusters the loop cut short are now candidates whole).
+    The bound on the work is unchanged: at most ``max_candidates`` chains enumerated in full,
+    plus one best-continuation chain per open chain of the loop.
     """
     fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
     if fast is not None:
@@ -1262,7 +1281,12 @@ def _extensions(
             out.append(path)
         elif crossing and len(new) >= min_points - 1 and all(root[p] for p in new):
             out.append(path)  # a track crossing accepted ones: 2k or more new image points
-        elif RESCUE_BRANCH and _is_branch(pts, new, root) and all(acc[k] for k in path):
+        elif (
+            RESCUE_BRANCH
+            and _is_branch(pts, new, root)
+            and all(acc[k] for k in path)
+            and not (BRANCH_MIXED and _one_track_holds(pts, point_tracks))
+        ):
             out.append(path)  # a branch leaving (or joining) accepted tracks: new image end
     return out
 
@@ -1280,6 +1304,12 @@ def _is_branch(pts: list[int], new: list[int], root: list[bool]) -> bool:
         return False
     fresh = set(new)
     return all(p in fresh for p in pts[:m]) or all(p in fresh for p in pts[-m:])
+
+
+def _one_track_holds(pts: list[int], point_tracks: dict[int, list[int]]) -> bool:
+    """Whether one accepted track holds every point of ``pts`` that lies on accepted tracks."""
+    on = [set(point_tracks[p]) for p in pts if p in point_tracks]
+    return bool(on) and bool(set.intersection(*on))
 
 
 def _identify_sequences(
