@@ -93,7 +93,12 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    (``score_span``): a span-2 score is not a sum over triples, so it cannot drive the dynamic
    programming. The consequence: a track whose one-scan scores fail (alternating integer moves
    with ``combine="min"``, 2.33 per point) is not proposed here even when its sequence score
-   passes (a known limit of the step).
+   passes (a known limit of the step). Measured (issue 7, before ``BRANCH_MIXED``): proposing
+   the best chain of every left-out image point whatever its one-scan score, and leaving the
+   threshold to the span-2 rescoring alone, lost 180 instead of 200 eligible points on 200
+   ``partial_track_scene`` scenes but cost 0.12 / 0.17 points of clutter rejection on Table
+   III at 2.0 % (``table3-paper`` / ``table3-int``, seeds 3000-3019): not adopted; the
+   one-scan filter stays, a deliberate inconsistency of this step.
    Also kept (``RESCUE_BRANCH``, our addition, issue 7): a best whole track whose new points
    are its first or last points (at least two, all image points, all its triples in kept
    sequences, its other points on more than one accepted track, ``BRANCH_MIXED``): a track
