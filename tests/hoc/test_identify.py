@@ -364,12 +364,16 @@ class TestHardCase:
         # scene 555: two near-parallel tracks 1 pixel apart at scan 6. Without the rule that a
         # kept track must meet the candidate next to each differing point (``_next_to_shared``)
         # and without the half-pixel margin, the other track's point won by 0.28 px and the
-        # true track was dropped as its near-duplicate; either rule alone keeps it
+        # true track was dropped as its near-duplicate; either rule alone keeps it, and so does
+        # the guard for mixed candidates (``GUARD_MIXED``: the candidate mixes kept tracks)
         cube, truth = _hard_scene(HARD_SCENES[555], 555)
         monkeypatch.setattr(identify_module, "RESIDUAL_MARGIN", 1e-9)
         monkeypatch.setattr(identify_module, "_next_to_shared", lambda *args: True)
+        monkeypatch.setattr(identify_module, "GUARD_MIXED", False)
         result = detect(cube, order=2)
         assert int((truth & ~result.cleaned).sum()) == 1
+        monkeypatch.setattr(identify_module, "GUARD_MIXED", True)
+        assert not (truth & ~detect(cube, order=2).cleaned).any()
         monkeypatch.undo()
         monkeypatch.setattr(identify_module, "RESIDUAL_MARGIN", 1e-9)
         assert not (truth & ~detect(cube, order=2).cleaned).any()
@@ -812,15 +816,18 @@ class TestSharedPoints:
         assert _is_near_duplicate(cand, kept, scan_of, image, xy, 1, covered, explained=True)
 
 
-def _partial_scene(seed, n_t=10, size=60, density=0.014):
+def _partial_scene(seed, n_t=10, size=60, density=0.014, eligible=False):
     """Three straight tracks at 1-3 px/scan, each starting at a random scan 0-4, plus clutter.
 
     The scene of the review scripts (``scene(seed, partial=True)``): tracks from
-    ``random.Random(seed)``, clutter from ``torch.Generator().manual_seed(seed)``.
+    ``random.Random(seed)``, clutter from ``torch.Generator().manual_seed(seed)``. With
+    ``eligible``, also the mask of the points of the tracks the detector's criterion admits
+    (:func:`_turn_ok`).
     """
     gen = torch.Generator().manual_seed(seed)
     cube = torch.rand(n_t, size, size, generator=gen) < density
     truth = torch.zeros_like(cube)
+    admitted = torch.zeros_like(cube)
     rng = random.Random(seed)
     for _ in range(3):
         speed = rng.uniform(1, 3)
@@ -828,11 +835,18 @@ def _partial_scene(seed, n_t=10, size=60, density=0.014):
         t0 = rng.randint(0, 4)
         x0 = 30 - 4.5 * speed * math.cos(angle) + rng.uniform(-3, 3)
         y0 = 30 - 4.5 * speed * math.sin(angle) + rng.uniform(-3, 3)
+        pts = []
         for t in range(t0, n_t):
             y = round(y0 + t * speed * math.sin(angle))
             x = round(x0 + t * speed * math.cos(angle))
             if 0 <= y < size and 0 <= x < size:
                 truth[t, y, x] = True
+                pts.append((t, y, x))
+        if _turn_ok(pts):
+            for p in pts:
+                admitted[p] = True
+    if eligible:
+        return cube | truth, truth, admitted
     return cube | truth, truth
 
 
@@ -864,10 +878,14 @@ class TestTrackEnds:
 class TestSplitBranchFig5:
     """The splitting branch of the paper's Fig. 5 scene in window 5-14 (measured by hoc-fig5).
 
-    With several sequences per point at crossings (``shared_points=True``, the default) a mixed
-    candidate that starts on the parent track's next point is kept and the branch's own point
-    after the split is lost (11 points in 10 of 20 seeds at 1 % clutter, window 5-14); with one
-    sequence per point the branch is found whole. Not solved yet (issue 7).
+    The cause was the candidate cap, not the shared points themselves: with shared points the
+    window has 830 556 maximal chains (2 501 with one sequence per point), 763 169 of them in
+    the ten largest clusters of stationary clutter, whose zero-move chains score best; the
+    depth-first enumeration spent the cap (20 000) on them before it reached the branch's small
+    cluster, so the branch's chain (parent track, then the branch's own point after the split)
+    was never a candidate and a mixed candidate starting on the parent's next point was kept
+    instead (11 points in 10 of 20 seeds at 1 % clutter, window 5-14). The cap is now spent on
+    the clusters with the fewest chains first (``identify._enumerate_paths``).
     """
 
     def _window(self):
@@ -879,8 +897,204 @@ class TestSplitBranchFig5:
         result = detect(cube, order=2, shared_points=False)
         assert not (truth & ~result.cleaned).any()
 
-    @pytest.mark.xfail(strict=True, reason="issue 7: shared points lose the branch's point")
     def test_default_keeps_the_branch(self):
         cube, truth = self._window()
-        result = detect(cube, order=2)
+        with pytest.warns(RuntimeWarning, match="candidate tracks"):
+            result = detect(cube, order=2)
+        assert result.saturated  # the cap is hit: the clustered enumeration decides
         assert not (truth & ~result.cleaned).any()
+
+
+def _chains_reference(accepted, a_in, a_out):
+    """Every maximal chain of accepted triples (depth first, no cap) and its cluster.
+
+    Clusters by union-find over the edges each accepted triple joins (a loop reading of
+    ``identify._chain_clusters``), numbered by their first triple.
+    """
+    idx = accepted.nonzero().squeeze(1).tolist()
+    ain, aout = a_in.tolist(), a_out.tolist()
+    parent: dict[int, int] = {}
+
+    def find(e):
+        while parent.setdefault(e, e) != e:
+            e = parent[e]
+        return e
+
+    for k in idx:
+        parent[find(ain[k])] = find(aout[k])
+    label: dict[int, int] = {}
+    for k in idx:
+        label.setdefault(find(ain[k]), len(label))
+    ends = {aout[k] for k in idx}
+    chains = []
+    stack = [[k] for k in idx if ain[k] not in ends]
+    while stack:
+        path = stack.pop()
+        nxt = [k for k in idx if ain[k] == aout[path[-1]]]
+        if not nxt:
+            chains.append(path)
+        stack.extend([*path, k] for k in nxt)
+    return [(label[find(ain[path[0]])], path) for path in chains]
+
+
+class TestCandidateCap:
+    """``max_candidates``: at the cap the clusters with the fewest chains are enumerated whole."""
+
+    @staticmethod
+    def _dag(seed):
+        gen = torch.Generator().manual_seed(seed)
+        k = int(torch.randint(10, 70, (1,), generator=gen))
+        a_in = torch.randint(0, 40, (k,), generator=gen)
+        a_out = a_in + torch.randint(1, 4, (k,), generator=gen)  # edge ids grow: a DAG
+        s = torch.randint(0, 4, (k,), generator=gen).double() / 2
+        accepted = torch.rand(k, generator=gen) < 0.8
+        return accepted, a_in, a_out, s
+
+    @pytest.mark.parametrize("seed", range(20))
+    def test_chain_clusters_against_loop(self, seed):
+        accepted, a_in, a_out, _ = self._dag(seed)
+        cluster, count = identify_module._chain_clusters(accepted, a_in, a_out)
+        ref = _chains_reference(accepted, a_in, a_out)
+        idx = accepted.nonzero().squeeze(1).tolist()
+        for label, path in ref:
+            assert all(int(cluster[idx.index(k)]) == label for k in path)
+        want = [0.0] * count.numel()
+        for label, _ in ref:
+            want[label] += 1
+        assert count.tolist() == want
+
+    @pytest.mark.parametrize("seed", range(20))
+    @pytest.mark.parametrize("cap", [2, 10, 40])
+    def test_small_clusters_are_enumerated_whole(self, seed, cap):
+        accepted, a_in, a_out, s = self._dag(seed)
+        ref = _chains_reference(accepted, a_in, a_out)
+        if len(ref) < cap:
+            return  # below the cap: the uncapped enumeration (test_stream.py)
+        got, capped = identify_module._enumerate_paths(accepted, a_in, a_out, s, cap)
+        assert capped
+        n_c = 1 + max(label for label, _ in ref)
+        count = [sum(1 for label, _ in ref if label == c) for c in range(n_c)]
+        budget, whole = 0, set()
+        for c in sorted(range(n_c), key=lambda c: (count[c], c)):  # smallest first
+            if budget + count[c] >= cap:
+                break
+            budget += count[c]
+            whole.add(c)
+        every = {tuple(path) for _, path in ref}
+        assert all(tuple(path) in every for path in got)  # maximal chains only
+        assert len({tuple(path) for path in got}) == len(got)  # each chain once
+        # the whole clusters' chains first, every one of them; then the other clusters' only
+        head = {tuple(path) for label, path in ref if label in whole}
+        assert {tuple(path) for path in got[:budget]} == head
+        assert not head & {tuple(path) for path in got[budget:]}
+
+
+def _turn_ok(pts, v=4, delta=math.pi / 4):
+    """Whether a track meets the detector's criterion: one point per scan, moves within ``v``,
+    turns within ``delta`` (eq. 6), at least five points."""
+    moves = [(b[2] - a[2], b[1] - a[1]) for a, b in itertools.pairwise(pts)]
+    return (
+        len(pts) >= 5
+        and all(b[0] - a[0] == 1 for a, b in itertools.pairwise(pts))
+        and all(max(abs(i), abs(j)) <= v for i, j in moves)
+        and all(turn_reference(*m1, *m2) <= delta + 1e-9 for m1, m2 in itertools.pairwise(moves))
+    )
+
+
+def partial_track_scene(seed, ends=True, n_t=10, size=60, density=0.014):
+    """Three straight tracks at 1-3 px/scan in any direction, each from a random scan 0-4 to a
+    random scan at least four later (``ends``; else to the last scan), passing near the
+    centre, plus uniform clutter (the measurements of ``RESCUE_SHORT``).
+
+    Returns ``(cube, truth, eligible)``: ``eligible`` holds the points of the tracks that meet
+    the detector's own criterion (:func:`_turn_ok`: >= 5 points, moves within ``v``, turns
+    within ``delta``; integer positions of a slow track can turn by 90 degrees).
+    """
+    gen = torch.Generator().manual_seed(seed)
+    cube = torch.rand(n_t, size, size, generator=gen) < density
+    truth = torch.zeros_like(cube)
+    eligible = torch.zeros_like(cube)
+    rng = random.Random(seed)
+    for _ in range(3):
+        speed = rng.uniform(1, 3)
+        angle = rng.uniform(-math.pi, math.pi)
+        t0 = rng.randint(0, 4)
+        t1 = rng.randint(t0 + 4, n_t - 1) if ends else n_t - 1
+        x0 = 30 - 4.5 * speed * math.cos(angle) + rng.uniform(-3, 3)
+        y0 = 30 - 4.5 * speed * math.sin(angle) + rng.uniform(-3, 3)
+        pts = [
+            p
+            for p in _straight_track(x0, y0, speed, angle, n_t)[t0 : t1 + 1]
+            if 0 <= p[1] < size and 0 <= p[2] < size
+        ]
+        for p in pts:
+            truth[p] = True
+            if _turn_ok(pts):
+                eligible[p] = True
+    return cube | truth, truth, eligible
+
+
+class TestPartialTracks:
+    """Issue 7: tracks that start late (or end early), passing close to each other.
+
+    The property, on the review's 60 scenes (``_partial_scene``, tracks starting at scans
+    0-4): no point of a track the detector's criterion admits (>= 5 points, moves within ``v``,
+    turns within ``delta``) is lost after identification with the defaults. Before
+    ``GUARD_MIXED`` and ``RESCUE_BRANCH`` 3 points in 2 of these scenes were lost (9 and 49).
+    Not yet a property of every such scene (measured, module notes of ``hocnet.hoc.identify``,
+    ``RESCUE_SHORT``): on 200 fresh scenes of the same kind (``partial_track_scene(seed,
+    ends=False)``, seeds 0-199) 15 points in 8 scenes are still lost (20 in 12 before), and
+    with early ends too (``ends=True``) 209 in 55 (217 in 57 before), mostly of 5-6-point
+    tracks.
+    """
+
+    @pytest.mark.parametrize("seed", range(60))
+    def test_no_eligible_point_lost(self, seed):
+        cube, _, eligible = _partial_scene(seed, eligible=True)
+        result = detect(cube)
+        assert not (eligible & ~result.cleaned).any(), (eligible & ~result.cleaned).nonzero()
+
+    def test_branch_rules(self):
+        root = [True] * 6
+        assert identify_module._is_branch([0, 1, 2, 3, 4], [3, 4], root)  # leaves at the end
+        assert identify_module._is_branch([0, 1, 2, 3, 4], [0, 1], root)  # joins at the start
+        assert not identify_module._is_branch([0, 1, 2, 3, 4], [2, 3], root)  # a detour
+        assert not identify_module._is_branch([0, 1, 2, 3, 4], [4], root)  # one new point
+        root[4] = False
+        assert not identify_module._is_branch([0, 1, 2, 3, 4], [3, 4], root)  # not an image point
+        on = {1: [0], 2: [0, 1], 3: [1]}  # point -> accepted tracks through it
+        assert identify_module._one_track_holds([1, 2, 9], on)
+        assert not identify_module._one_track_holds([1, 3, 9], on)  # on two different tracks
+        assert not identify_module._one_track_holds([9], on)
+
+    def test_short_track_rescue(self, monkeypatch):
+        # ``RESCUE_SHORT`` (off by default): a 5-point track at scans 1-5 crossing two others,
+        # only its end points in the image; its best whole track (2.56 on one-scan scores)
+        # shares no point with an accepted track and is kept only with the option
+        cube, _, eligible = partial_track_scene(16)
+        lost = [[1, 40, 28], [2, 38, 28], [3, 35, 29], [4, 33, 29], [5, 31, 29]]
+        assert (eligible & ~detect(cube).cleaned).nonzero().tolist() == lost
+        monkeypatch.setattr(identify_module, "RESCUE_SHORT", True)
+        assert not (eligible & ~detect(cube).cleaned).any()
+
+    def test_mixed_candidate_guard(self, monkeypatch):
+        # review scene(9, partial=True): two tracks one pixel apart at scans 5-6; the true
+        # track (its start on kept mixed tracks) differed from a kept mixed track at scan 6 only
+        # and lost there by 0.68 px: dropped as its near-duplicate, (6, 30, 30) lost
+        cube, truth = _partial_scene(9)
+        monkeypatch.setattr(identify_module, "GUARD_MIXED", False)
+        assert (truth & ~detect(cube).cleaned).nonzero().tolist() == [[6, 30, 30]]
+        monkeypatch.undo()
+        assert not (truth & ~detect(cube).cleaned)[6, 30, 30]
+
+    def test_branch_end_is_kept(self, monkeypatch):
+        # review scene(49, partial=True): a 6-point track from scan 4 whose first four points
+        # lie on kept tracks (mixed with its neighbours); its last two points were lost
+        cube, truth = _partial_scene(49)
+        lost = [[8, 29, 37], [9, 30, 39]]
+        monkeypatch.setattr(identify_module, "RESCUE_BRANCH", False)
+        got = (truth & ~detect(cube).cleaned).nonzero().tolist()
+        assert all(p in got for p in lost)
+        monkeypatch.undo()
+        got = (truth & ~detect(cube).cleaned).nonzero().tolist()
+        assert not any(p in got for p in lost)

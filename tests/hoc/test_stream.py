@@ -510,7 +510,11 @@ class TestLatencyPathsEqualBatch:
             else:
                 assert not capped
                 assert fast == want
-            assert _enumerate_paths(accepted, a_in, a_out, s, cap) == (want, capped)
+            got = _enumerate_paths(accepted, a_in, a_out, s, cap)
+            if not capped:  # at the cap the clusters decide (test_identify.py::TestCandidateCap)
+                assert got == (want, capped)
+            else:
+                assert got[1]
 
     @pytest.mark.parametrize("span", [1, 2, 3])
     @pytest.mark.parametrize("combine", ["min", "mean"])
