@@ -146,6 +146,11 @@ class _Grid:
         self.offsets = (rng[:, None] * self.wp + rng[None, :]).reshape(-1)
         self.n_moves = self.offsets.numel()
 
+    def reserve(self, n: int) -> None:
+        """Make :meth:`join` accept point numbers below ``n`` (grows the slot image if needed)."""
+        if n > self.slots.numel():
+            self.slots = torch.full((n,), -1, dtype=torch.int64)
+
     def _padded(self, points: torch.Tensor) -> torch.Tensor:
         return (points // self.w + self.v) * self.wp + points % self.w + self.v
 
@@ -216,11 +221,10 @@ class _Grid:
         total = int(ends[-1])
         if total == 0:
             return _NO_EDGES
-        # expand every first move into its second moves (searchsorted, not repeat_interleave, as
-        # in functional._sparse_triples)
-        slots = torch.arange(total)
-        f = torch.searchsorted(ends, slots, right=True)
-        g = lo[f] + slots - (ends - fan)[f]
+        # expand every first move into its second moves (measured, 18 000 slots: repeat_interleave
+        # of the counts 26 us, searchsorted of the slots in their cumulative sum 530 us)
+        f = torch.repeat_interleave(fan, output_size=total)
+        g = lo[f] + torch.arange(total) - (ends - fan)[f]
         ok = allowed[m1[f], m2[g]]
         f, g = f[ok], g[ok]
         return a[f], b[f], c[g]
@@ -680,19 +684,35 @@ class StreamingDetector:
         """
         h, w = self._shape
         hw = h * w
-        fwd = self._dirs[0]
+        n_t = self.window
+        links = [self._dirs[0].links.get(start + t, _NO_EDGES) for t in range(n_t - 1)]
+        sizes = [int(p.numel()) for p in points]
         flat = torch.cat([p + t * hw for t, p in enumerate(points)])
-        pairs = [
-            self._grid.restrict(fwd.links.get(start + t, _NO_EDGES), points[t], points[t + 1])
-            for t in range(self.window - 1)
-        ]
-        p0s, p1s, p2s = [], [], []
-        for t in range(self.window - 2):
-            a, b, c = self._grid.join(pairs[t], pairs[t + 1], self._allowed)
-            p0s.append(a + t * hw)
-            p1s.append(b + (t + 1) * hw)
-            p2s.append(c + (t + 2) * hw)
-        p0, p1, p2 = (torch.searchsorted(flat, torch.cat(x)) for x in (p0s, p1s, p2s))
+        # the links' ends as candidate numbers (their rank in `flat`, -1: not a candidate), one
+        # scan at a time through the grid's slot image: no search over the window's candidates
+        slots = self._grid.slots
+        src: list[torch.Tensor] = [_EMPTY] * (n_t - 1)
+        dst: list[torch.Tensor] = [_EMPTY] * (n_t - 1)
+        first = 0
+        for t, p in enumerate(points):
+            slots[p] = torch.arange(first, first + sizes[t])
+            try:
+                if t < n_t - 1:
+                    src[t] = slots[links[t][0]]
+                if t > 0:
+                    dst[t - 1] = slots[links[t - 1][1]]
+            finally:
+                slots[p] = -1
+            first += sizes[t]
+        pairs = []
+        for t in range(n_t - 1):
+            keep = (src[t] >= 0) & (dst[t] >= 0)
+            pairs.append((src[t][keep], dst[t][keep], links[t][2][keep]))
+        # numbered by scan, then pixel: the order of the pixel indices within each scan, so
+        # `join` sees the same order and returns the same triples in the same order
+        self._grid.reserve(flat.numel())
+        parts = [self._grid.join(pairs[t], pairs[t + 1], self._allowed) for t in range(n_t - 2)]
+        p0, p1, p2 = (torch.cat([part[i] for part in parts]) for i in range(3))
         return flat, p0, p1, p2
 
     def _window_cube(self, start: int, trees: bool) -> torch.Tensor:

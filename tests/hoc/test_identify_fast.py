@@ -112,3 +112,28 @@ def test_near_duplicate_asks_only_tracks_sharing_a_point(seed):
                 assert ident._is_near_duplicate(cand, near, *args) == want
                 answers.append(want)
     assert any(answers) and not all(answers)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("span", [None, 1, 2, 3])
+def test_score_paths_passing(seed, span):
+    _, p0, p1, p2, s, a_in, a_out, coords, kw, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.7
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    track_kw = None if span is None else {**kw, "span": span}
+    for threshold, min_points in ((2.5, 5), (2.0, 4), (-math.inf, 3)):
+        every = ident._score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw)
+        want = [item for item in every if not item[0] < threshold]
+        got = fast.score_paths_passing(
+            paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
+        )
+        assert got == want
+        assert threshold > -math.inf or len(want) == len(every) > 0
+
+
+def test_score_paths_passing_no_paths():
+    empty = torch.zeros(0, dtype=torch.long)
+    got = fast.score_paths_passing(
+        [], empty, empty, empty, empty.double(), empty.reshape(0, 3), 5, None, 2.5
+    )
+    assert got == []

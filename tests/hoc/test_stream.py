@@ -512,6 +512,29 @@ class TestLatencyPathsEqualBatch:
                 assert fast == want
             assert _enumerate_paths(accepted, a_in, a_out, s, cap) == (want, capped)
 
+    @pytest.mark.parametrize("seed", range(5))
+    def test_rank_order_packed_and_column_sorts(self, seed):
+        """Both orderings of `_rank_order` (one packed key; column sorts) are lexicographic."""
+        from hocnet.hoc._incremental import _rank_order
+
+        gen = torch.Generator().manual_seed(seed)
+        seen: set[tuple[int, ...]] = set()
+        groups = []
+        for width in range(1, 6):
+            rows = torch.randint(0, 3, (40, width), generator=gen)
+            rows[:, 0] = torch.randint(0, 7, (40,), generator=gen)
+            keep = []
+            for row in rows.tolist():  # no row may be a prefix of another
+                if not any(tuple(row[:j]) in seen for j in range(1, width + 1)):
+                    keep.append(row)
+                    seen.add(tuple(row))
+            if keep:
+                groups.append(torch.tensor(keep))
+        flat = [tuple(r) for g in groups for r in g.tolist()]
+        want = sorted(range(len(flat)), key=lambda i: flat[i])
+        assert _rank_order(groups, 7, 3).tolist() == want  # packed key
+        assert _rank_order(groups, 2**62, 3).tolist() == want  # key would overflow: columns
+
     @pytest.mark.parametrize("span", [1, 2, 3])
     @pytest.mark.parametrize("combine", ["min", "mean"])
     def test_score_paths_equals_per_path_scores(self, span, combine):
