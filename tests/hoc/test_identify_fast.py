@@ -137,3 +137,23 @@ def test_score_paths_passing_no_paths():
         [], empty, empty, empty, empty.double(), empty.reshape(0, 3), 5, None, 2.5
     )
     assert got == []
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_make_tracks_equals_make_track(seed):
+    rng = random.Random(seed)
+    coords = torch.randint(0, 50, (40, 3), generator=torch.Generator().manual_seed(seed))
+    kept = []
+    for _ in range(rng.randrange(0, 8)):
+        pts = [rng.randrange(40) for _ in range(rng.randrange(3, 9))]
+        pscores = [rng.uniform(-1, 4) for _ in range(len(pts) - 2)]
+        kept.append((rng.uniform(2, 4), pts, pscores))
+    got = fast.make_tracks(kept, coords, batch=seed)
+    assert len(got) == len(kept)
+    for tr, (score, pts, pscores) in zip(got, kept, strict=True):
+        want, _ = ident._make_track(pts, pscores, coords, seed)
+        want.score = score
+        assert torch.equal(tr.points, want.points)
+        assert torch.equal(tr.point_scores, want.point_scores)
+        assert (tr.id, tr.score, tr.batch) == (want.id, want.score, want.batch)
+        assert tr.points.dtype == want.points.dtype
