@@ -464,6 +464,18 @@ class TestLatencyPathsEqualBatch:
             want = detect(cube[out.start : out.stop], order=order, support=support)
             _assert_same(out.result, want)
 
+    @pytest.mark.parametrize("order", [2, 3])
+    def test_two_percent_stride_one_every_window(self, order):
+        """The benchmark's hard row in small: 2 % clutter, stride 1, every window == detect
+        (a larger frame than above: more clutter tracks per window)."""
+        cube = _clutter_with_targets(14, 96, 128, 0.02, 20 + order)
+        det = StreamingDetector(window=10, stride=1, order=order)
+        outs = _stream(det, cube)
+        assert len(outs) == 5
+        for out in outs:
+            _assert_same(out.result, detect(cube[out.start : out.stop], order=order))
+        assert sum(len(out.result.tracks) for out in outs) > 0
+
     @pytest.mark.parametrize("identify", ["assignment", "greedy"])
     def test_other_identifications(self, identify):
         cube = _clutter_with_targets(12, 40, 48, 0.015, 7)
