@@ -5,10 +5,13 @@ against it on random inputs, ``tests/hoc/test_identify_fast.py``); none changes 
 sequences or tracks are kept. They are not wired into :mod:`hocnet.hoc.identify` yet; how
 each is meant to be called is said in its docstring ("Wiring").
 
-Measured on one 640 x 512 window at 2 % clutter, order 2 (``benchmarks/hoc.py --stream``,
-process time, one thread): near-duplicate tests 27 -> 1 ms (:func:`kept_sharing_a_point`),
-the whole-sequence rows built once instead of twice 23 -> 11 ms
-(:func:`whole_sequences_from_rows`), :func:`best_paths` 14 -> 6 ms.
+Measured on 640 x 512 windows at 2 % clutter, order 2 (the scans of ``benchmarks/hoc.py
+--stream``; process time per window, one thread, on the shared machine at load 5-10, so the
+absolute values are inflated; the ratios are what counts): the near-duplicate tests 27 -> 1 ms
+(:func:`kept_sharing_a_point`), the whole-sequence rows 23 -> 11-12 ms built once instead of
+twice (:func:`whole_sequences_from_rows`), ``_best_paths`` 18.5 -> 11.7 ms
+(:func:`best_paths`), ``_score_paths`` 7.5 -> 5.3 ms (:func:`score_paths_passing`); all five
+wired (:func:`make_tracks` too), a push of ``StreamingDetector`` 117 -> 75 ms.
 """
 
 from __future__ import annotations
