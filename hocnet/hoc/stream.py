@@ -202,10 +202,12 @@ class _Grid:
         The sums of one HOC layer (eq. 5-6 of [LA98]) evaluated only at on-points: a first move
         ``m1`` followed by a second move ``m2`` with ``allowed[m1, m2]`` (the join of
         ``functional._sparse_triples``, restricted to one root scan). ``second`` must be sorted
-        by its source.
+        by its source. Points are flat pixel indices or any other numbers below the slot
+        image's size (:meth:`reserve`; the window's candidate numbers in
+        :meth:`StreamingDetector._window_triples`).
 
         Returns:
-            ``(p0, p1, p2)``: ``(N,)`` int64 flat indices, one entry per accepted triple, sorted
+            ``(p0, p1, p2)``: ``(N,)`` int64 point numbers, one entry per accepted triple, sorted
             by ``p0`` when ``first`` is sorted by its source.
         """
         a, b, m1 = first
