@@ -51,13 +51,16 @@ def enumerate_paths_vectorised(
     if idx.numel() == 0:
         return []
     ai, ao, sc = a_in[idx], a_out[idx], s[idx]
+    n_e = int(torch.maximum(ai.max(), ao.max())) + 1  # edge ids are small (torch.unique)
     # continuations grouped by in-edge, each group by descending score, then index
     order = torch.argsort(-sc, stable=True)
     order = order[torch.argsort(ai[order], stable=True)]
-    grouped = ai[order]
-    lo = torch.searchsorted(grouped, ao)
-    fan = torch.searchsorted(grouped, ao, right=True) - lo
-    starts = (~torch.isin(ai, ao)).nonzero().squeeze(1)
+    count = torch.bincount(ai, minlength=n_e)  # triples starting with each edge
+    lo = (torch.cumsum(count, 0) - count)[ao]  # first continuation of each triple in `order`
+    fan = count[ao]
+    ends_one = torch.zeros(n_e, dtype=torch.bool)
+    ends_one[ao] = True
+    starts = (~ends_one[ai]).nonzero().squeeze(1)
     starts = starts[torch.argsort(-sc[starts], stable=True)]
     paths = starts[:, None]
     ranks = torch.arange(starts.numel())[:, None]
@@ -68,35 +71,49 @@ def enumerate_paths_vectorised(
         last = paths[:, -1]
         cnt = fan[last]
         leaf = cnt == 0
-        if bool(leaf.any()):
+        n_leaf = int(leaf.sum())
+        if n_leaf:
             done_paths.append(paths[leaf])
             done_ranks.append(ranks[leaf])
-            n_done += int(leaf.sum())
-        cnt = cnt[~leaf]
-        paths, ranks, last = paths[~leaf], ranks[~leaf], last[~leaf]
+            n_done += n_leaf
+            grow = ~leaf
+            cnt, paths, ranks, last = cnt[grow], paths[grow], ranks[grow], last[grow]
         if n_done + paths.shape[0] >= max_candidates:
             return None  # at least this many chains: the loop's cap decides
         if not paths.shape[0]:
             break
-        rep = torch.repeat_interleave(torch.arange(paths.shape[0]), cnt)
-        within = torch.arange(rep.numel()) - torch.repeat_interleave(
-            torch.cumsum(cnt, 0) - cnt, cnt
-        )
+        rep = torch.repeat_interleave(cnt)
+        within = torch.arange(rep.numel()) - (torch.cumsum(cnt, 0) - cnt)[rep]
         child = order[lo[last[rep]] + within]
         paths = torch.cat([paths[rep], child[:, None]], dim=1)
         ranks = torch.cat([ranks[rep], within[:, None]], dim=1)
     if not done_paths:
         return []
-    width = max(p.shape[1] for p in done_paths)
-    pad_p = torch.cat(
-        [torch.nn.functional.pad(p, (0, width - p.shape[1]), value=-1) for p in done_paths]
-    )
+    perm = _rank_order(done_ranks, starts.numel(), int(fan.max()) + 1)
+    rows: list[list[int]] = []
+    for p in done_paths:  # one list per chain, its length that of its group
+        rows.extend(idx[p].tolist())
+    return [rows[i] for i in perm.tolist()]
+
+
+def _rank_order(ranks: list[torch.Tensor], n_start: int, n_sib: int) -> torch.Tensor:
+    """Permutation sorting the chains (groups of equal length) lexicographically by rank.
+
+    ``ranks``: per group an ``(R, w)`` int64 tensor of ranks (column 0 below ``n_start``, the
+    others below ``n_sib``); no row is a prefix of another. Rows are packed into one int64 key
+    (mixed radix, rank + 1 so that a shorter row pads with 0) and sorted once; when the key
+    could overflow, stable sorts column by column (last column first) over the padded rows.
+    """
+    width = max(r.shape[1] for r in ranks)
+    base = n_sib + 1
+    if (n_start + 1) * base ** (width - 1) < 2**62:
+        weights = base ** torch.arange(width - 1, -1, -1)
+        key = torch.cat([((r + 1) * weights[: r.shape[1]]).sum(1) for r in ranks])
+        return torch.argsort(key)
     pad_r = torch.cat(
-        [torch.nn.functional.pad(r, (0, width - r.shape[1]), value=-1) for r in done_ranks]
+        [torch.nn.functional.pad(r, (0, width - r.shape[1]), value=-1) for r in ranks]
     )
     perm = torch.arange(pad_r.shape[0])
     for col in range(width - 1, -1, -1):  # lexicographic: stable sorts, last column first
         perm = perm[torch.argsort(pad_r[perm, col], stable=True)]
-    rows = pad_p[perm]
-    glob = torch.where(rows >= 0, idx[rows.clamp_min(0)], -1).tolist()
-    return [[k for k in row if k >= 0] for row in glob]
+    return perm

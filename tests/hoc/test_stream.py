@@ -464,6 +464,18 @@ class TestLatencyPathsEqualBatch:
             want = detect(cube[out.start : out.stop], order=order, support=support)
             _assert_same(out.result, want)
 
+    @pytest.mark.parametrize("order", [2, 3])
+    def test_two_percent_stride_one_every_window(self, order):
+        """The benchmark's hard row in small: 2 % clutter, stride 1, every window == detect
+        (a larger frame than above: more clutter tracks per window)."""
+        cube = _clutter_with_targets(14, 96, 128, 0.02, 20 + order)
+        det = StreamingDetector(window=10, stride=1, order=order)
+        outs = _stream(det, cube)
+        assert len(outs) == 5
+        for out in outs:
+            _assert_same(out.result, detect(cube[out.start : out.stop], order=order))
+        assert sum(len(out.result.tracks) for out in outs) > 0
+
     @pytest.mark.parametrize("identify", ["assignment", "greedy"])
     def test_other_identifications(self, identify):
         cube = _clutter_with_targets(12, 40, 48, 0.015, 7)
@@ -515,6 +527,29 @@ class TestLatencyPathsEqualBatch:
                 assert got == (want, capped)
             else:
                 assert got[1]
+
+    @pytest.mark.parametrize("seed", range(5))
+    def test_rank_order_packed_and_column_sorts(self, seed):
+        """Both orderings of `_rank_order` (one packed key; column sorts) are lexicographic."""
+        from hocnet.hoc._incremental import _rank_order
+
+        gen = torch.Generator().manual_seed(seed)
+        seen: set[tuple[int, ...]] = set()
+        groups = []
+        for width in range(1, 6):
+            rows = torch.randint(0, 3, (40, width), generator=gen)
+            rows[:, 0] = torch.randint(0, 7, (40,), generator=gen)
+            keep = []
+            for row in rows.tolist():  # no row may be a prefix of another
+                if not any(tuple(row[:j]) in seen for j in range(1, width + 1)):
+                    keep.append(row)
+                    seen.add(tuple(row))
+            if keep:
+                groups.append(torch.tensor(keep))
+        flat = [tuple(r) for g in groups for r in g.tolist()]
+        want = sorted(range(len(flat)), key=lambda i: flat[i])
+        assert _rank_order(groups, 7, 3).tolist() == want  # packed key
+        assert _rank_order(groups, 2**62, 3).tolist() == want  # key would overflow: columns
 
     @pytest.mark.parametrize("span", [1, 2, 3])
     @pytest.mark.parametrize("combine", ["min", "mean"])

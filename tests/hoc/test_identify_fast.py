@@ -1,0 +1,159 @@
+"""The helpers of hocnet.hoc._identify_fast against the identify.py code they stand for."""
+
+import math
+import random
+
+import pytest
+import torch
+
+from hocnet.hoc import _identify_fast as fast
+from hocnet.hoc import identify as ident
+from hocnet.hoc.functional import _allowed_cached, _sparse_triples
+
+DELTA = math.pi / 4
+
+
+def _scene(seed, n_t=8, size=24, density=0.05, v=3):
+    """Triples of a random cube with a few straight tracks (so that chains pass)."""
+    gen = torch.Generator().manual_seed(seed)
+    cube = torch.rand(n_t, size, size, generator=gen) < density
+    for _ in range(3):
+        y, x = (int(c) for c in torch.randint(2, size - 2, (2,), generator=gen))
+        dy, dx = (int(c) for c in torch.randint(-1, 2, (2,), generator=gen))
+        for t in range(n_t):
+            cube[t, (y + dy * t) % size, (x + dx * t) % size] = True
+    flat, p0, p1, p2 = _sparse_triples(cube[None], _allowed_cached(v, DELTA, "cpu"), v, 1)
+    h = w = size
+    coords = torch.stack([flat // (h * w), (flat // w) % h, flat % w], dim=1)
+    kw = ident._score_kwargs(9.0, 1 / 3, 2.12, 2.0, "min")
+    s = ident._triple_scores(coords, p0, p1, p2, kw)
+    a_in, a_out, *_ = ident._sequences(flat.numel(), p0, p1, p2, s)
+    return flat, p0, p1, p2, s, a_in, a_out, coords, kw, gen
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("span", [2, 3])
+def test_whole_sequences_from_rows(seed, span):
+    _, p0, p1, p2, _, a_in, a_out, coords, kw, _ = _scene(seed)
+    assert p0.numel() > 0
+    track_kw = ident._track_kwargs(kw, span, None)
+    want = ident._whole_sequences(a_in, a_out, p0, p1, p2, coords, track_kw)
+    rows = ident._whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    got = fast.whole_sequences_from_rows(rows, p0.numel())
+    for g, w in zip(got, want, strict=True):
+        assert torch.equal(g, w)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_best_paths_equals_identify(seed):
+    flat, p0, p1, p2, s, a_in, a_out, _, _, gen = _scene(seed, density=0.04 + 0.01 * seed)
+    n = flat.numel()
+    found = 0
+    for threshold, min_points, n_t in ((2.5, 5, 8), (2.0, 4, 8), (2.8, 7, 8), (2.5, 5, 3)):
+        for frac in (1.0, 0.3):
+            points = torch.rand(n, generator=gen) < frac
+            args = (n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, points)
+            want = ident._best_paths(*args)
+            assert fast.best_paths(*args) == want
+            found += len(want)
+    assert found > 0  # chains were found: the comparison is not vacuous
+
+
+def test_best_paths_ties():
+    """Many equal sums (integer scores): the first maximum in (lb, lf) order is kept."""
+    for seed in range(6):
+        flat, p0, p1, p2, s, a_in, a_out, *_ = _scene(seed, density=0.08)
+        s = torch.full_like(s, 3.0)
+        n = flat.numel()
+        points = torch.ones(n, dtype=torch.bool)
+        args = (n, p0, p1, p2, s, a_in, a_out, 8, 2.5, 5, points)
+        want = ident._best_paths(*args)
+        assert want
+        assert fast.best_paths(*args) == want
+
+
+def _random_tracks(rng, n_scans, per_scan):
+    """A random track: one point per scan over a run of consecutive scans."""
+    first = rng.randrange(0, n_scans - 2)
+    last = rng.randrange(first + 2, n_scans)
+    return [t * per_scan + rng.randrange(per_scan) for t in range(first, last + 1)]
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_near_duplicate_asks_only_tracks_sharing_a_point(seed):
+    """`_is_near_duplicate` over every kept track == over those sharing a point."""
+    rng = random.Random(seed)
+    n_scans, per_scan = 8, 3
+    n_pts = n_scans * per_scan
+    scan_of = [q // per_scan for q in range(n_pts)]
+    xy = [[q // per_scan, rng.randrange(6), rng.randrange(6)] for q in range(n_pts)]
+    image = [rng.random() < 0.7 for _ in range(n_pts)]
+    kept_pts = [_random_tracks(rng, n_scans, per_scan) for _ in range(rng.randrange(1, 6))]
+    kept = [(pts, {scan_of[q]: i for i, q in enumerate(pts)}) for pts in kept_pts]
+    kept_at: dict[int, list[int]] = {}
+    for i, pts in enumerate(kept_pts):
+        for q in pts:
+            kept_at.setdefault(q, []).append(i)
+    covered = {q for pts in kept_pts for q in pts} | {q for q in range(n_pts) if rng.random() < 0.1}
+    answers = []
+    for _ in range(60):
+        if rng.random() < 0.7:  # a kept track with a few points changed: near-duplicates
+            cand = list(rng.choice(kept_pts))
+            for _ in range(rng.randrange(1, 3)):
+                i = rng.randrange(len(cand))
+                cand[i] = scan_of[cand[i]] * per_scan + rng.randrange(per_scan)
+        else:
+            cand = _random_tracks(rng, n_scans, per_scan)
+        near = [kept[i] for i in fast.kept_sharing_a_point(cand, kept_at)]
+        for max_diff in (1, 2, 3):
+            for explained in (False, True):
+                args = (scan_of, image, xy, max_diff, covered, explained)
+                want = ident._is_near_duplicate(cand, kept, *args)
+                assert ident._is_near_duplicate(cand, near, *args) == want
+                answers.append(want)
+    assert any(answers) and not all(answers)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("span", [None, 1, 2, 3])
+def test_score_paths_passing(seed, span):
+    _, p0, p1, p2, s, a_in, a_out, coords, kw, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.7
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    track_kw = None if span is None else {**kw, "span": span}
+    for threshold, min_points in ((2.5, 5), (2.0, 4), (-math.inf, 3)):
+        every = ident._score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw)
+        want = [item for item in every if not item[0] < threshold]
+        got = fast.score_paths_passing(
+            paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
+        )
+        assert got == want
+        assert threshold > -math.inf or len(want) == len(every) > 0
+
+
+def test_score_paths_passing_no_paths():
+    empty = torch.zeros(0, dtype=torch.long)
+    got = fast.score_paths_passing(
+        [], empty, empty, empty, empty.double(), empty.reshape(0, 3), 5, None, 2.5
+    )
+    assert got == []
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_make_tracks_equals_make_track(seed):
+    rng = random.Random(seed)
+    coords = torch.randint(0, 50, (40, 3), generator=torch.Generator().manual_seed(seed))
+    kept = []
+    for _ in range(rng.randrange(0, 8)):
+        pts = [rng.randrange(40) for _ in range(rng.randrange(3, 9))]
+        pscores = [rng.uniform(-1, 4) for _ in range(len(pts) - 2)]
+        kept.append((rng.uniform(2, 4), pts, pscores))
+    got = fast.make_tracks(kept, coords, batch=seed)
+    assert len(got) == len(kept)
+    for tr, (score, pts, pscores) in zip(got, kept, strict=True):
+        want, _ = ident._make_track(pts, pscores, coords, seed)
+        want.score = score
+        assert torch.equal(tr.points, want.points)
+        assert torch.equal(tr.point_scores, want.point_scores)
+        assert (tr.id, tr.score, tr.batch) == (want.id, want.score, want.batch)
+        assert tr.points.dtype == want.points.dtype
