@@ -115,6 +115,7 @@ from hocnet.tracking.vsimm import (
     VSIMMLagMemory,
     VSIMMState,
     _mode_F,
+    node_ahead,
     vsimm_init,
     vsimm_lag_memory,
     vsimm_lag_memory_step,
@@ -183,7 +184,9 @@ class PDTrackerConfig:
             have probability 1e-3 at PD = 0.9; issue 12: with 60 s the tracks left behind at a
             junction or by a missed turn coasted up to 1.2 km from their target before deletion
             and dominated the ARMSE); a stop longer than that ends the track and a new one
-            starts when the target moves again.
+            starts when the target moves again. ``None``: no penalty (the chapter's reading of
+            24.4.4, "when the track is not updated with MTI reports, the stop motion model is
+            activated": a stopped target keeps its track).
         coast_penalty: see ``max_coast``.
         max_lag: OOSM of the delayed reports (our addition): ``None`` (Bar-Shalom's one-step
             A1 only; a report older than a row's last step, or than its birth, is not
@@ -237,7 +240,7 @@ class PDTrackerConfig:
     hypothesis_ratio: float = 1e-4
     type_term: str = "estimate"
     segment_by_measurement: bool = False
-    max_coast: float = 30.0
+    max_coast: float | None = 30.0
     coast_penalty: float = 20.0
     max_lag: int | None = None
     junction_hypotheses: bool = True
@@ -517,8 +520,14 @@ class VSIMMRoadFilter:
                 self._predict_alternatives(s, fwd, vs, pred)
         return s
 
-    def _junction_sections(self, vs: VSIMMState, pred: Any) -> list[list[int]]:
-        """Per row, the road sections to add as hypotheses (empty away from junctions)."""
+    def _junction_sections(
+        self, vs: VSIMMState, pred: Any
+    ) -> tuple[list[list[int]], list[list[float]]]:
+        """Per row, the road sections to add as hypotheses (empty away from junctions).
+
+        Returns the sections and the log prior weights ``ln Omega`` (normalised) of
+        ``[straight, *alternatives]``, one list per row.
+        """
         road = torch.tensor([k == "road" for k in self.vcfg.kinds])
         B = vs.mu.shape[0]
         mu = torch.where(road, vs.mu, torch.full_like(vs.mu, -1.0))
@@ -531,15 +540,8 @@ class VSIMMRoadFilter:
         lw: list[list[float]] = [[] for _ in range(B)]
         if not B:
             return out, lw
-        w = self.net.direction[so.clamp(min=0)]
         v = x[:, [1, 3]]
-        fwd = (v * w).sum(-1) >= 0
-        w = torch.where(fwd[:, None], w, -w)
-        ahead = torch.where(
-            fwd,
-            self.net.segment_nodes[so.clamp(min=0), 1],
-            self.net.segment_nodes[so.clamp(min=0), 0],
-        )
+        ahead, w = node_ahead(self.net, so, v)
         p = x[:, [0, 2]] + v * dt
         over = ((p - self.net.nodes[ahead]) * w).sum(-1)
         deg = self.net.node_degree[ahead]
@@ -882,7 +884,10 @@ class VSIMMRoadFilter:
                 self._sanitize(self._dict(new), states["p_x"], states["p_P"]), states
             )
             new_d["t_det"] = states["t_det"]
-            coast = (self.time - states["t_det"]) > self.cfg.max_coast
+            if self.cfg.max_coast is None:
+                coast = torch.zeros(K, dtype=torch.bool)
+            else:
+                coast = (self.time - states["t_det"]) > self.cfg.max_coast
             return self._with_pred(new_d), out.log_likelihood - self.cfg.coast_penalty * coast
         keep = self._with_pred(
             {k: v for k, v in states.items() if not k.startswith("p_") and k not in _FLAGS}
