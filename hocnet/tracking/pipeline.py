@@ -702,10 +702,11 @@ class VSIMMRoadFilter:
             s = self._take(states, fwd)
             new_d, ll_f = self._forward_update(s, zz[fwd], sensor)
             valid = s["p_avalid"]
+            choice = None
             if bool(valid.any()):
-                new_d, ll_f = self._junction_update(s, zz[fwd], sensor, new_d, ll_f)
+                new_d, ll_f, choice = self._junction_update(s, zz[fwd], sensor, new_d, ll_f)
             ll[fwd] = ll_f
-            parts.append((fwd, self._lag_step(new_d, s)))
+            parts.append((fwd, self._lag_step(new_d, s, choice)))
         back = torch.nonzero(retro).flatten()
         if len(back):
             s = self._take(states, back)
@@ -734,9 +735,14 @@ class VSIMMRoadFilter:
         sensor: Any,
         new_d: dict[str, torch.Tensor],
         ll: torch.Tensor,
-    ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        """Junction hypotheses: mixture likelihood, state of the most probable hypothesis."""
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, torch.Tensor]:
+        """Junction hypotheses: mixture likelihood, state of the most probable hypothesis.
+
+        Returns the new state dict, ``ln Lambda`` and ``(K,)`` int64 the hypothesis chosen per
+        row (``-1``: the straight prediction, ``h``: ``p_a*[:, h]``).
+        """
         valid = s["p_avalid"]
+        choice = torch.full((valid.shape[0],), -1, dtype=torch.int64)
         lw = torch.where(valid.any(-1, keepdim=True), s["p_alw"], 0.0)
         total = ll + lw[:, 0]
         base = total.clone()
@@ -754,10 +760,11 @@ class VSIMMRoadFilter:
             if bool(better.any()):
                 rb = rows[better]
                 best[rb] = ll_h[better]
+                choice[rb] = h
                 for k, v in d_h.items():
                     new_d[k][rb] = v[better]
         self.junction_switches += int((best > ll + lw[:, 0]).sum())
-        return new_d, total
+        return new_d, total, choice
 
     def _oosm(
         self, s: dict[str, torch.Tensor], z: torch.Tensor, sensor: Any
@@ -915,13 +922,34 @@ class VSIMMRoadFilter:
         return x5, P5
 
     def _lag_step(
-        self, new_d: dict[str, torch.Tensor], s: dict[str, torch.Tensor]
+        self,
+        new_d: dict[str, torch.Tensor],
+        s: dict[str, torch.Tensor],
+        choice: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
-        """``new_d`` with the lag memory of rows ``s`` advanced by their in-sequence step."""
+        """``new_d`` with the lag memory of rows ``s`` advanced by their in-sequence step.
+
+        ``choice`` (``(K,)``, from :meth:`_junction_update`): rows that took junction hypothesis
+        ``h >= 0`` advance their memory from that hypothesis's prediction (not the straight
+        one), and the older entries follow it onto the new segment
+        (``vsimm_lag_memory_step(net=...)``).
+        """
         if "lag_t" not in s:
             return new_d
+        if choice is not None and bool((choice >= 0).any()):
+            s = dict(s)
+            for h in sorted(set(choice[choice >= 0].tolist())):
+                rows = torch.nonzero(choice == h).flatten()
+                sh = self._hypothesis(self._take(s, rows), h)
+                for k in ("p_x", "p_P", "p_segment", "p_on", "p_accel"):
+                    s[k] = s[k].clone()
+                    s[k][rows] = sh[k]
         mem = vsimm_lag_memory_step(
-            VSIMMLagMemory(*(s[k] for k in _LAG_KEYS)), self._vs(s), self._vs_pred(s), self.vcfg
+            VSIMMLagMemory(*(s[k] for k in _LAG_KEYS)),
+            self._vs(s),
+            self._vs_pred(s),
+            self.vcfg,
+            net=self.net,
         )
         return {**new_d, **dict(zip(_LAG_KEYS, mem))}
 

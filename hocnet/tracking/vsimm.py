@@ -1581,13 +1581,24 @@ def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
 
 
 def vsimm_lag_memory_step(
-    memory: VSIMMLagMemory, state: VSIMMState, pred: VSIMMPrediction, config: VSIMMConfig
+    memory: VSIMMLagMemory,
+    state: VSIMMState,
+    pred: VSIMMPrediction,
+    config: VSIMMConfig,
+    *,
+    net: RoadNetwork | None = None,
 ) -> VSIMMLagMemory:
     """Lag memory after the in-sequence step ``state`` -> ``pred`` (update or miss).
 
     New entry 0: ``(state.t, pred.x, pred.P)``; entry ``j`` <- entry ``j - 1`` predicted over
     ``pred.t - state.t`` with each mode's ``F`` and ``Q`` (``pred.accel_cov``); the oldest entry
-    is forgotten.
+    is forgotten. With ``net`` (and ``config.junction == "rotate"``), an older entry whose road
+    mode changes segment in this step (``state.segment`` -> ``pred.segment``, e.g. a junction
+    hypothesis taken by the pipeline) is carried onto the new segment by the same
+    :func:`junction_transition` as the prediction (``T x + b``, ``T P T'``), so that the memory
+    stays consistent with ``pred`` (issue 12 review: after a junction switch the memory held the
+    straight-on prediction 50 m off the road taken). ``pred`` must then be the prediction that
+    the state was updated with.
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1604,6 +1615,22 @@ def vsimm_lag_memory_step(
     Q = _process_noise(config.kinds, config.noise, dt, Gm, pred.accel_cov)
     ox = (F.unsqueeze(1) @ memory.x[:, :-1].unsqueeze(-1)).squeeze(-1)
     oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1) + Q.unsqueeze(1)
+    n_old = ox.shape[1]
+    if net is not None and config.junction == "rotate" and n_old and B:
+        r = state.mu.shape[1]
+        moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
+        rep = (B * n_old, r)
+        T, b = junction_transition(
+            net,
+            state.segment.unsqueeze(1).expand(B, n_old, r).reshape(rep),
+            pred.segment.unsqueeze(1).expand(B, n_old, r).reshape(rep),
+            memory.x[:, :-1].reshape(*rep, 4),
+            ox.reshape(*rep, 4),
+            moving,
+        )
+        T, b = T.view(B, n_old, r, 4, 4), b.view(B, n_old, r, 4)
+        ox = (T @ ox.unsqueeze(-1)).squeeze(-1) + b
+        oP = T @ oP @ T.transpose(-1, -2)
     return VSIMMLagMemory(
         torch.cat([state.t.view(B, 1), memory.t[:, :-1]], 1),
         torch.cat([pred.x.unsqueeze(1), ox], 1),
