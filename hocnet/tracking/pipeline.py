@@ -97,6 +97,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from hocnet._check import check_choice, check_number
 from hocnet.tracking.evaluation import FALSE_ALARM, NO_MEASUREMENT, NO_TYPE, EstimatedTrack
 from hocnet.tracking.kalman import DTYPE, gaussian_log_likelihood
 from hocnet.tracking.mht import MHT
@@ -136,7 +137,8 @@ __all__ = [
 
 _VS_KEYS = VSIMMState._fields  # mu, x, P, segment, section, track, mu_section, t, t_prev, ...
 _FLAGS = ("retro", "lag_ok")
-_LAG_KEYS = ("lag_t", "lag_x", "lag_P")  # VSIMMLagMemory fields (PDTrackerConfig.max_lag)
+# VSIMMLagMemory fields (PDTrackerConfig.max_lag), the per-step ones of the RTS retrodiction too
+_LAG_KEYS = ("lag_t", "lag_x", "lag_P", "lag_xf", "lag_Pf", "lag_xp", "lag_Pp", "lag_T", "lag_acc")
 _PRED_KEYS = ("p_cbar", "p_x", "p_P", "p_segment", "p_on", "p_accel", "p_t")
 
 
@@ -192,8 +194,12 @@ class PDTrackerConfig:
             A1 only; a report older than a row's last step, or than its birth, is not
             associated with it), or ``N >= 1``: each row keeps a lag memory of its last ``N``
             steps (:class:`~hocnet.tracking.vsimm.VSIMMLagMemory`) and reports up to ``N`` steps
-            old use the multi-step Al1, reports older than the row's birth a diffuse-prior
-            retrodiction (``vsimm_oosm(lag_memory=...)``).
+            old use the multi-step retrodiction of ``lag_method``, reports older than the row's
+            birth a diffuse-prior retrodiction (``vsimm_oosm(lag_memory=...)``).
+        lag_method: with ``max_lag``, the retrodiction of a report 2 .. ``N`` steps old:
+            ``"rts"`` (default; exact per mode from the stored steps, issue 12 review) or
+            ``"al1"`` (the equivalent-measurement Al1, the former behaviour; see
+            ``vsimm_oosm(lag_method=...)``).
         junction_hypotheses: road-section hypotheses at junctions (24.38-24.40 inside one leaf,
             our reading; see the module docstring). ``False``: only the segment nearest to the
             prediction (the previous behaviour).
@@ -243,6 +249,7 @@ class PDTrackerConfig:
     max_coast: float | None = 30.0
     coast_penalty: float = 20.0
     max_lag: int | None = None
+    lag_method: str = "rts"
     junction_hypotheses: bool = True
     junction_margin: float = 0.0
     junction_other_kind: float = 0.2
@@ -250,6 +257,9 @@ class PDTrackerConfig:
     vsimm: VSIMMConfig = field(init=False)
 
     def __post_init__(self) -> None:
+        check_choice("lag_method", self.lag_method, ("rts", "al1"))
+        if self.max_coast is not None:
+            check_number("max_coast", self.max_coast, low=0.0)
         object.__setattr__(
             self, "vsimm", VSIMMConfig(road_sigmas=self.road_sigmas, trans=self.trans)
         )
@@ -636,8 +646,9 @@ class VSIMMRoadFilter:
     def innovation(self, states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
         """Predicted measurement ``(K, 3)`` and ``H P H'`` ``(K, 3, 3)`` of the combined state.
 
-        Rows with junction hypotheses: the moment-matched mixture (equal weights) of the
-        hypotheses' predicted measurements (module docstring).
+        Rows with junction hypotheses: the moment-matched mixture of the hypotheses' predicted
+        measurements, weighted by their prior section probabilities ``exp(p_alw)`` (the
+        ``Omega`` of 24.38 from :meth:`_junction_sections`, normalised; module docstring).
         """
         zp, hph = self._innovation(states)
         valid = states["p_avalid"] if "p_avalid" in states else None
@@ -778,7 +789,14 @@ class VSIMMRoadFilter:
         try:
             mem = VSIMMLagMemory(*(s[k] for k in _LAG_KEYS)) if "lag_t" in s else None
             new, out = vsimm_oosm(
-                self._vs(s), z, self.time, sensor, self.net, self.vcfg, lag_memory=mem
+                self._vs(s),
+                z,
+                self.time,
+                sensor,
+                self.net,
+                self.vcfg,
+                lag_memory=mem,
+                lag_method=self.cfg.lag_method,
             )
             ev = torch.linalg.eigvalsh(new.P)
             scale = new.P.diagonal(dim1=-2, dim2=-1).sum(-1).clamp(min=1.0)

@@ -1404,6 +1404,7 @@ def vsimm_oosm(
     detected: Any | None = None,
     too_old: str = "raise",
     lag_memory: VSIMMLagMemory | None = None,
+    lag_method: str = "rts",
 ) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
@@ -1439,6 +1440,11 @@ def vsimm_oosm(
             whose ``t`` is older than the one-step lag use the multi-step Al1 (``t >= t_{k-N}``)
             or, before the row's birth, a diffuse-prior retrodiction (``_vsimm_oosm_lag``);
             ``too_old`` then applies to ``t < t_{k-N}``. ``None``: the one-step A1 only.
+        lag_method: the retrodiction of a report ``1 < l <= N`` steps old: ``"rts"`` (default)
+            the exact storage-based Rauch-Tung-Striebel retrodiction per mode from the memory's
+            per-step fields (``_lag_rts``; falls back to Al1 for a memory without them),
+            ``"al1"`` the equivalent-measurement Al1 (approximate: measured further from the
+            in-order answer than dropping the report in the issue 12 review).
 
     Returns:
         ``(new_state, VSIMMUpdate)`` (``VSIMMOOSMUpdate`` with ``too_old="drop"``); undetected
@@ -1464,9 +1470,18 @@ def vsimm_oosm(
     """
     if lag_memory is not None:
         return _vsimm_oosm_lag(
-            state, lag_memory, z, t, sensor, net, config, detected=detected, too_old=too_old
+            state,
+            lag_memory,
+            z,
+            t,
+            sensor,
+            net,
+            config,
+            detected=detected,
+            too_old=too_old,
+            method=lag_method,
         )
-    B, r = state.mu.shape
+    B = state.mu.shape[0]
     tau = _times("t", t, B)
     check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
     det = (
@@ -1497,6 +1512,32 @@ def vsimm_oosm(
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
+    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    if too_old == "drop":
+        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
+    return new, VSIMMUpdate(ll_out, mode_ll)
+
+
+def _oosm_finish(
+    state: VSIMMState,
+    r0: Retrodiction,
+    zt: torch.Tensor,
+    det: torch.Tensor,
+    sensor: Any,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+) -> tuple[VSIMMState, torch.Tensor, torch.Tensor]:
+    """The common end of :func:`vsimm_oosm` and ``_vsimm_oosm_lag`` after the retrodiction.
+
+    The retrodiction ``r0`` projected on the segment of the section nearest to it (24.14-24.16,
+    "retrodiction done on the road"), the OOSM update of ``x(k|k)`` (:func:`_apply`), its
+    projection on the mode's current segment, the mode probabilities re-weighted by the
+    PD-aware likelihoods (24.30-24.31) and the A1 memory refreshed (:func:`_refresh_memory`).
+    Returns ``(new_state, ln Lambda (B,), mode log-likelihoods (B, r))``; rows not ``det`` or
+    with a non-finite likelihood are unchanged.
+    """
+    B, r = state.mu.shape
+    m = sensor.dim
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
     on = state.segment >= 0
@@ -1531,9 +1572,7 @@ def vsimm_oosm(
     g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
     new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
     ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
-    if too_old == "drop":
-        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
-    return new, VSIMMUpdate(ll_out, mode_ll)
+    return new, ll_out, mode_ll
 
 
 # ------------------------------------------------------------------------------------------
@@ -1550,19 +1589,41 @@ class VSIMMLagMemory(NamedTuple):
     own ``F`` and ``Q``, without mixing: our approximation). ``t = -inf`` marks steps before the
     row's birth (a delayed report older than the birth is retrodicted with a diffuse prior).
 
+    For the exact storage-based retrodiction (``lag_method="rts"``, our addition) entry ``j - 1``
+    also holds the step from ``t_{k-j}`` to ``t_{k-j+1}`` of each mode: the mixed estimate the
+    mode's filter started from (``xf, Pf``: 24.34-24.35), its prediction (``xp, Pp``: the
+    ``x(k-j+1|k-j)`` of the mode filter), the junction map ``T`` of the step
+    (:func:`junction_transition`; identity elsewhere) and the acceleration covariance ``acc``.
+    These fields are ``None`` in a memory built without them (then only Al1 is possible).
+
     Attributes:
         t: ``(B, N)`` float64 step times ``t_{k-1}, ..., t_{k-N}`` (s), ``-inf`` before birth.
         x: ``(B, N, r, 4)`` ``x(k|k-j)``.
         P: ``(B, N, r, 4, 4)`` ``P(k|k-j)``.
+        xf: ``(B, N, r, 4)`` mixed estimate at ``t_{k-j}`` (or ``None``).
+        Pf: ``(B, N, r, 4, 4)`` its covariance.
+        xp: ``(B, N, r, 4)`` the mode prediction at ``t_{k-j+1}``.
+        Pp: ``(B, N, r, 4, 4)`` its covariance.
+        T: ``(B, N, r, 4, 4)`` the step's junction rotation (the prediction is
+            ``xp = T F xf + b``).
+        acc: ``(B, N, r, 2, 2)`` the step's acceleration covariance (m^2/s^4).
     """
 
     t: torch.Tensor
     x: torch.Tensor
     P: torch.Tensor
+    xf: torch.Tensor | None = None
+    Pf: torch.Tensor | None = None
+    xp: torch.Tensor | None = None
+    Pp: torch.Tensor | None = None
+    T: torch.Tensor | None = None
+    acc: torch.Tensor | None = None
 
 
-def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
+def vsimm_lag_memory(state: VSIMMState, depth: int, *, rts: bool = True) -> VSIMMLagMemory:
     """Empty lag memory of depth ``N = depth`` for new rows (every entry before the birth).
+
+    ``rts``: also allocate the per-step fields of the exact retrodiction (``xf .. acc``).
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1572,11 +1633,22 @@ def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
     """
     if not isinstance(depth, int) or isinstance(depth, bool) or depth < 1:
         raise ValueError(f"`depth`: expected an int >= 1, got {depth!r}")
-    B = state.mu.shape[0]
+    B, r = state.mu.shape
+    x = state.x.unsqueeze(1).repeat(1, depth, 1, 1)
+    P = state.P.unsqueeze(1).repeat(1, depth, 1, 1, 1)
+    if not rts:
+        return VSIMMLagMemory(torch.full((B, depth), -math.inf, dtype=DTYPE), x, P)
+    eye = torch.eye(4, dtype=DTYPE).expand(B, depth, r, 4, 4).clone()
     return VSIMMLagMemory(
         torch.full((B, depth), -math.inf, dtype=DTYPE),
-        state.x.unsqueeze(1).repeat(1, depth, 1, 1),
-        state.P.unsqueeze(1).repeat(1, depth, 1, 1, 1),
+        x,
+        P,
+        x.clone(),
+        P.clone(),
+        x.clone(),
+        P.clone(),
+        eye,
+        torch.zeros(B, depth, r, 2, 2, dtype=DTYPE),
     )
 
 
@@ -1614,8 +1686,23 @@ def vsimm_lag_memory_step(
     F, Gm = _mode_F(config.kinds, dt)
     Q = _process_noise(config.kinds, config.noise, dt, Gm, pred.accel_cov)
     ox = (F.unsqueeze(1) @ memory.x[:, :-1].unsqueeze(-1)).squeeze(-1)
-    oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1) + Q.unsqueeze(1)
+    oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1)
     n_old = ox.shape[1]
+    rts = memory.xf is not None
+    r = state.mu.shape[1]
+    if rts:
+        _, omega = _mixing(state.mu, config.trans_tensor())
+        x0, P0 = _mix(state.x, state.P, omega)
+        T0 = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4)
+        if net is not None and config.junction == "rotate" and B:
+            moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
+            xs = (F @ x0.unsqueeze(-1)).squeeze(-1)
+            T0, _ = junction_transition(net, state.segment, pred.segment, x0, xs, moving)
+        step = (x0, P0, pred.x, pred.P, T0, pred.accel_cov)
+        old_f = (memory.xf, memory.Pf, memory.xp, memory.Pp, memory.T, memory.acc)
+        extra = tuple(
+            torch.cat([a.unsqueeze(1), m[:, :-1]], 1) for a, m in zip(step, old_f, strict=True)
+        )
     if net is not None and config.junction == "rotate" and n_old and B:
         r = state.mu.shape[1]
         moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
@@ -1630,11 +1717,13 @@ def vsimm_lag_memory_step(
         )
         T, b = T.view(B, n_old, r, 4, 4), b.view(B, n_old, r, 4)
         ox = (T @ ox.unsqueeze(-1)).squeeze(-1) + b
-        oP = T @ oP @ T.transpose(-1, -2)
+        oP = T @ oP @ T.transpose(-1, -2)  # the noise is added in the new frame, as the prediction
+    oP = oP + Q.unsqueeze(1)
     return VSIMMLagMemory(
         torch.cat([state.t.view(B, 1), memory.t[:, :-1]], 1),
         torch.cat([pred.x.unsqueeze(1), ox], 1),
         torch.cat([pred.P.unsqueeze(1), 0.5 * (oP + oP.transpose(-1, -2))], 1),
+        *(extra if rts else ()),
     )
 
 
@@ -1649,8 +1738,13 @@ def _vsimm_oosm_lag(
     *,
     detected: Any | None,
     too_old: str,
+    method: str = "rts",
 ) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
-    """:func:`vsimm_oosm` with a lag memory: A1 (one step), Al1 (``l <= N``), diffuse (birth).
+    """:func:`vsimm_oosm` with a lag memory: A1 (one step), RTS or Al1 (``l <= N``), diffuse.
+
+    ``method="rts"`` (with a memory holding the per-step fields): rows with ``1 < l <= N`` are
+    retrodicted by :func:`_lag_rts` (exact per mode, given the stored mixed estimates, issue 12
+    review); ``"al1"`` as below.
 
     Per row the lag ``l = 1 + #{j : t_{k-j} > tau}``. ``l = 1``: the A1 of :func:`vsimm_oosm`
     (memory ``g, G, P(k|k-1)`` of the state, road pseudo-measurement included). ``1 < l <= N``:
@@ -1671,6 +1765,7 @@ def _vsimm_oosm_lag(
     B, r = state.mu.shape
     tau = _times("t", t, B)
     check_choice("too_old", too_old, ("raise", "drop"))
+    check_choice("lag_method", method, ("rts", "al1"))
     mt = torch.as_tensor(memory[0], dtype=DTYPE)  # -inf allowed (before the birth)
     mx = as_float64("lag_memory.x", memory[1])
     mP = as_float64("lag_memory.P", memory[2])
@@ -1744,41 +1839,99 @@ def _vsimm_oosm_lag(
         C0 = Q
     C0 = torch.where(birth.view(B, 1, 1, 1), torch.zeros_like(C0), C0)
     r0 = _retrodict(state.x, state.P, Pp, g, G, Fb, Q, C0)
-    # from here on as vsimm_oosm (projection on the road at tau, update, projection at t_k)
-    allowed = net.section_mask(state.section).unsqueeze(1)
-    loc = net.locate(r0.x, allowed=allowed)
-    on = state.segment >= 0
-    D, L = net.constraint(loc.segment)
-    xs, A = _projection(r0.x, r0.P, D, L)
-    At = A.transpose(-1, -2)
-    onx = on.unsqueeze(-1)
-    r1 = Retrodiction(
-        torch.where(onx, xs, r0.x),
-        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
-        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
-    )
-    xc = _combine(state.mu, r1.x, r1.P)[0]
-    zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc))
-    hx, H, R = sensor.linearize(r1.x, zt.unsqueeze(1))
-    H = H.expand(B, r, m, 4)
-    R = R.expand(B, r, m, m)
-    x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
-    pd = _mode_pd(sensor, config, r1.x, r1.P)
-    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
-    Dk, Lk = net.constraint(state.segment.clamp(min=0))
-    xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
-    Pk = Ak @ P_upd @ Ak.transpose(-1, -2)
-    x_upd = torch.where(onx, xk, x_upd)
-    P_upd = torch.where(onx.unsqueeze(-1), 0.5 * (Pk + Pk.transpose(-1, -2)), P_upd)
-    a = mode_ll + torch.log(state.mu)
-    total = torch.logsumexp(a, -1, keepdim=True)
-    ok = torch.isfinite(total).squeeze(-1) & det
-    mu = torch.where(ok.unsqueeze(-1), torch.exp(a - total), state.mu)
-    x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
-    P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
-    g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
-    new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
-    ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
+    multi = ~one & ~birth & ~dropped
+    if method == "rts" and memory.xf is not None and bool(multi.any()):
+        rr = _lag_rts(state, memory, tau, idx, multi, config)
+        use = multi.view(B, 1, 1)
+        r0 = Retrodiction(
+            torch.where(use, rr.x, r0.x),
+            torch.where(use.unsqueeze(-1), rr.P, r0.P),
+            torch.where(use.unsqueeze(-1), rr.C, r0.C),
+        )
+    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
     if too_old == "drop":
         return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
     return new, VSIMMUpdate(ll_out, mode_ll)
+
+
+def _lag_rts(
+    state: VSIMMState,
+    memory: VSIMMLagMemory,
+    tau: torch.Tensor,
+    idx: torch.Tensor,
+    use: torch.Tensor,
+    config: VSIMMConfig,
+) -> Retrodiction:
+    """Exact retrodiction of each mode to ``tau`` from the lag memory (RTS; our addition).
+
+    :func:`hocnet.tracking.oosm.oosm_retrodict_rts` per mode, batched over rows with
+    different lags: from ``x(k|k), P(k|k)`` back through the stored steps ``0 .. idx - 1``
+    (newest first; step ``e`` went from ``xf_e`` to ``xp_e = T_e F_e xf_e + b_e``, so the
+    smoother gain is ``J = Pf_e (T_e F_e)' Pp_e^+``, which also undoes a junction rotation),
+    then into step ``idx`` at ``tau``: ``x(tau|.) = F(d) xf``, ``P = F(d) Pf F(d)' + Q(d)``,
+    ``cov(x(tau), x_next) = P(tau|.) F(D - d)' T'`` (continuous noise) or
+    ``F(d) Pf F(D)' T' + Gamma(d) S Gamma(D)'`` (piecewise-constant, ``d = tau - t``, ``D`` the
+    step; the step's noise is drawn in the new segment's frame, as in :func:`vsimm_predict`).
+    Exact for one linear Gaussian mode filter started from its stored mixed estimate (the
+    mode probabilities and mixing are not retrodicted, and an OOSM update earlier in the stored
+    interval is not propagated into the stored steps: approximate there, as A1 and Al1).
+
+    Args:
+        state: ``B`` rows at ``t_k``.
+        memory: lag memory with the per-step fields.
+        tau: ``(B,)`` report times.
+        idx: ``(B,)`` int64 the memory entry whose step contains ``tau``.
+        use: ``(B,)`` bool rows to compute (others get ``x(k|k)``).
+        config: :class:`VSIMMConfig`.
+
+    Returns:
+        :class:`Retrodiction` ``(x(tau|k), P(tau|k), cov(x_k, x(tau)|k))``, ``(B, r, ...)``.
+    """
+    B = state.mu.shape[0]
+    N = memory.t.shape[1]
+    kinds = config.kinds
+    xs, Ps, Cr = state.x, state.P, state.P
+    out_x, out_P, out_C = state.x.clone(), state.P.clone(), state.P.clone()
+    t_end = torch.cat([state.t.view(B, 1).expand(B, 1), memory.t[:, :-1]], 1)
+
+    def pinv(M: torch.Tensor) -> torch.Tensor:
+        return torch.linalg.pinv(0.5 * (M + M.transpose(-1, -2)), hermitian=True, rtol=1e-12)
+
+    last_e = int(idx[use].max()) if bool(use.any()) else -1
+    for e in range(min(last_e, N - 1) + 1):
+        t0 = torch.where(use, memory.t[:, e], state.t)  # -inf never reaches here for used rows
+        D = torch.where(use, t_end[:, e] - t0, torch.zeros_like(t0))
+        xf, Pf = memory.xf[:, e], memory.Pf[:, e]
+        xp, Pp, T = memory.xp[:, e], memory.Pp[:, e], memory.T[:, e]
+        FD, GD = _mode_F(kinds, D)
+        Tt = T.transpose(-1, -2)
+        full = (use & (e < idx)).view(B, 1, 1)
+        if bool(full.any()):
+            J = Pf @ FD.transpose(-1, -2) @ Tt @ pinv(Pp)
+            Jt = J.transpose(-1, -2)
+            xs_n = xf + (J @ (xs - xp).unsqueeze(-1)).squeeze(-1)
+            Ps_n = Pf + J @ (Ps - Pp) @ Jt
+            xs = torch.where(full, xs_n, xs)
+            Ps = torch.where(full.unsqueeze(-1), Ps_n, Ps)
+            Cr = torch.where(full.unsqueeze(-1), Cr @ Jt, Cr)
+        here = (use & (e == idx)).view(B, 1, 1)
+        if bool(here.any()):
+            d = torch.where(use, tau - t0, torch.zeros_like(t0)).clamp(min=0.0)
+            Fd, Gd = _mode_F(kinds, d)
+            acc = memory.acc[:, e]
+            Pt = Fd @ Pf @ Fd.transpose(-1, -2) + _process_noise(kinds, config.noise, d, Gd, acc)
+            xt = (Fd @ xf.unsqueeze(-1)).squeeze(-1)
+            if config.noise == "discrete":
+                # the step's acceleration is drawn in the frame of the new segment (not rotated)
+                cross = Fd @ Pf @ FD.transpose(-1, -2) @ Tt + Gd @ acc @ GD.transpose(-1, -2)
+            else:
+                Frest, _ = _mode_F(kinds, D - d)
+                cross = Pt @ Frest.transpose(-1, -2) @ Tt
+            J = cross @ pinv(Pp)
+            Jt = J.transpose(-1, -2)
+            xr = xt + (J @ (xs - xp).unsqueeze(-1)).squeeze(-1)
+            Pr = Pt + J @ (Ps - Pp) @ Jt
+            out_x = torch.where(here, xr, out_x)
+            out_P = torch.where(here.unsqueeze(-1), 0.5 * (Pr + Pr.transpose(-1, -2)), out_P)
+            out_C = torch.where(here.unsqueeze(-1), Cr @ Jt, out_C)
+    return Retrodiction(out_x, out_P, out_C)
