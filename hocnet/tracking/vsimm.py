@@ -506,8 +506,8 @@ def vsimm_predict(
         >>> cfg = VSIMMConfig(stop=False)
         >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
         >>> pred = vsimm_predict(s, net, cfg, 5.0)
-        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # still on the first segment
-        ([[0, 0]], [140.0, 10.0, 0.0, 0.0])
+        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # 40 m past the 90 degree bend
+        ([[1, 1]], [100.0, 0.0, 40.0, 10.0])
     """
     B, r = state.mu.shape
     if r != config.num_modes:
