@@ -54,10 +54,20 @@ Our readings and choices (the chapter leaves them to its references):
   ``sum_h Omega_h Lambda_h`` (24.38 with ``mu_h(k-1)`` the section the track comes from,
   ``Omega`` 1 to a road of the same class and ``junction_other_kind`` to another, normalised)
   and keeps the branch hypothesis whose posterior passes the SPRT bound 24.39 against the
-  nearest-segment one (``junction_accept``), else the nearest-segment one: the SPRT decided
-  on one measurement (the chapter continues the test over several scans; our leaves carry one
-  hypothesis), the MHT's branching on measurements carrying the rest of the ambiguity. A missed
-  detection keeps the nearest-segment hypothesis. Without it (the previous behaviour) a track
+  nearest-segment one (``junction_accept``), else the nearest-segment one. **This is a
+  one-step reading of the SPRT, not the chapter's test**: (a) it decides on one measurement and
+  drops the undecided branches, where the chapter "waits for one more measurement and continues
+  the test until one hypothesis is accepted"; (b) it compares each branch with the
+  nearest-segment hypothesis only, where 24.39 accepts ``h`` against *all* others. Why: an MHT
+  leaf here carries one VS-IMM state, and carrying several section hypotheses through later
+  scans would need per-leaf rows that survive the MHT's own branching, pruning and merging (the
+  row machinery exists: :func:`~hocnet.tracking.vsimm.vsimm_expand_sections` and
+  :func:`~hocnet.tracking.vsimm.vsimm_section_sprt` run the chapter's multi-scan test on
+  stand-alone rows, tested in tests/tracking/test_vsimm.py); the MHT's branching on the
+  measurements carries the remaining ambiguity, and a branch not taken is lost for that leaf.
+  The multi-scan version inside the pipeline is not implemented (issue 12 review, item 5: left
+  for lack of time; measuring it beside ours is open). A missed detection keeps the
+  nearest-segment hypothesis. Without it (the previous behaviour) a track
   whose target turned at a junction was predicted straight on, missed the target's next report
   (a GMTI range-rate innovation of 16 m/s at a right-angle turn: seed 2400, target 6,
   t = 680 s), fell into the stop model and coasted for ``max_coast``, up to 1.2 km from the
@@ -212,7 +222,8 @@ class PDTrackerConfig:
             section of another ``road_class`` (highway -> byway), relative to 1 for the same
             class (:func:`~hocnet.tracking.vsimm.section_transition`; our value).
         junction_accept: the upper SPRT bound of 24.39 for leaving the nearest-segment
-            hypothesis: a branch is taken when its posterior ``mu_h`` is at least this many
+            hypothesis (one-step reading, against the nearest-segment hypothesis only; see the
+            module docstring): a branch is taken when its posterior ``mu_h`` is at least this many
             times that of the nearest segment (``(1 - beta) / alpha`` with the section SPRT's
             ``alpha = beta = 0.01`` of :func:`~hocnet.tracking.vsimm.vsimm_section_sprt`); below
             it the nearest segment is kept (taking the best branch at any ratio chose a wrong
