@@ -294,6 +294,9 @@ class VSIMMPrediction(NamedTuple):
         p_on: ``(B, r)`` on-segment probabilities ``P{e_s(k) | Z^{k-1}}`` (24.11; 1 off-road).
         accel_cov: ``(B, r, 2, 2)`` acceleration covariances (24.9).
         t: ``(B,)`` prediction time, s.
+        T: ``(B, r, 4, 4)`` the junction rotation applied to each mode's prediction
+            (:func:`junction_transition`; identity elsewhere), or ``None`` (a prediction
+            rebuilt without it: :func:`vsimm_lag_memory_step` then needs ``net``).
     """
 
     cbar: torch.Tensor
@@ -303,6 +306,7 @@ class VSIMMPrediction(NamedTuple):
     p_on: torch.Tensor
     accel_cov: torch.Tensor
     t: torch.Tensor
+    T: torch.Tensor | None = None
 
 
 def _cv_matrices(dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -528,6 +532,7 @@ def vsimm_predict(
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(x_pred, allowed=allowed)
     seg = torch.where(road.view(1, -1), loc.segment, torch.full_like(loc.segment, -1))
+    T = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4)
     if config.junction == "rotate":
         moving = torch.tensor([k == "road" for k in config.kinds]).view(1, -1)
         seg = follow_section(net, state.segment, seg, x0, x_pred, moving)
@@ -541,7 +546,7 @@ def vsimm_predict(
     cov, p_on = _accel_cov(net, seg, x_pred, p_tmp, sa, sc, road, config.relax)
     P_pred = p_tmp(cov)
     return VSIMMPrediction(
-        cbar, x_pred, 0.5 * (P_pred + P_pred.transpose(-1, -2)), seg, p_on, cov, tt
+        cbar, x_pred, 0.5 * (P_pred + P_pred.transpose(-1, -2)), seg, p_on, cov, tt, T
     )
 
 
@@ -1670,7 +1675,10 @@ def vsimm_lag_memory_step(
     :func:`junction_transition` as the prediction (``T x + b``, ``T P T'``), so that the memory
     stays consistent with ``pred`` (issue 12 review: after a junction switch the memory held the
     straight-on prediction 50 m off the road taken). ``pred`` must then be the prediction that
-    the state was updated with.
+    the state was updated with. The RTS fields take the step's rotation from ``pred.T``
+    (:func:`vsimm_predict` sets it), else recompute it with ``net``; with neither, a step
+    through a junction is stored unrotated and its RTS retrodiction is inconsistent: pass
+    ``net`` for a prediction rebuilt without ``T``.
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1694,7 +1702,9 @@ def vsimm_lag_memory_step(
         _, omega = _mixing(state.mu, config.trans_tensor())
         x0, P0 = _mix(state.x, state.P, omega)
         T0 = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4)
-        if net is not None and config.junction == "rotate" and B:
+        if pred.T is not None:
+            T0 = pred.T
+        elif net is not None and config.junction == "rotate" and B:
             moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
             xs = (F @ x0.unsqueeze(-1)).squeeze(-1)
             T0, _ = junction_transition(net, state.segment, pred.segment, x0, xs, moving)
