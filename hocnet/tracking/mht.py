@@ -474,7 +474,9 @@ class MHT:
         missed_pd: score misses ``ln(1 - missed_pd)`` instead of the filter's miss likelihood
             (``None``, default).
         hold_uninformative: do not apply the SPRT deletion to a tentative track in a scan that
-            left its score unchanged (module docstring; default ``True``).
+            left its score unchanged (module docstring; default ``True``). It never acts when
+            ``missed_pd`` is set: every miss then scores ``ln(1 - missed_pd) < 0`` (the score
+            always changes), so a tentative track is tested on every scan, seen or not.
 
     Raises:
         TypeError, ValueError: bad parameters.

@@ -248,14 +248,33 @@ def oosm_retrodict(
         >>> r.P.diagonal().tolist()
         [0.0, 0.0]
     """
-    x = as_float64("x", x, min_dim=1)
-    P = as_float64("P", P, min_dim=2, square=True)
-    Pp = as_float64("P_pred", P_pred, min_dim=2, square=True)
-    g = as_float64("g", g, min_dim=1)
-    G = as_float64("G", G, min_dim=2, square=True)
-    Fb = as_float64("F_back", F_back, min_dim=2, square=True)
-    Q = as_float64("Q", Q, min_dim=2, square=True)
-    return _retrodict(x, P, Pp, g, G, Fb, Q)
+    return _retrodict(*_inputs(x=x, P=P, P_pred=P_pred, g=g, G=G, F_back=F_back, Q=Q))
+
+
+# rank rules of the named OOSM arguments: (min_dim, square)
+_ARG_RANK = {
+    "x": (1, False),
+    "P": (2, True),
+    "P_pred": (2, True),
+    "P_prior": (2, True),
+    "g": (1, False),
+    "G": (2, True),
+    "F_back": (2, True),
+    "Q": (2, True),
+    "C0": (2, True),
+    "z": (1, False),
+    "hx": (1, False),
+    "H": (2, False),
+    "R": (2, True),
+}
+
+
+def _inputs(**values: Any) -> list[torch.Tensor]:
+    """``as_float64`` of each named argument with its rank rule (``_ARG_RANK``), in order."""
+    return [
+        as_float64(name, v, min_dim=_ARG_RANK[name][0], square=_ARG_RANK[name][1])
+        for name, v in values.items()
+    ]
 
 
 def _retrodict(
@@ -408,12 +427,7 @@ def oosm_apply(
         >>> round(float(x), 12), round(float(P), 12)
         (0.5, 0.5)
     """
-    x = as_float64("x", x, min_dim=1)
-    P = as_float64("P", P, min_dim=2, square=True)
-    z = as_float64("z", z, min_dim=1)
-    hx = as_float64("hx", hx, min_dim=1)
-    H = as_float64("H", H, min_dim=2)
-    R = as_float64("R", R, min_dim=2, square=True)
+    x, P, z, hx, H, R = _inputs(x=x, P=P, z=z, hx=hx, H=H, R=R)
     return _apply(x, P, _as_retrodiction(r), z - hx, H, R)
 
 
@@ -521,7 +535,9 @@ def oosm_a1(
 # correlated with the process noise after ``tau``, Al1 takes it independent): for 2-3-step lags
 # of a 10 s CV filter its estimate is farther from the exact one than the estimate without the
 # report, its NEES 4.5 instead of 4.0; its MSE against the truth is about that of dropping.
-# :func:`oosm_retrodict_rts` is exact at the price of storing the filtered and predicted moments.
+# :func:`oosm_retrodict_rts` is exact at the price of storing the filtered and predicted moments;
+# the VS-IMM (``hocnet.tracking.vsimm.vsimm_oosm(lag_method="rts")``, the default with a lag
+# memory) uses it per mode, Al1 stays available as ``lag_method="al1"`` (issue 12 review).
 
 
 def equivalent_memory(
@@ -683,17 +699,12 @@ def oosm_al1(
     """
     if t is not None:
         check_oosm_time(t, t_first, t_last)
-    x = as_float64("x", x, min_dim=1)
-    P = as_float64("P", P, min_dim=2, square=True)
+    x, P = _inputs(x=x, P=P)
     g, G = equivalent_memory(x, P, x_prior, P_prior)
-    Pp = as_float64("P_prior", P_prior, min_dim=2, square=True)
-    Fb = as_float64("F_back", F_back, min_dim=2, square=True)
-    Qt = as_float64("Q", Q, min_dim=2, square=True)
-    C = None if C0 is None else as_float64("C0", C0, min_dim=2, square=True)
+    Pp, Fb, Qt = _inputs(P_prior=P_prior, F_back=F_back, Q=Q)
+    C = None if C0 is None else _inputs(C0=C0)[0]
     r = _retrodict(x, P, Pp, g, G, Fb, Qt, C)
-    H = as_float64("H", H, min_dim=2)
-    z = as_float64("z", z, min_dim=1)
-    R = as_float64("R", R, min_dim=2, square=True)
+    H, z, R = _inputs(H=H, z=z, R=R)
     hx = (H @ r.x.unsqueeze(-1)).squeeze(-1)
     return _apply(x, P, r, z - hx, H, R)
 

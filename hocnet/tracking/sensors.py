@@ -374,18 +374,8 @@ def gmti_resolution_cells(
     return (k * vals[0], k * vals[1], k * vals[2])
 
 
-def _f64(name: str, value: Any) -> torch.Tensor:
-    """``as_float64`` without the float32 detour of ``torch.as_tensor`` for Python sequences."""
-    if not isinstance(value, torch.Tensor):
-        try:
-            value = torch.as_tensor(value, dtype=DTYPE)
-        except (TypeError, ValueError, RuntimeError):
-            pass  # as_float64 raises the TypeError naming the argument
-    return as_float64(name, value, min_dim=1)
-
-
 def _cells(cells: Any) -> torch.Tensor:
-    c = _f64("cells", cells)
+    c = as_float64("cells", cells, min_dim=1)
     if c.shape != (3,) or bool((c < 0).any()):
         raise ValueError(
             "`cells`: expected 3 non-negative widths (range m, azimuth rad, range-rate m/s), got "
@@ -498,7 +488,7 @@ def gmti_merge_unresolved(
     if weights is None:
         w = torch.ones(n, dtype=DTYPE)
     else:
-        w = _f64("weights", weights)
+        w = as_float64("weights", weights, min_dim=1)
         if w.shape != (n,) or not bool(torch.isfinite(w).all()) or bool((w <= 0).any()):
             raise ValueError(
                 f"`weights`: expected {n} finite positive echo powers, got shape {tuple(w.shape)}"

@@ -87,7 +87,9 @@ __all__ = [
     "VSIMMPrediction",
     "VSIMMState",
     "VSIMMUpdate",
+    "follow_section",
     "junction_transition",
+    "node_ahead",
     "section_probabilities",
     "section_transition",
     "sprt_decide",
@@ -292,6 +294,9 @@ class VSIMMPrediction(NamedTuple):
         p_on: ``(B, r)`` on-segment probabilities ``P{e_s(k) | Z^{k-1}}`` (24.11; 1 off-road).
         accel_cov: ``(B, r, 2, 2)`` acceleration covariances (24.9).
         t: ``(B,)`` prediction time, s.
+        T: ``(B, r, 4, 4)`` the junction rotation applied to each mode's prediction
+            (:func:`junction_transition`; identity elsewhere), or ``None`` (a prediction
+            rebuilt without it: :func:`vsimm_lag_memory_step` then needs ``net``).
     """
 
     cbar: torch.Tensor
@@ -301,6 +306,7 @@ class VSIMMPrediction(NamedTuple):
     p_on: torch.Tensor
     accel_cov: torch.Tensor
     t: torch.Tensor
+    T: torch.Tensor | None = None
 
 
 def _cv_matrices(dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -504,8 +510,8 @@ def vsimm_predict(
         >>> cfg = VSIMMConfig(stop=False)
         >>> s = vsimm_init(net, torch.tensor([[90.0, 10.0, 0.0, 0.0]]), 100 * torch.eye(4), cfg)
         >>> pred = vsimm_predict(s, net, cfg, 5.0)
-        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # still on the first segment
-        ([[0, 0]], [140.0, 10.0, 0.0, 0.0])
+        >>> pred.segment.tolist(), pred.x[0, 0].tolist()  # 40 m past the 90 degree bend
+        ([[1, 1]], [100.0, 0.0, 40.0, 10.0])
     """
     B, r = state.mu.shape
     if r != config.num_modes:
@@ -526,8 +532,10 @@ def vsimm_predict(
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(x_pred, allowed=allowed)
     seg = torch.where(road.view(1, -1), loc.segment, torch.full_like(loc.segment, -1))
+    T = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4)
     if config.junction == "rotate":
         moving = torch.tensor([k == "road" for k in config.kinds]).view(1, -1)
+        seg = follow_section(net, state.segment, seg, x0, x_pred, moving)
         T, b = junction_transition(net, state.segment, seg, x0, x_pred, moving)
         x_pred = (T @ x_pred.unsqueeze(-1)).squeeze(-1) + b
         FPF = T @ FPF @ T.transpose(-1, -2)
@@ -538,7 +546,7 @@ def vsimm_predict(
     cov, p_on = _accel_cov(net, seg, x_pred, p_tmp, sa, sc, road, config.relax)
     P_pred = p_tmp(cov)
     return VSIMMPrediction(
-        cbar, x_pred, 0.5 * (P_pred + P_pred.transpose(-1, -2)), seg, p_on, cov, tt
+        cbar, x_pred, 0.5 * (P_pred + P_pred.transpose(-1, -2)), seg, p_on, cov, tt, T
     )
 
 
@@ -582,22 +590,17 @@ def junction_transition(
         >>> [round(v, 6) + 0.0 for v in ((T @ xp[..., None])[..., 0] + b)[0, 0].tolist()]
         [100.0, 0.0, 40.0, 10.0]
     """
+    old, new, x0, x_pred, mov = _check_transition(net, old, new, x0, x_pred, moving)
     B, r = old.shape
-    x0, x_pred = torch.as_tensor(x0, dtype=DTYPE), torch.as_tensor(x_pred, dtype=DTYPE)
     T = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4).clone()
     b = torch.zeros(B, r, 4, dtype=DTYPE)
     if not B:
         return T, b
-    mov = torch.as_tensor(moving, dtype=torch.bool).expand(B, r)
     cand = mov & (old >= 0) & (new >= 0) & (old != new)
     if not bool(cand.any()):
         return T, b
-    so, sn = old.clamp(min=0), new.clamp(min=0)
-    w = net.direction[so]  # (B, r, 2)
-    v0 = x0[..., [1, 3]]
-    fwd = (v0 * w).sum(-1) >= 0
-    w = torch.where(fwd.unsqueeze(-1), w, -w)
-    ahead = torch.where(fwd, net.segment_nodes[so, 1], net.segment_nodes[so, 0])
+    sn = new.clamp(min=0)
+    ahead, w = node_ahead(net, old, x0[..., [1, 3]])
     n0, n1 = net.segment_nodes[sn, 0], net.segment_nodes[sn, 1]
     shared = (ahead == n0) | (ahead == n1)
     u = torch.where((ahead == n0).unsqueeze(-1), net.direction[sn], -net.direction[sn])
@@ -621,6 +624,151 @@ def junction_transition(
     T = torch.where(ok[..., None, None], Tr, T)
     b = torch.where(ok[..., None], br, b)
     return T, b
+
+
+def node_ahead(
+    net: RoadNetwork, segment: torch.Tensor, velocity: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The end node of each segment ahead of a velocity, and the direction of travel on it.
+
+    The node ahead is the segment's end (``segment_nodes[s, 1]``) when ``velocity`` points along
+    its direction (``v . d_s >= 0``), its start otherwise; ``w = +-d_s`` accordingly (the
+    one place this is computed: :func:`junction_transition`, :func:`follow_section` and the
+    pipeline's junction hypotheses).
+
+    Args:
+        net: road network.
+        segment: ``(...)`` int64 segments (``-1`` is read as segment 0: mask such rows).
+        velocity: ``(..., 2)`` velocities ``[vx, vy]`` (m/s).
+
+    Returns:
+        ``ahead`` ``(...)`` int64 node indices and ``w`` ``(..., 2)`` float64 unit vectors.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        >>> node, w = node_ahead(net, torch.tensor([0, 0]), torch.tensor([[5.0, 0.0], [-5.0, 0.0]]))
+        >>> node.tolist(), w.tolist()
+        ([1, 0], [[1.0, 0.0], [-1.0, -0.0]])
+    """
+    so = torch.as_tensor(segment).to(torch.int64).clamp(min=0)
+    d = net.direction[so]
+    v = torch.as_tensor(velocity, dtype=DTYPE)
+    fwd = (v * d).sum(-1) >= 0
+    w = torch.where(fwd.unsqueeze(-1), d, -d)
+    ahead = torch.where(fwd, net.segment_nodes[so, 1], net.segment_nodes[so, 0])
+    return ahead, w
+
+
+_NEXT_CACHE: dict[int, tuple[RoadNetwork, torch.Tensor]] = {}
+
+
+def _section_next(net: RoadNetwork) -> torch.Tensor:
+    """``(S, 2)`` int64: the segment of the same section at each end node of a segment (-1)."""
+    hit = _NEXT_CACHE.get(id(net))
+    if hit is not None and hit[0] is net:
+        return hit[1]
+    S = net.num_segments
+    nxt = torch.full((S, 2), -1, dtype=torch.int64)
+    sec = net.segment_section.tolist()
+    ends = net.segment_nodes.tolist()
+    for s in range(S):
+        for e in range(2):
+            same = [t for t in net.node_segments(ends[s][e]) if t != s and sec[t] == sec[s]]
+            if same:
+                nxt[s, e] = same[0]
+    if len(_NEXT_CACHE) > 64:
+        _NEXT_CACHE.clear()
+    _NEXT_CACHE[id(net)] = (net, nxt)
+    return nxt
+
+
+def follow_section(
+    net: RoadNetwork,
+    old: torch.Tensor,
+    new: torch.Tensor,
+    x0: torch.Tensor,
+    x_pred: torch.Tensor,
+    moving: Any = True,
+) -> torch.Tensor:
+    """Active segments after a prediction, following the section's topology past a node.
+
+    :meth:`~hocnet.tracking.road.RoadNetwork.locate` takes the segment nearest to the straight
+    CV prediction. Past a bend of 90 degrees or more inside one road section the nearest
+    segment is still the old one (the next segment is at least as far: its nearest point is the
+    shared node), the rotation of :func:`junction_transition` never runs and the track is lost
+    (issue 12 review: a 90 degree bend gave errors of 80, 200, 320 m on noise-free data). So
+    where a moving mode's prediction is past the node ahead of its old segment
+    (:func:`node_ahead` with the mixed velocity of ``x0``) and ``locate`` kept the old segment,
+    the mode continues on the segment of the same section linked at that node (the topology,
+    not the nearest segment); a road end keeps the old segment. Below 90 degrees ``locate``
+    already gives that segment (a point ``d`` past the node is ``d sin(angle) < d`` from it),
+    so the result is unchanged there. One segment per prediction: a prediction past the far end
+    of the next segment too is not followed further.
+
+    Args:
+        net: road network.
+        old: ``(B, r)`` int64 segment of each mode before the prediction (``-1`` off-road).
+        new: ``(B, r)`` int64 segment located at the prediction.
+        x0: ``(B, r, 4)`` mixed estimates ``[x, vx, y, vy]``.
+        x_pred: ``(B, r, 4)`` CV predictions ``F x0``.
+        moving: ``(r,)`` or ``(B, r)`` bool, the modes concerned (default all).
+
+    Returns:
+        ``(B, r)`` int64 active segments.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])  # 90 deg bend
+        >>> x0 = torch.tensor([[[90.0, 10.0, 0.0, 0.0]]])
+        >>> xp = torch.tensor([[[140.0, 10.0, 0.0, 0.0]]])  # straight on, past (100, 0)
+        >>> net.locate(xp).segment.tolist(), follow_section(
+        ...     net, torch.tensor([[0]]), torch.tensor([[0]]), x0, xp
+        ... ).tolist()
+        ([[0]], [[1]])
+    """
+    old, new, x0, x_pred, mov = _check_transition(net, old, new, x0, x_pred, moving)
+    cand = mov & (old >= 0) & (new == old)
+    if not bool(cand.any()):
+        return new
+    ahead, w = node_ahead(net, old, x0[..., [1, 3]])
+    past = ((x_pred[..., [0, 2]] - net.nodes[ahead]) * w).sum(-1) > 0
+    so = old.clamp(min=0)
+    end = (net.segment_nodes[so, 1] == ahead).to(torch.int64)
+    nxt = _section_next(net)[so, end]
+    return torch.where(cand & past & (nxt >= 0), nxt, new)
+
+
+def _check_transition(
+    net: RoadNetwork, old: Any, new: Any, x0: Any, x_pred: Any, moving: Any
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Validated inputs of :func:`junction_transition` / :func:`follow_section`."""
+    old, new = torch.as_tensor(old), torch.as_tensor(new)
+    for name, v in (("old", old), ("new", new)):
+        if v.dim() != 2 or v.is_floating_point() or v.dtype == torch.bool:
+            raise ValueError(
+                f"`{name}`: expected a (B, r) integer tensor, got {tuple(v.shape)} {v.dtype}"
+            )
+        if v.numel() and bool(((v < -1) | (v >= net.num_segments)).any()):
+            raise ValueError(
+                f"`{name}`: expected segment indices in [-1, {net.num_segments - 1}], got "
+                f"{int(v.min())}..{int(v.max())}"
+            )
+    if new.shape != old.shape:
+        raise ValueError(f"`new`: expected shape {tuple(old.shape)}, got {tuple(new.shape)}")
+    B, r = old.shape
+    out = []
+    for name, v in (("x0", x0), ("x_pred", x_pred)):
+        v = as_float64(name, v)
+        if tuple(v.shape) != (B, r, 4):
+            raise ValueError(f"`{name}`: expected shape ({B}, {r}, 4), got {tuple(v.shape)}")
+        out.append(v)
+    try:
+        mov = torch.as_tensor(moving, dtype=torch.bool).expand(B, r)
+    except RuntimeError:
+        raise ValueError(
+            f"`moving`: expected a bool of shape ({r},) or ({B}, {r}), got "
+            f"{tuple(torch.as_tensor(moving).shape)}"
+        ) from None
+    return old.to(torch.int64), new.to(torch.int64), out[0], out[1], mov
 
 
 class VSIMMUpdate(NamedTuple):
@@ -1261,6 +1409,7 @@ def vsimm_oosm(
     detected: Any | None = None,
     too_old: str = "raise",
     lag_memory: VSIMMLagMemory | None = None,
+    lag_method: str = "rts",
 ) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
     """Update all rows with measurements taken at ``t <= state.t`` (A1 per mode, on the road).
 
@@ -1296,6 +1445,11 @@ def vsimm_oosm(
             whose ``t`` is older than the one-step lag use the multi-step Al1 (``t >= t_{k-N}``)
             or, before the row's birth, a diffuse-prior retrodiction (``_vsimm_oosm_lag``);
             ``too_old`` then applies to ``t < t_{k-N}``. ``None``: the one-step A1 only.
+        lag_method: the retrodiction of a report ``1 < l <= N`` steps old: ``"rts"`` (default)
+            the exact storage-based Rauch-Tung-Striebel retrodiction per mode from the memory's
+            per-step fields (``_lag_rts``; falls back to Al1 for a memory without them),
+            ``"al1"`` the equivalent-measurement Al1 (approximate: measured further from the
+            in-order answer than dropping the report in the issue 12 review).
 
     Returns:
         ``(new_state, VSIMMUpdate)`` (``VSIMMOOSMUpdate`` with ``too_old="drop"``); undetected
@@ -1321,9 +1475,18 @@ def vsimm_oosm(
     """
     if lag_memory is not None:
         return _vsimm_oosm_lag(
-            state, lag_memory, z, t, sensor, net, config, detected=detected, too_old=too_old
+            state,
+            lag_memory,
+            z,
+            t,
+            sensor,
+            net,
+            config,
+            detected=detected,
+            too_old=too_old,
+            method=lag_method,
         )
-    B, r = state.mu.shape
+    B = state.mu.shape[0]
     tau = _times("t", t, B)
     check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
     det = (
@@ -1354,6 +1517,32 @@ def vsimm_oosm(
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
+    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    if too_old == "drop":
+        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
+    return new, VSIMMUpdate(ll_out, mode_ll)
+
+
+def _oosm_finish(
+    state: VSIMMState,
+    r0: Retrodiction,
+    zt: torch.Tensor,
+    det: torch.Tensor,
+    sensor: Any,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+) -> tuple[VSIMMState, torch.Tensor, torch.Tensor]:
+    """The common end of :func:`vsimm_oosm` and ``_vsimm_oosm_lag`` after the retrodiction.
+
+    The retrodiction ``r0`` projected on the segment of the section nearest to it (24.14-24.16,
+    "retrodiction done on the road"), the OOSM update of ``x(k|k)`` (:func:`_apply`), its
+    projection on the mode's current segment, the mode probabilities re-weighted by the
+    PD-aware likelihoods (24.30-24.31) and the A1 memory refreshed (:func:`_refresh_memory`).
+    Returns ``(new_state, ln Lambda (B,), mode log-likelihoods (B, r))``; rows not ``det`` or
+    with a non-finite likelihood are unchanged.
+    """
+    B, r = state.mu.shape
+    m = sensor.dim
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
     on = state.segment >= 0
@@ -1388,9 +1577,7 @@ def vsimm_oosm(
     g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
     new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
     ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
-    if too_old == "drop":
-        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
-    return new, VSIMMUpdate(ll_out, mode_ll)
+    return new, ll_out, mode_ll
 
 
 # ------------------------------------------------------------------------------------------
@@ -1407,19 +1594,41 @@ class VSIMMLagMemory(NamedTuple):
     own ``F`` and ``Q``, without mixing: our approximation). ``t = -inf`` marks steps before the
     row's birth (a delayed report older than the birth is retrodicted with a diffuse prior).
 
+    For the exact storage-based retrodiction (``lag_method="rts"``, our addition) entry ``j - 1``
+    also holds the step from ``t_{k-j}`` to ``t_{k-j+1}`` of each mode: the mixed estimate the
+    mode's filter started from (``xf, Pf``: 24.34-24.35), its prediction (``xp, Pp``: the
+    ``x(k-j+1|k-j)`` of the mode filter), the junction map ``T`` of the step
+    (:func:`junction_transition`; identity elsewhere) and the acceleration covariance ``acc``.
+    These fields are ``None`` in a memory built without them (then only Al1 is possible).
+
     Attributes:
         t: ``(B, N)`` float64 step times ``t_{k-1}, ..., t_{k-N}`` (s), ``-inf`` before birth.
         x: ``(B, N, r, 4)`` ``x(k|k-j)``.
         P: ``(B, N, r, 4, 4)`` ``P(k|k-j)``.
+        xf: ``(B, N, r, 4)`` mixed estimate at ``t_{k-j}`` (or ``None``).
+        Pf: ``(B, N, r, 4, 4)`` its covariance.
+        xp: ``(B, N, r, 4)`` the mode prediction at ``t_{k-j+1}``.
+        Pp: ``(B, N, r, 4, 4)`` its covariance.
+        T: ``(B, N, r, 4, 4)`` the step's junction rotation (the prediction is
+            ``xp = T F xf + b``).
+        acc: ``(B, N, r, 2, 2)`` the step's acceleration covariance (m^2/s^4).
     """
 
     t: torch.Tensor
     x: torch.Tensor
     P: torch.Tensor
+    xf: torch.Tensor | None = None
+    Pf: torch.Tensor | None = None
+    xp: torch.Tensor | None = None
+    Pp: torch.Tensor | None = None
+    T: torch.Tensor | None = None
+    acc: torch.Tensor | None = None
 
 
-def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
+def vsimm_lag_memory(state: VSIMMState, depth: int, *, rts: bool = True) -> VSIMMLagMemory:
     """Empty lag memory of depth ``N = depth`` for new rows (every entry before the birth).
+
+    ``rts``: also allocate the per-step fields of the exact retrodiction (``xf .. acc``).
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1429,22 +1638,47 @@ def vsimm_lag_memory(state: VSIMMState, depth: int) -> VSIMMLagMemory:
     """
     if not isinstance(depth, int) or isinstance(depth, bool) or depth < 1:
         raise ValueError(f"`depth`: expected an int >= 1, got {depth!r}")
-    B = state.mu.shape[0]
+    B, r = state.mu.shape
+    x = state.x.unsqueeze(1).repeat(1, depth, 1, 1)
+    P = state.P.unsqueeze(1).repeat(1, depth, 1, 1, 1)
+    if not rts:
+        return VSIMMLagMemory(torch.full((B, depth), -math.inf, dtype=DTYPE), x, P)
+    eye = torch.eye(4, dtype=DTYPE).expand(B, depth, r, 4, 4).clone()
     return VSIMMLagMemory(
         torch.full((B, depth), -math.inf, dtype=DTYPE),
-        state.x.unsqueeze(1).repeat(1, depth, 1, 1),
-        state.P.unsqueeze(1).repeat(1, depth, 1, 1, 1),
+        x,
+        P,
+        x.clone(),
+        P.clone(),
+        x.clone(),
+        P.clone(),
+        eye,
+        torch.zeros(B, depth, r, 2, 2, dtype=DTYPE),
     )
 
 
 def vsimm_lag_memory_step(
-    memory: VSIMMLagMemory, state: VSIMMState, pred: VSIMMPrediction, config: VSIMMConfig
+    memory: VSIMMLagMemory,
+    state: VSIMMState,
+    pred: VSIMMPrediction,
+    config: VSIMMConfig,
+    *,
+    net: RoadNetwork | None = None,
 ) -> VSIMMLagMemory:
     """Lag memory after the in-sequence step ``state`` -> ``pred`` (update or miss).
 
     New entry 0: ``(state.t, pred.x, pred.P)``; entry ``j`` <- entry ``j - 1`` predicted over
     ``pred.t - state.t`` with each mode's ``F`` and ``Q`` (``pred.accel_cov``); the oldest entry
-    is forgotten.
+    is forgotten. With ``net`` (and ``config.junction == "rotate"``), an older entry whose road
+    mode changes segment in this step (``state.segment`` -> ``pred.segment``, e.g. a junction
+    hypothesis taken by the pipeline) is carried onto the new segment by the same
+    :func:`junction_transition` as the prediction (``T x + b``, ``T P T'``), so that the memory
+    stays consistent with ``pred`` (issue 12 review: after a junction switch the memory held the
+    straight-on prediction 50 m off the road taken). ``pred`` must then be the prediction that
+    the state was updated with. The RTS fields take the step's rotation from ``pred.T``
+    (:func:`vsimm_predict` sets it), else recompute it with ``net``; with neither, a step
+    through a junction is stored unrotated and its RTS retrodiction is inconsistent: pass
+    ``net`` for a prediction rebuilt without ``T``.
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1460,11 +1694,46 @@ def vsimm_lag_memory_step(
     F, Gm = _mode_F(config.kinds, dt)
     Q = _process_noise(config.kinds, config.noise, dt, Gm, pred.accel_cov)
     ox = (F.unsqueeze(1) @ memory.x[:, :-1].unsqueeze(-1)).squeeze(-1)
-    oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1) + Q.unsqueeze(1)
+    oP = F.unsqueeze(1) @ memory.P[:, :-1] @ F.transpose(-1, -2).unsqueeze(1)
+    n_old = ox.shape[1]
+    rts = memory.xf is not None
+    r = state.mu.shape[1]
+    if rts:
+        _, omega = _mixing(state.mu, config.trans_tensor())
+        x0, P0 = _mix(state.x, state.P, omega)
+        T0 = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4)
+        if pred.T is not None:
+            T0 = pred.T
+        elif net is not None and config.junction == "rotate" and B:
+            moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
+            xs = (F @ x0.unsqueeze(-1)).squeeze(-1)
+            T0, _ = junction_transition(net, state.segment, pred.segment, x0, xs, moving)
+        step = (x0, P0, pred.x, pred.P, T0, pred.accel_cov)
+        old_f = (memory.xf, memory.Pf, memory.xp, memory.Pp, memory.T, memory.acc)
+        extra = tuple(
+            torch.cat([a.unsqueeze(1), m[:, :-1]], 1) for a, m in zip(step, old_f, strict=True)
+        )
+    if net is not None and config.junction == "rotate" and n_old and B:
+        r = state.mu.shape[1]
+        moving = torch.tensor([k == "road" for k in config.kinds]).view(1, r)
+        rep = (B * n_old, r)
+        T, b = junction_transition(
+            net,
+            state.segment.unsqueeze(1).expand(B, n_old, r).reshape(rep),
+            pred.segment.unsqueeze(1).expand(B, n_old, r).reshape(rep),
+            memory.x[:, :-1].reshape(*rep, 4),
+            ox.reshape(*rep, 4),
+            moving,
+        )
+        T, b = T.view(B, n_old, r, 4, 4), b.view(B, n_old, r, 4)
+        ox = (T @ ox.unsqueeze(-1)).squeeze(-1) + b
+        oP = T @ oP @ T.transpose(-1, -2)  # the noise is added in the new frame, as the prediction
+    oP = oP + Q.unsqueeze(1)
     return VSIMMLagMemory(
         torch.cat([state.t.view(B, 1), memory.t[:, :-1]], 1),
         torch.cat([pred.x.unsqueeze(1), ox], 1),
         torch.cat([pred.P.unsqueeze(1), 0.5 * (oP + oP.transpose(-1, -2))], 1),
+        *(extra if rts else ()),
     )
 
 
@@ -1479,8 +1748,13 @@ def _vsimm_oosm_lag(
     *,
     detected: Any | None,
     too_old: str,
+    method: str = "rts",
 ) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
-    """:func:`vsimm_oosm` with a lag memory: A1 (one step), Al1 (``l <= N``), diffuse (birth).
+    """:func:`vsimm_oosm` with a lag memory: A1 (one step), RTS or Al1 (``l <= N``), diffuse.
+
+    ``method="rts"`` (with a memory holding the per-step fields): rows with ``1 < l <= N`` are
+    retrodicted by :func:`_lag_rts` (exact per mode, given the stored mixed estimates, issue 12
+    review); ``"al1"`` as below.
 
     Per row the lag ``l = 1 + #{j : t_{k-j} > tau}``. ``l = 1``: the A1 of :func:`vsimm_oosm`
     (memory ``g, G, P(k|k-1)`` of the state, road pseudo-measurement included). ``1 < l <= N``:
@@ -1501,6 +1775,7 @@ def _vsimm_oosm_lag(
     B, r = state.mu.shape
     tau = _times("t", t, B)
     check_choice("too_old", too_old, ("raise", "drop"))
+    check_choice("lag_method", method, ("rts", "al1"))
     mt = torch.as_tensor(memory[0], dtype=DTYPE)  # -inf allowed (before the birth)
     mx = as_float64("lag_memory.x", memory[1])
     mP = as_float64("lag_memory.P", memory[2])
@@ -1574,41 +1849,99 @@ def _vsimm_oosm_lag(
         C0 = Q
     C0 = torch.where(birth.view(B, 1, 1, 1), torch.zeros_like(C0), C0)
     r0 = _retrodict(state.x, state.P, Pp, g, G, Fb, Q, C0)
-    # from here on as vsimm_oosm (projection on the road at tau, update, projection at t_k)
-    allowed = net.section_mask(state.section).unsqueeze(1)
-    loc = net.locate(r0.x, allowed=allowed)
-    on = state.segment >= 0
-    D, L = net.constraint(loc.segment)
-    xs, A = _projection(r0.x, r0.P, D, L)
-    At = A.transpose(-1, -2)
-    onx = on.unsqueeze(-1)
-    r1 = Retrodiction(
-        torch.where(onx, xs, r0.x),
-        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
-        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
-    )
-    xc = _combine(state.mu, r1.x, r1.P)[0]
-    zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc))
-    hx, H, R = sensor.linearize(r1.x, zt.unsqueeze(1))
-    H = H.expand(B, r, m, 4)
-    R = R.expand(B, r, m, m)
-    x_upd, P_upd, ll = _apply(state.x, state.P, r1, zt.unsqueeze(1) - hx, H, R)
-    pd = _mode_pd(sensor, config, r1.x, r1.P)
-    mode_ll = _pd_mode_ll(ll, det, pd, _stop_mask(config), stop_detectable(sensor))
-    Dk, Lk = net.constraint(state.segment.clamp(min=0))
-    xk, Ak = _projection(x_upd, P_upd, Dk, Lk)
-    Pk = Ak @ P_upd @ Ak.transpose(-1, -2)
-    x_upd = torch.where(onx, xk, x_upd)
-    P_upd = torch.where(onx.unsqueeze(-1), 0.5 * (Pk + Pk.transpose(-1, -2)), P_upd)
-    a = mode_ll + torch.log(state.mu)
-    total = torch.logsumexp(a, -1, keepdim=True)
-    ok = torch.isfinite(total).squeeze(-1) & det
-    mu = torch.where(ok.unsqueeze(-1), torch.exp(a - total), state.mu)
-    x_new = torch.where(ok.view(B, 1, 1), x_upd, state.x)
-    P_new = torch.where(ok.view(B, 1, 1, 1), P_upd, state.P)
-    g_new, G_new = _refresh_memory(state.P_pred, state.x, state.P, state.g, state.G, x_new, P_new)
-    new = state._replace(mu=mu, x=x_new, P=P_new, g=g_new, G=G_new)
-    ll_out = torch.where(det, total.squeeze(-1), torch.zeros(B, dtype=DTYPE))
+    multi = ~one & ~birth & ~dropped
+    if method == "rts" and memory.xf is not None and bool(multi.any()):
+        rr = _lag_rts(state, memory, tau, idx, multi, config)
+        use = multi.view(B, 1, 1)
+        r0 = Retrodiction(
+            torch.where(use, rr.x, r0.x),
+            torch.where(use.unsqueeze(-1), rr.P, r0.P),
+            torch.where(use.unsqueeze(-1), rr.C, r0.C),
+        )
+    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
     if too_old == "drop":
         return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
     return new, VSIMMUpdate(ll_out, mode_ll)
+
+
+def _lag_rts(
+    state: VSIMMState,
+    memory: VSIMMLagMemory,
+    tau: torch.Tensor,
+    idx: torch.Tensor,
+    use: torch.Tensor,
+    config: VSIMMConfig,
+) -> Retrodiction:
+    """Exact retrodiction of each mode to ``tau`` from the lag memory (RTS; our addition).
+
+    :func:`hocnet.tracking.oosm.oosm_retrodict_rts` per mode, batched over rows with
+    different lags: from ``x(k|k), P(k|k)`` back through the stored steps ``0 .. idx - 1``
+    (newest first; step ``e`` went from ``xf_e`` to ``xp_e = T_e F_e xf_e + b_e``, so the
+    smoother gain is ``J = Pf_e (T_e F_e)' Pp_e^+``, which also undoes a junction rotation),
+    then into step ``idx`` at ``tau``: ``x(tau|.) = F(d) xf``, ``P = F(d) Pf F(d)' + Q(d)``,
+    ``cov(x(tau), x_next) = P(tau|.) F(D - d)' T'`` (continuous noise) or
+    ``F(d) Pf F(D)' T' + Gamma(d) S Gamma(D)'`` (piecewise-constant, ``d = tau - t``, ``D`` the
+    step; the step's noise is drawn in the new segment's frame, as in :func:`vsimm_predict`).
+    Exact for one linear Gaussian mode filter started from its stored mixed estimate (the
+    mode probabilities and mixing are not retrodicted, and an OOSM update earlier in the stored
+    interval is not propagated into the stored steps: approximate there, as A1 and Al1).
+
+    Args:
+        state: ``B`` rows at ``t_k``.
+        memory: lag memory with the per-step fields.
+        tau: ``(B,)`` report times.
+        idx: ``(B,)`` int64 the memory entry whose step contains ``tau``.
+        use: ``(B,)`` bool rows to compute (others get ``x(k|k)``).
+        config: :class:`VSIMMConfig`.
+
+    Returns:
+        :class:`Retrodiction` ``(x(tau|k), P(tau|k), cov(x_k, x(tau)|k))``, ``(B, r, ...)``.
+    """
+    B = state.mu.shape[0]
+    N = memory.t.shape[1]
+    kinds = config.kinds
+    xs, Ps, Cr = state.x, state.P, state.P
+    out_x, out_P, out_C = state.x.clone(), state.P.clone(), state.P.clone()
+    t_end = torch.cat([state.t.view(B, 1).expand(B, 1), memory.t[:, :-1]], 1)
+
+    def pinv(M: torch.Tensor) -> torch.Tensor:
+        return torch.linalg.pinv(0.5 * (M + M.transpose(-1, -2)), hermitian=True, rtol=1e-12)
+
+    last_e = int(idx[use].max()) if bool(use.any()) else -1
+    for e in range(min(last_e, N - 1) + 1):
+        t0 = torch.where(use, memory.t[:, e], state.t)  # -inf never reaches here for used rows
+        D = torch.where(use, t_end[:, e] - t0, torch.zeros_like(t0))
+        xf, Pf = memory.xf[:, e], memory.Pf[:, e]
+        xp, Pp, T = memory.xp[:, e], memory.Pp[:, e], memory.T[:, e]
+        FD, GD = _mode_F(kinds, D)
+        Tt = T.transpose(-1, -2)
+        full = (use & (e < idx)).view(B, 1, 1)
+        if bool(full.any()):
+            J = Pf @ FD.transpose(-1, -2) @ Tt @ pinv(Pp)
+            Jt = J.transpose(-1, -2)
+            xs_n = xf + (J @ (xs - xp).unsqueeze(-1)).squeeze(-1)
+            Ps_n = Pf + J @ (Ps - Pp) @ Jt
+            xs = torch.where(full, xs_n, xs)
+            Ps = torch.where(full.unsqueeze(-1), Ps_n, Ps)
+            Cr = torch.where(full.unsqueeze(-1), Cr @ Jt, Cr)
+        here = (use & (e == idx)).view(B, 1, 1)
+        if bool(here.any()):
+            d = torch.where(use, tau - t0, torch.zeros_like(t0)).clamp(min=0.0)
+            Fd, Gd = _mode_F(kinds, d)
+            acc = memory.acc[:, e]
+            Pt = Fd @ Pf @ Fd.transpose(-1, -2) + _process_noise(kinds, config.noise, d, Gd, acc)
+            xt = (Fd @ xf.unsqueeze(-1)).squeeze(-1)
+            if config.noise == "discrete":
+                # the step's acceleration is drawn in the frame of the new segment (not rotated)
+                cross = Fd @ Pf @ FD.transpose(-1, -2) @ Tt + Gd @ acc @ GD.transpose(-1, -2)
+            else:
+                Frest, _ = _mode_F(kinds, D - d)
+                cross = Pt @ Frest.transpose(-1, -2) @ Tt
+            J = cross @ pinv(Pp)
+            Jt = J.transpose(-1, -2)
+            xr = xt + (J @ (xs - xp).unsqueeze(-1)).squeeze(-1)
+            Pr = Pt + J @ (Ps - Pp) @ Jt
+            out_x = torch.where(here, xr, out_x)
+            out_P = torch.where(here.unsqueeze(-1), 0.5 * (Pr + Pr.transpose(-1, -2)), out_P)
+            out_C = torch.where(here.unsqueeze(-1), Cr @ Jt, out_C)
+    return Retrodiction(out_x, out_P, out_C)

@@ -50,10 +50,10 @@ def test_report_scans_group_every_report_once(short):
             assert bool((s.z[:, 2] == 0).all()) and bool((s.R[:, 2, 2] == 1).all())
 
 
-def _filter(net, kind, time):
+def _filter(net, kind, time, config=None):
     f = VSIMMRoadFilter(
         net,
-        PDTrackerConfig(),
+        PDTrackerConfig() if config is None else config,
         GMTISensor((-50_000.0, -60_000.0, 4000.0)),
         VideoSensor(10.0, name="video"),
         VideoSensor(10.0, pd=1.0, name="ugs"),
@@ -170,18 +170,19 @@ def test_lag_memory_rows_carry_the_memory():
     assert torch.equal(s3["lag_t"], s["lag_t"])
 
 
-def _turn_at_junction(junction_hypotheses: bool):
+def _turn_at_junction(junction_hypotheses: bool, max_lag: int | None = None, net=None):
     """A target at 15 m/s east on road A turns right (south) at the junction (1000, 0)."""
-    net = RoadNetwork(
-        [
-            [[0.0, 0.0], [1000.0, 0.0]],
-            [[1000.0, 0.0], [2000.0, 0.0]],
-            [[1000.0, 0.0], [1000.0, -1000.0]],
-        ],
-        [{"road_class": "highway"}] * 2 + [{"road_class": "byway"}],
-    )
+    if net is None:
+        net = RoadNetwork(
+            [
+                [[0.0, 0.0], [1000.0, 0.0]],
+                [[1000.0, 0.0], [2000.0, 0.0]],
+                [[1000.0, 0.0], [1000.0, -1000.0]],
+            ],
+            [{"road_class": "highway"}] * 2 + [{"road_class": "byway"}],
+        )
     gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
-    cfg = PDTrackerConfig(junction_hypotheses=junction_hypotheses)
+    cfg = PDTrackerConfig(junction_hypotheses=junction_hypotheses, max_lag=max_lag)
     f = VSIMMRoadFilter(
         net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
     )
@@ -201,6 +202,7 @@ def _turn_at_junction(junction_hypotheses: bool):
         d2 = float(nu @ torch.linalg.solve(hph[0] + R[0], nu))
         s, _ = f.update(pred, z, R)
     x, _ = f.mean_cov(s)
+    f.last_state = s
     return d2, x[0], f
 
 
@@ -215,6 +217,35 @@ def test_junction_hypotheses_follow_a_turn():
     assert f_on.junction_switches == 1
     assert math.hypot(x_on[0] - 1000.0, x_on[2] + 50.0) < 15.0  # on the southern branch
     assert x_on[3] < -10.0 and abs(x_on[1]) < 1.0  # heading south
+
+
+def test_lag_memory_follows_the_junction_hypothesis_taken():
+    # issue 12 review (lag_junc.py): after the switch onto the southern branch the lag memory
+    # still held the straight-on prediction x(k|k-1) = (1049.8, 0); now entry 0 is the branch
+    # hypothesis's prediction and the older entry is carried onto the branch with it
+    _, x, f = _turn_at_junction(True, max_lag=2)
+    s = f.last_state
+    assert f.junction_switches == 1
+    for j in range(2):
+        for i in (1, 2):  # the road modes
+            px, py = s["lag_x"][0, j, i, 0], s["lag_x"][0, j, i, 2]
+            assert abs(px - 1000.0) < 5.0 and py < -30.0, (j, i, px, py)
+            assert s["lag_x"][0, j, i, 3] < -10.0  # heading south
+    # the one-section 90 degree bend (pipe_bend.py): the prediction follows the road, gated
+    bend = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], [1000.0, -1000.0]]])
+    d2, x, _ = _turn_at_junction(True, net=bend)
+    assert d2 < 16.27 and math.hypot(x[0] - 1000.0, x[2] + 50.0) < 15.0
+
+
+def test_max_coast_none_never_penalises():
+    net = RoadNetwork([[[0.0, 0.0], [5000.0, 0.0]]])
+    f = _filter(net, "gmti", 0.0, PDTrackerConfig(max_coast=None))
+    z = f.sensors["gmti"].measure(torch.tensor([[1000.0, 15.0, 0.0, 0.0]], dtype=torch.float64))
+    s = f.initiate(z, f.sensors["gmti"].covariance(z))
+    for t in (10.0, 20.0, 30.0, 40.0, 50.0):
+        f.set_scan("gmti", t)
+        s, log_miss = f.miss(f.predict(s, 10.0), 0.9)
+        assert float(log_miss[0]) > -f.cfg.coast_penalty
 
 
 def test_coasting_track_is_penalised_after_max_coast():

@@ -11,7 +11,9 @@ from hocnet.tracking.sprt import sprt_thresholds
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     VSIMMState,
+    follow_section,
     junction_transition,
+    node_ahead,
     section_probabilities,
     section_transition,
     sprt_decide,
@@ -936,3 +938,97 @@ def test_junction_transition_keeps_the_update_on_the_target(noise):
     # 116 m in the run); the rotated prediction is on the target
     assert _turn_update_error("rotate", noise) < 2.0
     assert _turn_update_error("none", noise) > 50.0
+
+
+def _bend_errors(deg: float, junction: str = "rotate") -> list[float]:
+    """Position errors per scan of a track through a ``deg`` bend inside ONE road section
+    (issue 12 review, turn2.py): noise-free video reports of a 12 m/s target every 10 s."""
+    a = math.radians(deg)
+    u = np.array([math.cos(a), math.sin(a)])
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], list(np.array([1000.0, 0.0]) + 2000 * u)]])
+    cfg = VSIMMConfig(
+        road_sigmas=((0.3, 0.1),), stop=False, relax=False, use_mdv=False, junction=junction
+    )
+    P0 = torch.diag(torch.tensor([100.0, 4.0, 100.0, 4.0], dtype=torch.float64))
+    s = vsimm_init(net, torch.tensor([[600.0, 12.0, 0.0, 0.0]], dtype=torch.float64), P0, cfg)
+    video, errs = VideoSensor(10.0), []
+    for t in np.arange(10.0, 90.0, 10.0):
+        d = 600 + 12 * t
+        tr = [d, 0.0] if d <= 1000 else list(np.array([1000.0, 0.0]) + (d - 1000) * u)
+        s, _ = vsimm_update(
+            s,
+            vsimm_predict(s, net, cfg, t),
+            torch.tensor([tr], dtype=torch.float64),
+            video,
+            net,
+            cfg,
+        )
+        e = s.combined()[0][0]
+        errs.append(math.hypot(e[0] - tr[0], e[2] - tr[1]))
+    return errs
+
+
+@pytest.mark.parametrize("deg", [90.0, 120.0])
+def test_bend_of_90_degrees_or_more_inside_a_section_keeps_the_track(deg):
+    # before the fix locate() kept the old segment past the corner (the next one is no nearer)
+    # and the errors grew 80, 200, 320 m (90 deg); now the mode follows the section's topology
+    assert max(_bend_errors(deg)) < 1.0
+    assert max(_bend_errors(deg, "none")) > 50.0  # the straight CV prediction loses it
+
+
+@pytest.mark.parametrize("deg", [11.0, 30.0])
+def test_follow_section_leaves_bends_below_90_degrees_unchanged(deg):
+    # below 90 degrees locate() already returns the next segment: follow_section is a no-op
+    a = math.radians(deg)
+    net = RoadNetwork(
+        [[[0.0, 0.0], [1000.0, 0.0], [1000.0 + 1000 * math.cos(a), 1000 * math.sin(a)]]]
+    )
+    rng = np.random.default_rng(3)
+    x0 = torch.zeros(64, 1, 4, dtype=torch.float64)
+    x0[:, 0, 0] = torch.from_numpy(rng.uniform(0, 1000, 64))
+    x0[:, 0, 1] = torch.from_numpy(rng.uniform(-25, 25, 64))
+    x0[:, 0, 2] = torch.from_numpy(rng.normal(0, 5, 64))
+    xp = x0.clone()
+    xp[:, 0, 0] += 10.0 * x0[:, 0, 1]
+    old = net.locate(x0).segment
+    new = net.locate(xp).segment
+    assert torch.equal(follow_section(net, old, new, x0, xp), new)
+    assert max(_bend_errors(deg)) < 1.0
+
+
+def test_follow_section_topology_and_road_end():
+    net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+    x0 = torch.tensor([[[90.0, 10.0, 0.0, 0.0]], [[50.0, -10.0, 0.0, 0.0]]], dtype=torch.float64)
+    xp = torch.tensor([[[140.0, 10.0, 0.0, 0.0]], [[-50.0, -10.0, 0.0, 0.0]]], dtype=torch.float64)
+    seg = torch.tensor([[0], [0]])
+    # past the bend: the next segment; backwards past the road end: unchanged
+    assert follow_section(net, seg, seg, x0, xp).tolist() == [[1], [0]]
+    # a stop mode (moving=False) is not moved
+    assert follow_section(net, seg, seg, x0, xp, moving=[False]).tolist() == [[0], [0]]
+    ahead, w = node_ahead(
+        net, torch.tensor([0, 1, 1]), torch.tensor([[1.0, 0], [0, 1.0], [0, -1.0]])
+    )
+    assert ahead.tolist() == [1, 2, 1] and w[2].tolist() == [0.0, -1.0]
+
+
+def test_junction_transition_validates_inputs():
+    net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+    x = torch.zeros(1, 1, 4)
+    with pytest.raises(ValueError, match="`old`: expected segment indices"):
+        junction_transition(net, torch.tensor([[5]]), torch.tensor([[0]]), x, x)
+    with pytest.raises(ValueError, match="`new`: expected a \\(B, r\\) integer"):
+        junction_transition(net, torch.tensor([[0]]), torch.tensor([[0.5]]), x, x)
+    with pytest.raises(ValueError, match="`x_pred`: expected shape"):
+        junction_transition(net, torch.tensor([[0]]), torch.tensor([[1]]), x, torch.zeros(1, 4))
+    with pytest.raises(ValueError, match="`x0`: expected finite"):
+        junction_transition(net, torch.tensor([[0]]), torch.tensor([[1]]), x * math.nan, x)
+    with pytest.raises(ValueError, match="`moving`"):
+        junction_transition(net, torch.tensor([[0]]), torch.tensor([[1]]), x, x, [True, False])
+    T, b = junction_transition(
+        net,
+        torch.zeros(0, 3, dtype=torch.int64),
+        torch.zeros(0, 3, dtype=torch.int64),
+        torch.zeros(0, 3, 4),
+        torch.zeros(0, 3, 4),
+    )
+    assert T.shape == (0, 3, 4, 4) and b.shape == (0, 3, 4)
