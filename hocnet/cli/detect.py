@@ -809,7 +809,9 @@ input:
   natural order (frame2 before frame10), values are not rescaled (8-bit 0-255, 16-bit
   0-65535), colour frames are converted to grey (L = 0.299 R + 0.587 G + 0.114 B) with a note
   on stderr (see hocnet.data.load_frames). Make a .npy from your own frames with
-  numpy.save("cube.npy", array) or hocnet.data.save_cube("cube.npy", array).
+  numpy.save("cube.npy", array) or hocnet.data.save_cube("cube.npy", array). Fewest frames:
+  2k + 1 for --method hoc (--order k: 5 by default), 2 for --method dpa. --out may not be
+  the input folder of frames nor a folder inside it.
 
 outputs of every method (in --out DIR):
   tracks.json    the tracks: {"meta": {...}, "tracks": [{"id", "score", "points": [[t, y, x],
