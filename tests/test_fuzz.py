@@ -251,7 +251,7 @@ def _npz_ambiguous(draw: Draw, folder: Path) -> tuple[list[str], str]:
 
 def _key_on_npy(draw: Draw, folder: Path) -> tuple[list[str], str]:
     path = hoc_file(draw, folder)
-    return ["detect", str(path), "--key", "cube", *out_of(folder)], r"--key: expected None"
+    return ["detect", str(path), "--key", "cube", *out_of(folder)], r"--key: expected no --key"
 
 
 def _extension(draw: Draw, folder: Path) -> tuple[list[str], str]:

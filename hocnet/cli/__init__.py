@@ -84,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
         "  dpa  the dynamic-programming track-before-detect (DPA) of [NR08] on INTENSITY\n"
         "       frames such as infrared sequences (outputs: tracks.json, detections.csv,\n"
         "       asf.npy, shifts.csv, detection.png).\n"
-        "Input: .npy / .npz cubes, or folders of PNG / BMP / TIFF frames (detect).\n"
+        "Input (detect, track): .npy / .npz cubes, or folders, globs or files of PNG / BMP /\n"
+        "TIFF frames.\n"
         "[LA98] Liou & Azimi-Sadjadi, IEEE TAES 34(2), 1998; [NR08] Nichtern & Rotman,\n"
         "EURASIP JASP 2008; [PD] Pannetier, Dezert et al., GMTI tracking with PCR5 type fusion.",
         epilog="Run 'hocnet COMMAND --help' for the options of each command.",
@@ -116,10 +117,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = None
     try:
         try:
-            args = parser.parse_args(argv)
+            args, extra = parser.parse_known_args(argv)
+            if extra:  # said by the command's parser: "see 'hocnet track --help'"
+                _command_parser(parser, args.command).error(
+                    f"unrecognized arguments: {' '.join(extra)}"
+                )
         except SystemExit as exit_:  # --help / --version
             return exit_.code if isinstance(exit_.code, int) else 0
-        return int(args.func(args))
+        code = int(args.func(args))
+        sys.stdout.flush()  # a closed pipe is seen here, not at exit
+        return code
+    except BrokenPipeError:
+        return _stdout_closed()
     except CLIError as err:
         return _fail(str(err), _flags_of(args))
     except (ValueError, TypeError, OSError, OverflowError) as err:
@@ -134,6 +143,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    """The parser of subcommand ``command`` (``parser`` itself if there is none)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
+
+
+def _stdout_closed() -> int:
+    """The reader of stdout went away (``hocnet track ... | head -1``): exit 0, silently.
+
+    The outputs are written before anything is printed, so only the rest of the report is lost,
+    which the reader did not want. The standard output is pointed at the null device so that
+    the interpreter's final flush does not fail again (the recipe of the Python documentation,
+    "Note on SIGPIPE"); a stdout without a file descriptor (a test's capture) is left alone.
+    """
+    import contextlib
+    import io
+
+    with contextlib.suppress(OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    return 0
 
 
 if __name__ == "__main__":

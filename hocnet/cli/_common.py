@@ -394,6 +394,42 @@ def _torch_threads(n: int) -> Any:
 PIPELINE_THREADS = 1
 
 
+@contextlib.contextmanager
+def _reported_warnings(messages: list[str]) -> Any:
+    """Say the warnings raised inside the block as ``hocnet: warning: <one line>`` on stderr.
+
+    Every :class:`UserWarning` and :class:`RuntimeWarning` (e.g. a clutter density above the
+    HOC's bound, a CFAR that keeps no point) is caught instead of being shown by Python with its
+    source line; each distinct message is printed once when the block ends, in order, and
+    appended to ``messages`` (which the commands store in their JSON ``meta``). Other warnings
+    are dropped. Nothing is printed when the block raises (the error is the message then).
+
+    Examples:
+        >>> import warnings
+        >>> said = []
+        >>> with _reported_warnings(said):
+        ...     warnings.warn("dense", RuntimeWarning)
+        ...     warnings.warn("dense", RuntimeWarning)
+        >>> said
+        ['dense']
+    """
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield messages
+    new = [
+        _one_line(str(w.message))
+        for w in caught
+        if issubclass(w.category, (UserWarning, RuntimeWarning))
+    ]
+    for message in dict.fromkeys(new):
+        if message in messages:
+            continue
+        print(f"{PROG}: warning: {message}", file=sys.stderr)
+        messages.append(message)
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     """Plain fixed-width table (columns left-aligned, two spaces apart)."""
     cells = [list(map(str, header)), *([str(c) for c in row] for row in rows)]
@@ -567,6 +603,14 @@ def _flags_of(args: argparse.Namespace | None) -> dict[str, str]:
         flags = dict(_FLAGS.get(getattr(args, "method", "hoc"), {}))
         for name in ("cube", "frames", "x"):  # the input named with its path
             flags[name] = f"CUBE '{args.cube}'"
+        return flags
+    if command == "track":  # the detector's flags, then the input's name (SEQ)
+        detector = getattr(args, "detector", "hoc")
+        flags = {**_FLAGS.get(detector, {}), **_FLAGS["track"]}
+        if detector == "dpa":  # --window is the HOC's window here; the matrices follow --preset
+            flags["window"] = "the DPA matrices of --preset"
+        else:
+            flags.update(window="--window", stride="--stride")
         return flags
     return _FLAGS.get(command or "", {})
 

@@ -405,6 +405,91 @@ def prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def check_target_free(target_free: torch.Tensor, frame_size: tuple[int, int], label: str) -> None:
+    """Refuse ``--target-free`` frames that cannot give the input's CFAR threshold.
+
+    The threshold is an order statistic of the DPA's scores on these frames, whitened like the
+    input, so they must be intensity frames (not a binary cube) of the input's frame size
+    ``(H, W)``; their number of frames (and batch) may differ.
+
+    Raises:
+        CLIError: one line naming ``--target-free``.
+
+    Examples:
+        >>> import torch
+        >>> check_target_free(torch.rand(4, 8, 8), (8, 8), "CUBE")
+        >>> check_target_free(torch.rand(4, 6, 8), (8, 8), "CUBE")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        hocnet.cli._common.CLIError: --target-free: expected frames of the size of CUBE, ...
+    """
+    import torch
+
+    height, width = target_free.shape[-2:]
+    if (height, width) != tuple(frame_size):
+        raise CLIError(
+            f"--target-free: expected frames of the size of {label}, {frame_size[0]} x "
+            f"{frame_size[1]} (H x W), got {height} x {width}"
+        )
+    if target_free.dtype == torch.bool or not bool(((target_free != 0) & (target_free != 1)).any()):
+        raise CLIError(
+            "--target-free: expected intensity frames like the input (the CFAR threshold is an "
+            "order statistic of their DPA scores), got binary values (only 0 and 1)"
+        )
+
+
+def out_inside_input(out: Path | str, source: str, label: str = "CUBE") -> None:
+    """Refuse an ``--out`` that is the input's folder of frames or inside it.
+
+    The outputs (``tracks.json``, a ``.png``, a sub-folder) would become part of the input and
+    break the next run on it ("expected only image frames ..."). A folder input refuses the
+    folder and every folder inside it; a glob refuses the folders of the frames it matches (a
+    picture written there could match the pattern); a ``.npy`` / ``.npz`` or one image file
+    refuses nothing.
+
+    Raises:
+        CLIError: one line naming ``--out``.
+
+    Examples:
+        >>> import tempfile
+        >>> clip = Path(tempfile.mkdtemp())
+        >>> out_inside_input(clip / "results", str(clip), "SEQ")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        hocnet.cli._common.CLIError: --out: ... is inside the input folder of SEQ ...
+    """
+    import os
+
+    if not frames_source(source):
+        return
+    path = Path(source)
+    if path.is_dir():
+        folders, inside = [path], True
+    else:
+        if path.is_file():  # one (multi-page) image file
+            return
+        from hocnet.data.frames import frame_files
+
+        try:
+            files = frame_files(source)
+        except (ValueError, OSError):  # the loading names the problem
+            return
+        folders, inside = list(dict.fromkeys(file.parent for file in files)), False
+    where = Path(os.path.realpath(out))
+    for folder in folders:
+        real = Path(os.path.realpath(folder))
+        if where == real:
+            raise CLIError(
+                f"--out: '{out}' is the input folder of {label} '{folder}': the outputs would "
+                "become input frames of the next run; choose another --out"
+            )
+        if inside and real in where.parents:
+            raise CLIError(
+                f"--out: '{out}' is inside the input folder of {label} '{folder}': the outputs "
+                "would become part of the input of the next run; choose another --out"
+            )
+
+
 # --------------------------------------------------------------------------------------------
 # the input
 # --------------------------------------------------------------------------------------------
@@ -498,7 +583,7 @@ def load_input(
     from hocnet.data.frames import frame_files, load_frames
     from hocnet.data.io import load_cube
 
-    files: list[Path] = []
+    files: list[Path] | None = []
     try:
         if frames_source(source):
             with warnings.catch_warnings(record=True) as caught:
@@ -510,12 +595,27 @@ def load_input(
                     print(f"{PROG}: note: {text}", file=sys.stderr)
             files = frame_files(source)
             if binary:
-                cube, _ = as_cube("cube", cube, binary=True)
+                try:
+                    cube, _ = as_cube("cube", cube, binary=True)
+                except ValueError as err:  # as a .npy says it, naming the input
+                    text = str(err).replace("`cube`: ", "")
+                    raise ValueError(
+                        f"{label}: the frames of '{source}' are not binary: {text}"
+                    ) from None
                 cube = cube[0]
         else:
+            files = None
             cube = load_cube(source, key=key, binary=binary)
     except (ValueError, TypeError, OSError) as err:
         message = str(err).replace("`path`", label).replace("`source`", label)
+        key_used = re.match(r"`key`: expected None for (.*), got (.*)$", message)
+        if key_used:  # not "expected None": say what --key is for
+            message = (
+                f"--key: expected no --key for {key_used.group(1)} (--key names an array of a "
+                f".npz archive), got {key_used.group(2)}"
+            )
+        if files is not None and "expected finite values" in message:
+            message = _nonfinite_frames(source, message)
         message = message.replace("`key`", "--key").replace("`cube`: ", "")
         if binary and "binary values" in message:
             message += (
@@ -523,4 +623,29 @@ def load_input(
                 f"intensity frames, or use {selector} dpa"
             )
         raise CLIError(message) from None
-    return cube, files
+    return cube, files or []
+
+
+def _nonfinite_frames(source: str, message: str) -> str:
+    """The NaN / inf message of image frames, naming the frame files that hold them."""
+    import warnings
+
+    from hocnet.data.frames import frame_files, load_frames
+
+    bad = []
+    try:
+        for file in frame_files(source):
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    load_frames(file)
+            except ValueError as err:
+                if "finite" not in str(err):
+                    raise
+                bad.append(file.name)
+    except (ValueError, TypeError, OSError):
+        return message
+    if not bad:
+        return message
+    shown = ", ".join(f"'{name}'" for name in bad[:3]) + (" ..." if len(bad) > 3 else "")
+    return f"{message} in {len(bad)} frame file{'s' * (len(bad) != 1)} of '{source}': {shown}"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -17,7 +16,6 @@ if TYPE_CHECKING:
 from hocnet.cli._common import (
     _FLAGS,
     PIPELINE_THREADS,
-    PROG,
     CLIError,
     Writer,
     _check_destinations,
@@ -27,6 +25,7 @@ from hocnet.cli._common import (
     _one_line,
     _png_writer,
     _progress,
+    _reported_warnings,
     _show_progress,
     _Stages,
     _to_flags,
@@ -40,9 +39,11 @@ from hocnet.cli._inputs import (
     add_hoc_options,
     add_input_arguments,
     add_preprocess_options,
+    check_target_free,
     frame_paths,
     input_paths,
     load_input,
+    out_inside_input,
     prepare_dpa,
     prepare_hoc,
 )
@@ -117,6 +118,11 @@ def _bound_hoc(cube: torch.Tensor, params: dict[str, Any]) -> None:
     """
     n_t, height, width = cube.shape[-3:]
     order, v = params["order"], params["v"]
+    if n_t < 3:  # no order fits: name the input, and the minimum
+        raise CLIError(
+            "CUBE: expected at least 3 scans for the HOC (order k needs "
+            f"2k + 1 scans: 3 for --order 1, {2 * order + 1} for --order {order}), got {n_t}"
+        )
     if 2 * order + 1 > n_t:
         raise CLIError(
             f"--order: expected at most (T - 1) // 2 = {(n_t - 1) // 2} for a cube of T = {n_t} "
@@ -160,10 +166,27 @@ def binarize_frames(
     _check_float32_range(frames, "`frames`")
     white, shifts = _preprocess(frames, params)
     binary = cfar_binarize(white, pfa)
+    height, width = binary.shape[-2:]
+    per_frame = math.floor(pfa * height * width)
+    points = int(binary.sum())
     note = (
-        f"binarised: {int(binary.sum())} points (CFAR, pfa {pfa:g} per pixel, at most "
-        f"{math.floor(pfa * binary.shape[-1] * binary.shape[-2])} per frame)"
+        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
     )
+    if per_frame < 1:  # said through warnings: the command prints `hocnet: warning: ...`
+        warnings.warn(
+            f"--threshold-pfa: {pfa:g} x {height} x {width} pixels = {pfa * height * width:.3g} "
+            "expected false points per frame (< 1): every frame keeps 0 points and the HOC gets "
+            f"an empty cube; give at least 1 / (H W) = {1 / (height * width):.3g}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    elif points == 0:
+        warnings.warn(
+            f"--threshold-pfa: no point is left after the binarisation at pfa {pfa:g} (every "
+            "frame is flat after the pre-processing); the HOC gets an empty cube",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return binary, shifts, note
 
 
@@ -265,6 +288,9 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
 #: NMS radius (pixels) of the per-frame candidate detections of ``detections.csv``.
 DETECTION_NMS_RADIUS = 2
 
+#: Fewest frames the command line runs the DPA on (``hocnet detect``, ``hocnet track``).
+MIN_DPA_FRAMES = 2
+
 
 def _check_float32_range(cube: torch.Tensor, label: str) -> None:
     """Refuse finite values that would become infinite in float32, in which the DPA computes."""
@@ -360,8 +386,8 @@ def _shifts_writer(shifts: torch.Tensor) -> Writer:
     return write
 
 
-def _shifts_summary(shifts: torch.Tensor) -> str:
-    """One line about the estimated camera motion."""
+def _shifts_summary(shifts: torch.Tensor, where: str = "shifts.csv") -> str:
+    """One line about the estimated camera motion; ``where``: the output that lists the shifts."""
     step = shifts.norm(dim=-1)
     drift = shifts.sum(dim=-2).reshape(-1, 2)
     far = int(drift.norm(dim=-1).argmax()) if drift.numel() else 0
@@ -369,7 +395,7 @@ def _shifts_summary(shifts: torch.Tensor) -> str:
     return (
         f"registration: mean shift {float(step.mean()) if step.numel() else 0.0:.2f} px/frame, "
         f"largest {float(step.max()) if step.numel() else 0.0:.2f} px, total drift "
-        f"({dx:+.1f}, {dy:+.1f}) px (x, y); see shifts.csv"
+        f"({dx:+.1f}, {dy:+.1f}) px (x, y); see {where}"
     )
 
 
@@ -419,8 +445,16 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     from hocnet.dpa.backtrack import detect
     from hocnet.plot import plot_dpa
 
+    label = params.pop("label", "CUBE")  # the input's name in messages (track: SEQ)
+    n_t = cube.shape[-3]
+    if n_t < MIN_DPA_FRAMES:
+        raise CLIError(
+            f"{label}: expected at least {MIN_DPA_FRAMES} frames for the DPA (it accumulates "
+            f"evidence over frames; one frame is a single-frame detector), got {n_t}"
+        )
     _check_float32_range(cube, "`frames`")
     if params["target_free"] is not None:
+        check_target_free(params["target_free"], tuple(cube.shape[-2:]), label)
         _check_float32_range(params["target_free"], "`target_free`")
     frames = cube.float()
     height, width = frames.shape[-2:]
@@ -637,6 +671,7 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     params["max_per_frame"] = _check_int("--max-per-frame", args.max_per_frame, minimum=1)
     binary = params.pop("binary", method.binary)
     out = _check_out_dir(args.out)
+    out_inside_input(out, args.cube)
     inputs = input_paths(args.cube)
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
@@ -664,20 +699,11 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         stages.next(f"{method.name} on {' x '.join(map(str, cube.shape))}")
         start = time.perf_counter()
         params["progress"] = stages.enabled
+        messages: list[str] = []
         with _torch_threads(PIPELINE_THREADS):
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
+            with _reported_warnings(messages):  # e.g. a density above the HOC's bound: said
                 detection = method.run(cube, params)
-            messages = list(
-                dict.fromkeys(
-                    _one_line(str(w.message))
-                    for w in caught
-                    if issubclass(w.category, (UserWarning, RuntimeWarning))
-                )
-            )
-            for message in messages:  # e.g. a density above the HOC's bound: said, and kept
-                print(f"{PROG}: warning: {message}", file=sys.stderr)
-            if messages:
+            if messages:  # and kept
                 detection.params["warnings"] = messages
         params.pop("progress", None)
         detection.params.pop("progress", None)
@@ -783,7 +809,9 @@ input:
   natural order (frame2 before frame10), values are not rescaled (8-bit 0-255, 16-bit
   0-65535), colour frames are converted to grey (L = 0.299 R + 0.587 G + 0.114 B) with a note
   on stderr (see hocnet.data.load_frames). Make a .npy from your own frames with
-  numpy.save("cube.npy", array) or hocnet.data.save_cube("cube.npy", array).
+  numpy.save("cube.npy", array) or hocnet.data.save_cube("cube.npy", array). Fewest frames:
+  2k + 1 for --method hoc (--order k: 5 by default), 2 for --method dpa. --out may not be
+  the input folder of frames nor a folder inside it.
 
 outputs of every method (in --out DIR):
   tracks.json    the tracks: {"meta": {...}, "tracks": [{"id", "score", "points": [[t, y, x],

@@ -27,7 +27,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +44,7 @@ from hocnet.cli._common import (
     _check_out_dir,
     _Formatter,
     _png_writer,
+    _reported_warnings,
     _table,
     _torch_threads,
     _write_outputs,
@@ -57,6 +60,17 @@ _HOC_DESTS = (*_inputs.HOC_DESTS, "window", "stride")
 _DPA_DESTS = (*(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
 
 _LABEL, _SELECTOR = "SEQ", "--detector"
+
+#: Where ``hocnet track`` writes the registration shifts (``hocnet detect``: ``shifts.csv``).
+_SHIFTS_AT = "tracks.json (meta.shifts)"
+
+#: The ``status`` of a track in ``tracks.json`` (also in its ``meta.status``).
+_STATUS = {
+    "confirmed": "confirmed by the SPRT and still held at the last frame",
+    "deleted": "confirmed earlier, then ended before the last frame (its score fell below the "
+    "SPRT's deletion threshold, or every hypothesis that kept it was pruned); its points "
+    "up to then are kept",
+}
 
 
 def _load(args: argparse.Namespace, binary: bool) -> tuple[Any, list[Path]]:
@@ -90,9 +104,17 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
     _mht_params(args, [], 1.0)  # the tracker's options too, before any work
     if det == "hoc":
         params = _inputs.prepare_hoc(args, _SELECTOR)
-        params["window"] = _check_int(
-            "--window", 10 if args.window is None else args.window, minimum=2 * params["order"] + 1
-        )
+        order = params["order"]
+        window = 10 if args.window is None else args.window
+        if args.order is not None:  # the order is what the window must hold: name --order
+            window = _check_int("--window", window, minimum=1)
+            if window < 2 * order + 1:
+                given = "the default --window" if args.window is None else "--window"
+                raise CLIError(
+                    f"--order: {order} needs --window >= 2 * order + 1 = {2 * order + 1}, "
+                    f"got {given} {window}"
+                )
+        params["window"] = _check_int("--window", window, minimum=2 * order + 1)
         params["stride"] = _check_int(
             "--stride", 2 if args.stride is None else args.stride, minimum=1
         )
@@ -123,15 +145,55 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
     if params.get("threshold_pfa") is not None:
         cube, shifts, note = binarize_frames(cube, params)
         if shifts is not None:
-            notes.append(_shifts_summary(shifts))
+            notes.append(_shifts_summary(shifts, _SHIFTS_AT))
         notes.append(note)
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
     return cube, notes, shifts
 
 
+def _windows(cube: Any, p: dict[str, Any]) -> tuple[list[int], list[int], list[float], float]:
+    """The windows of the streaming HOC: starts, the dense ones, densities and the bound.
+
+    The streaming detector reports the windows starting at ``0, stride, 2 stride, ...`` (the
+    last one ending at most at the last frame), and :func:`_hoc_plots` adds one final window
+    ending at the last frame when the strides do not reach it. A window is dense when its
+    clutter density (its on-points over ``window H W``, computed as
+    :class:`~hocnet.hoc.stream.StreamingDetector` and :func:`~hocnet.hoc.detect` do) is above
+    the modified HOC's discrimination bound
+    (:func:`~hocnet.hoc.functional.density_bound`, [LA98] section IV-B): both skip its track
+    identification, so it has no plots, and :func:`_hoc_plots` does not compute it at all.
+    """
+    import torch
+
+    from hocnet.hoc import density_bound
+
+    n_t, h, w = cube.shape
+    window, stride = p["window"], p["stride"]
+    starts = list(range(0, n_t - window + 1, stride))
+    if (n_t - window) % stride:
+        starts.append(n_t - window)
+    counts = [0, *cube.reshape(n_t, -1).sum(dim=1).cumsum(0).tolist()]
+    bound = density_bound("modified", p["v"], math.radians(p["delta"]))
+    densities = [
+        float(torch.tensor(float(counts[s + window] - counts[s])) / (window * h * w))
+        for s in starts
+    ]
+    dense = [s for s, d in zip(starts, densities, strict=True) if d > bound]
+    return starts, dense, densities, bound
+
+
 def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
-    """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC."""
+    """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC.
+
+    Windows denser than the HOC's bound (:func:`_windows`) are skipped, with one warning
+    (:func:`warnings.warn`, said by the command as ``hocnet: warning: ...``): their result
+    would be empty, and streaming through them costs without bound (a 20 x 32 x 32 cube of
+    ones took 45 s, one of 40 x 64 x 64 more than 500 s). Each run of consecutive sparse
+    windows is streamed by its own :class:`~hocnet.hoc.stream.StreamingDetector`, whose
+    windows are those of one detector over the whole sequence (every window's result equals
+    :func:`~hocnet.hoc.detect` on its scans).
+    """
     import torch
 
     from hocnet.cli.detect import hoc_kwargs
@@ -139,21 +201,41 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
     from hocnet.hoc.stream import StreamingDetector
 
     kw = hoc_kwargs(p)
+    window, stride = p["window"], p["stride"]
 
     def cleaned(result: Any) -> Any:
         if p["min_speed"] > 0:
             result = reject_slow_tracks(result, p["min_speed"])
         return result.cleaned
 
-    det = StreamingDetector(window=p["window"], stride=p["stride"], **kw)
     n_t, h, w = cube.shape
     kept = torch.zeros(n_t, h, w, dtype=torch.bool)
-    for t in range(n_t):
-        out = det.push(cube[t])
-        if out is not None:
-            kept[out.start : out.stop] |= cleaned(out.result)
-    if (n_t - p["window"]) % p["stride"]:  # the last frames: one final window at the end
-        kept[n_t - p["window"] :] |= cleaned(detect(cube[n_t - p["window"] :], **kw))
+    starts, dense, densities, bound = _windows(cube, p)
+    if dense:
+        warnings.warn(
+            f"clutter density above the modified HOC's discrimination bound {100 * bound:.2f} % "
+            f"([LA98] section IV-B) in {len(dense)} of {len(starts)} windows (densest "
+            f"{100 * max(densities):.2f} %): the detector cannot tell targets from clutter there; "
+            "track identification skipped, no plots from those windows",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    aligned = [s for s in starts if s % stride == 0 and s not in dense]
+    runs: list[list[int]] = []
+    for s in aligned:  # consecutive sparse windows share one streaming detector
+        if runs and s == runs[-1][-1] + stride:
+            runs[-1].append(s)
+        else:
+            runs.append([s])
+    for run in runs:
+        det = StreamingDetector(window=window, stride=stride, **kw)
+        for t in range(run[0], run[-1] + window):
+            out = det.push(cube[t])
+            if out is not None:
+                kept[run[0] + out.start : run[0] + out.stop] |= cleaned(out.result)
+    last = starts[-1]
+    if last % stride and last not in dense:  # the last frames: one final window at the end
+        kept[last:] |= cleaned(detect(cube[last:], **kw))
     plots = []
     for t in range(n_t):
         yx = kept[t].nonzero().double()
@@ -169,13 +251,23 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, 
     from hocnet.detection_metrics import detect_peaks
 
     per_frame = params["max_per_frame"]
-    size, (height, width) = params["window"], cube.shape[-2:]
+    size, (n_t, height, width) = params["window"], cube.shape
+    background = params["background"] != "none"
+    if n_t < 2 + background:  # a tracker needs plots in two frames to confirm a track
+        because = (
+            f"; frame 0 has no plots with --background {params['background']} (no past frames)"
+            * background
+        )
+        raise CLIError(
+            f"SEQ: expected at least {2 + background} frames for --detector dpa, got {n_t} (the "
+            f"tracker needs plots in 2 frames to confirm a track{because})"
+        )
     if min(height, width) < size:  # `hocnet detect` would name its --window, not an option here
         raise CLIError(
             f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
             f"matrices of --preset {params['preset']}, got {height} x {width}"
         )
-    detection = _run_dpa(cube, params)
+    detection = _run_dpa(cube, {**params, "label": _LABEL})
     asf = detection.result.state.asf.double()
     threshold = detection.params.get("threshold_used")
     found = detect_peaks(
@@ -300,7 +392,12 @@ def _track_dicts(tracks: list[Any], plots: list[Any]) -> list[dict[str, Any]]:
     return out
 
 
+#: The colour of the track ids in ``tracks.png`` (drawn with a white outline).
+LABEL_COLOUR = "navy"
+
+
 def _figure(cube: Any, plots: list[Any], tracks: list[dict[str, Any]], title: str) -> Any:
+    from matplotlib import patheffects
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6, 6), dpi=100)
@@ -317,8 +414,15 @@ def _figure(cube: Any, plots: list[Any], tracks: list[dict[str, Any]], title: st
         pts = tr["points"]
         xs, ys = [p[1] for p in pts], [p[2] for p in pts]
         ax.plot(xs, ys, "-o", ms=2, lw=1.2)
-        if pts:
-            ax.annotate(str(tr["id"]), (xs[-1], ys[-1]), color="cyan", fontsize=9)
+        if pts:  # dark text in a white outline: readable on white HOC points and on black
+            ax.annotate(
+                str(tr["id"]),
+                (xs[-1], ys[-1]),
+                color=LABEL_COLOUR,
+                fontsize=9,
+                fontweight="bold",
+                path_effects=[patheffects.withStroke(linewidth=2.5, foreground="white")],
+            )
     ax.set_title(title)
     ax.set_xlabel("x (column)")
     ax.set_ylabel("y (row)")
@@ -332,6 +436,7 @@ def _cmd_track(args: argparse.Namespace) -> int:
     det_params = _prepare(args)
     binary = det == "hoc" and det_params.pop("binary", True)
     out = _check_out_dir(args.out)
+    _inputs.out_inside_input(out, args.seq, _LABEL)
     inputs = _inputs.input_paths(args.seq, _LABEL)
     if getattr(args, "target_free", None) is not None:
         inputs["--target-free"] = Path(args.target_free)
@@ -342,16 +447,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
     _check_destinations(out, names, inputs, force=args.force)
     n_t, h, w = cube.shape
     notes: list[str] = []
+    messages: list[str] = []
     shifts = None
     start = time.perf_counter()
-    with _torch_threads(PIPELINE_THREADS):
+    with _torch_threads(PIPELINE_THREADS), _reported_warnings(messages):
         if det == "hoc":
             scans, notes, shifts = _hoc_input(cube, det_params)
             plots = _hoc_plots(scans, det_params)
         else:
             plots, det_params, shifts = _dpa_plots(cube, det_params)
             if shifts is not None:
-                notes.append(_shifts_summary(shifts))
+                notes.append(_shifts_summary(shifts, _SHIFTS_AT))
         params = _mht_params(args, plots, float(h * w))
         tracks = _run_mht(plots, params)
     runtime = time.perf_counter() - start
@@ -366,6 +472,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
         **({"input_frames": [file.name for file in files]} if files else {}),
         **({"shifts": [[float(v) for v in s] for s in shifts]} if shifts is not None else {}),
         "plots_per_frame": [int(p.shape[0]) for p in plots],
+        **({"warnings": messages} if messages else {}),
+        "status": _STATUS,
         "coordinates": "pixels, x = column, y = row; points are [frame, x, y, plot index]",
         "state": "[x, vx, y, vy] at the last frame of the track (px, px/frame)",
     }
@@ -377,9 +485,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
         writers["tracks.png"] = _png_writer(_figure(cube, plots, rows, title))
     paths = _write_outputs(out, writers, inputs, force=args.force)
     n_plots = sum(meta["plots_per_frame"])
+    deleted = sum(r["status"] == "deleted" for r in rows)
+    ended = (
+        ""
+        if not deleted
+        else " (deleted by the end)"
+        if deleted == len(rows) == 1
+        else f" ({deleted} of them deleted by the end)"
+    )
     print(
         f"track: {det} + MHT on {n_t} x {h} x {w}: {n_plots} plots, {len(rows)} confirmed "
-        f"track{'s' * (len(rows) != 1)} ({runtime:.2f} s)"
+        f"track{'s' * (len(rows) != 1)}{ended} ({runtime:.2f} s)"
     )
     for note in notes:
         print(f"  {note}")
@@ -420,12 +536,21 @@ tracker:
   gating, LLR track score with Wald's SPRT (confirm at ln((1 - beta) / alpha), delete at
   ln(beta / (1 - alpha))), Murty k-best global hypotheses, N-scan pruning; the motion model
   is an IMM of two constant-velocity models (--sigma-a and 10 x --sigma-a) or one CV model.
+  Every track listed was confirmed; its status says how it ended:
+    confirmed  still held at the last frame
+    deleted    ended before the last frame (score below the SPRT's deletion threshold, or
+               pruned); its points up to then are kept
+  Fewest frames: 2 * order + 1 for --detector hoc (5 for the default --order 2); for
+  --detector dpa 3 with background removal (the default: frame 0 has no past frames, so no
+  plots), 2 with --background none; the tracker confirms a track at its second plot at the
+  earliest (at the fourth on a simulated 12 dB IR sequence with --preset paper, defaults).
 
 outputs (in --out DIR, all or nothing; an input is never replaced, SEQ or any of its image
-frames, --target-free; nor a file hocnet did not write unless --force; nothing is written if
-the input or an option is invalid):
+frames, --target-free; nor a file hocnet did not write unless --force; DIR may not be the
+input folder of frames or inside it; nothing is written if the input or an option is invalid):
   tracks.json  {"meta": {...}, "tracks": [{"id", "status", "score", "first_frame",
-               "last_frame", "state", "covariance", "points": [[frame, x, y, plot], ...]}]}
+               "last_frame", "state", "covariance", "points": [[frame, x, y, plot], ...]}]};
+               meta.shifts: the registration shifts (dx, dy) per frame, with --register
   tracks.png   the maximum over frames, the plots and the tracks with their ids
 
 examples:
@@ -486,7 +611,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
             "--threshold-pfa; in this order: registration, background removal, whitening)"
         ),
         selector=_SELECTOR,
-        shifts_to="tracks.json (meta.shifts)",
+        shifts_to=_SHIFTS_AT,
     )
     mht = p.add_argument_group("tracker options")
     mht.add_argument(

@@ -305,9 +305,8 @@ class TestInputsNeverReplaced:
         files[-1].rename(folder / "tracks.png")  # sorted after frame4: still the last frame
         before = snapshot(tmp_path)
         code = main(["track", str(folder), "--out", str(folder), "--force"])
-        one_line_error(
-            capsys, code, r"--out: writing '.*tracks\.png' would replace the input SEQ frame"
-        )
+        # refused before: the input folder itself is never an --out (item 3 of the new user)
+        one_line_error(capsys, code, r"--out: '.*clip' is the input folder of SEQ")
         assert snapshot(tmp_path) == before
 
     @pytest.mark.parametrize("link", ["symlink", "hardlink"])
@@ -401,3 +400,271 @@ class TestSharedOptions:
         for flag in shared:
             assert track[flag] == detect[flag].replace("--method", "--detector"), flag
         assert "--nms-radius" not in track and "--max-targets" not in track
+
+
+def _ir_frames(shape=(12, 32, 32)) -> np.ndarray:
+    """A small simulated IR sequence as 16-bit intensities (two targets, clear sky)."""
+    targets = [IRTarget(6, 6, 1.0, 1.0, snr_db=14.0), IRTarget(6, 26, 1.0, -1.0, snr_db=14.0)]
+    seq = simulate_ir(shape, targets, clouds="clear", jitter=0.0, seed=0)
+    return np.round((seq.frames.numpy() + 10.0) * 1000.0).astype(np.uint16)
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("hocnet: warning: ")]
+
+
+COMMANDS = [("detect", "--method"), ("track", "--detector")]
+
+
+class TestNewUser:
+    """What a new user met running `hocnet track` / `detect` from a fresh clone."""
+
+    def test_saturated_cube_is_not_streamed(self, tmp_path, capsys, monkeypatch):
+        # item 1: a cube of ones ran > 500 s (40 x 64 x 64) in the streaming HOC, which did all
+        # the layer work before its density check; like `detect`, dense windows are skipped
+        from hocnet.hoc.stream import StreamingDetector
+
+        def push(self, scan):
+            raise AssertionError("a window above the density bound was streamed")
+
+        monkeypatch.setattr(StreamingDetector, "push", push)
+        seq = tmp_path / "const.npy"
+        np.save(seq, np.ones((20, 32, 32), dtype=bool))
+        out = tmp_path / "out"
+        assert main(["track", str(seq), "--detector", "hoc", "--out", str(out), "-q"]) == 0
+        printed = capsys.readouterr().out
+        assert "0 plots, 0 confirmed tracks" in printed
+        meta = json.loads((out / "tracks.json").read_text())["meta"]
+        assert meta["plots_per_frame"] == [0] * 20
+        assert "discrimination bound" in meta["warnings"][0]
+
+    @pytest.mark.parametrize("stride", [1, 2, 3])
+    def test_dense_windows_skipped_plots_equal_detect_per_window(self, stride):
+        # the reference: the union over the windows of `hocnet.hoc.detect` on each window (the
+        # stream's documented equality), dense windows included (detect skips them itself)
+        import warnings
+
+        import torch
+
+        from hocnet.cli.detect import hoc_kwargs
+        from hocnet.cli.track import _hoc_plots, _windows
+        from hocnet.hoc import detect
+
+        specs = [
+            TargetSpec(start=(5, 5), velocity=(1.2, 1.2), p_miss=0.05),
+            TargetSpec(start=(5, 40), velocity=(1.0, -0.8), p_miss=0.05),
+        ]
+        cube = simulate_binary((33, 48, 48), specs, clutter_density=0.01, seed=1).cube.clone()
+        gen = torch.Generator().manual_seed(0)
+        cube[12:20] |= torch.rand(8, 48, 48, generator=gen) < 0.12  # dense in the middle
+        p = {"order": 2, "v": 4, "delta": 45.0, "threshold": 2.5, "min_points": 5}
+        p.update(min_speed=0.0, window=10, stride=stride)
+        starts, dense, _, _ = _windows(cube, p)
+        assert dense and len(dense) < len(starts)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            plots = _hoc_plots(cube, p)
+            kept = torch.zeros_like(cube)
+            for s in starts:
+                kept[s : s + 10] |= detect(cube[s : s + 10], **hoc_kwargs(p)).cleaned
+        expected = [kept[t].nonzero().double()[:, [1, 0]] for t in range(33)]
+        assert sum(len(e) for e in expected) > 50
+        for got, want in zip(plots, expected, strict=True):
+            assert torch.equal(got, want)
+
+    def test_density_warning_is_a_hocnet_warning(self, tmp_path, capsys):
+        # item 2: the same mechanism as `detect` (not Python's RuntimeWarning with its source)
+        seq = tmp_path / "const.npy"
+        np.save(seq, np.ones((12, 16, 16), dtype=bool))
+        for cmd, _ in COMMANDS:
+            assert main([cmd, str(seq), "--out", str(tmp_path / cmd), "--no-plot", "-q"]) == 0
+            err = capsys.readouterr().err
+            lines = _warnings(err)
+            assert len(lines) == 1 and "discrimination bound 4.94 %" in lines[0], err
+            assert "RuntimeWarning" not in err and ".py:" not in err
+
+    @pytest.mark.parametrize("where", ["same", "inside", "glob"])
+    @pytest.mark.parametrize(("cmd", "selector"), COMMANDS)
+    def test_out_in_the_input_folder_is_refused(self, tmp_path, capsys, where, cmd, selector):
+        # item 3: the outputs would break the next run on the folder
+        folder = tmp_path / "clip"
+        save_frames(folder, _ir_frames((6, 16, 16)))
+        seq = str(folder / "*.png") if where == "glob" else str(folder)
+        out = folder / "results" if where == "inside" else folder
+        before = snapshot(tmp_path)
+        code = main([cmd, seq, selector, "dpa", "--out", str(out)])
+        line = one_line_error(capsys, code, r"^hocnet: error: --out: '.*clip(/results)?' is ")
+        assert "input folder" in line
+        assert snapshot(tmp_path) == before
+
+    def test_shifts_are_in_tracks_json(self, tmp_path, capsys):
+        # item 4: `track` writes no shifts.csv: it says where the shifts are
+        seq = tmp_path / "ir.npy"
+        np.save(seq, _ir_frames())
+        out = tmp_path / "out"
+        assert main(["track", str(seq), "--detector", "dpa", "--out", str(out), "--no-plot"]) == 0
+        printed = capsys.readouterr().out
+        assert "see tracks.json (meta.shifts)" in printed and "shifts.csv" not in printed
+        assert len(json.loads((out / "tracks.json").read_text())["meta"]["shifts"]) == 12
+        assert not (out / "shifts.csv").exists()
+
+    def test_closed_stdout_exits_0(self, tmp_path, capsys, monkeypatch):
+        # item 5: `hocnet track ... | head -1` said "[Errno 32] Broken pipe" and exit 2
+        import sys
+
+        class Closed:
+            def write(self, text):
+                raise BrokenPipeError(32, "Broken pipe")
+
+            def flush(self):
+                raise BrokenPipeError(32, "Broken pipe")
+
+        seq = tmp_path / "ir.npy"
+        np.save(seq, _ir_frames())
+        for cmd, selector in COMMANDS:
+            out = tmp_path / cmd
+            monkeypatch.setattr(sys, "stdout", Closed())
+            code = main([cmd, str(seq), selector, "dpa", "--out", str(out), "--no-plot"])
+            monkeypatch.undo()
+            assert code == 0
+            assert capsys.readouterr().err == ""
+            assert (out / "tracks.json").is_file()
+
+    def test_closed_pipe_in_a_process(self, tmp_path):
+        import os
+        import subprocess
+        import sys
+
+        seq = tmp_path / "scans.npy"
+        np.save(seq, np.zeros((6, 12, 12), dtype=bool))
+        env = {**os.environ, "OMP_NUM_THREADS": "1"}
+        argv = [sys.executable, "-m", "hocnet.cli", "track", str(seq), "--out", str(tmp_path / "o")]
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+        proc.stdout.close()  # the reader is gone before anything is printed
+        err = proc.stderr.read().decode()
+        assert proc.wait(timeout=120) == 0, err
+        assert err == ""
+        assert (tmp_path / "o" / "tracks.json").is_file()
+
+    def test_deleted_tracks_are_counted_and_documented(self, tmp_path, capsys):
+        # item 6: "1 confirmed track" whose status is "deleted": say it
+        cube = np.zeros((24, 32, 32), dtype=bool)
+        for t in range(12):  # a target for 12 scans, then gone
+            cube[t, 3 + 2 * t, 4 + t] = True
+        seq = tmp_path / "scans.npy"
+        np.save(seq, cube)
+        out = tmp_path / "out"
+        assert main(["track", str(seq), "--out", str(out), "--no-plot"]) == 0
+        printed = capsys.readouterr().out
+        data = json.loads((out / "tracks.json").read_text())
+        assert [tr["status"] for tr in data["tracks"]] == ["deleted"]
+        assert "1 confirmed track (deleted by the end)" in printed
+        assert set(data["meta"]["status"]) == {"confirmed", "deleted"}
+        assert main(["track", "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.split())
+        assert "confirmed still held at the last frame" in text
+        assert "deleted ended before the last frame" in text
+
+    @pytest.mark.parametrize(
+        ("free", "match"),
+        [
+            (np.random.default_rng(0).random((10, 60, 60)) < 0.5, r"size of (SEQ|CUBE), 32 x 32"),
+            (np.random.default_rng(0).normal(size=(10, 32, 40)), r"got 32 x 40"),
+            ((np.random.default_rng(0).random((10, 32, 32)) < 0.5) * 1.0, r"binary values"),
+        ],
+    )
+    @pytest.mark.parametrize(("cmd", "selector"), COMMANDS)
+    def test_target_free_must_fit(self, tmp_path, capsys, free, match, cmd, selector):
+        # item 7: a binary 10 x 60 x 60 cube was a CFAR reference for 64 x 64 IR frames
+        seq, tf = tmp_path / "ir.npy", tmp_path / "free.npy"
+        np.save(seq, _ir_frames())
+        np.save(tf, free)
+        out = tmp_path / "out"
+        code = main([cmd, str(seq), selector, "dpa", "--target-free", str(tf), "--out", str(out)])
+        one_line_error(capsys, code, r"^hocnet: error: --target-free: .*" + match)
+        assert not out.exists()
+
+    @pytest.mark.parametrize(("cmd", "selector"), COMMANDS)
+    def test_threshold_pfa_keeping_no_point_is_said(self, tmp_path, capsys, cmd, selector):
+        # item 8: Pfa H W < 1 keeps 0 points per frame
+        seq = tmp_path / "ir.npy"
+        np.save(seq, _ir_frames())
+        argv = [cmd, str(seq), "--threshold-pfa", "1e-9", "--out", str(tmp_path / "o"), "-q"]
+        assert main([*argv, "--no-plot"]) == 0
+        lines = _warnings(capsys.readouterr().err)
+        assert len(lines) == 1 and lines[0].startswith("hocnet: warning: --threshold-pfa: 1e-09")
+        assert "(< 1)" in lines[0] and "0.000977" in lines[0]  # 1 / (32 x 32)
+
+    def test_order_too_large_for_the_window_names_order(self, tmp_path, capsys):
+        # item 9: "--window: expected an integer >= 199, got 10" for --order 99
+        seq = tmp_path / "scans.npy"
+        np.save(seq, np.zeros((6, 12, 12), dtype=bool))
+        code = main(["track", str(seq), "--order", "99", "--out", str(tmp_path / "o")])
+        one_line_error(capsys, code, r"^hocnet: error: --order: 99 needs --window >= .* = 199, ")
+        code = main(["track", str(seq), "--window", "3", "--out", str(tmp_path / "o")])
+        one_line_error(capsys, code, r"^hocnet: error: --window: expected an integer >= 5, got 3")
+
+    def test_messages_name_the_flags_as_typed(self, tmp_path, capsys):
+        # item 10
+        from PIL import Image
+
+        seq = tmp_path / "ir.npy"
+        np.save(seq, _ir_frames())
+        clip = tmp_path / "clip"
+        save_frames(clip, _ir_frames((6, 16, 16)))
+        nan = tmp_path / "nan"
+        nan.mkdir()
+        for t in range(6):
+            frame = np.zeros((8, 8), dtype=np.float32)
+            frame[2, 2] = np.nan if t == 4 else 1.0
+            Image.fromarray(frame).save(nan / f"f{t}.tif")
+        out = str(tmp_path / "o")
+        cases = [
+            (["track", str(seq), "--detector", "dpa", "--b", "1e9"], r"^hocnet: error: --b: "),
+            (["track", str(clip)], r"^hocnet: error: SEQ: the frames of .*clip' are not binary"),
+            (["detect", str(clip)], r"^hocnet: error: CUBE: the frames of .*clip' are not binary"),
+            (["track", str(seq), "--bogus"], r"--bogus \(see 'hocnet track --help'\)$"),
+            (["detect", str(seq), "--bogus"], r"--bogus \(see 'hocnet detect --help'\)$"),
+            (["track", str(seq), "--key", "frames"], r"--key: expected no --key for the \.npy"),
+            (
+                ["track", str(nan), "--detector", "dpa"],
+                r"SEQ: expected finite values, got 1 NaN/inf entries in 1 frame file .*'f4\.tif'",
+            ),
+        ]
+        for argv, match in cases:
+            one_line_error(capsys, main([*argv, "--out", out]), match)
+        assert not (tmp_path / "o").exists()
+
+    @pytest.mark.parametrize(
+        ("cmd", "selector", "method", "match"),
+        [
+            ("track", "--detector", "dpa", r"SEQ: expected at least 3 frames for --detector dpa"),
+            ("detect", "--method", "dpa", r"CUBE: expected at least 2 frames for the DPA"),
+            ("track", "--detector", "hoc", r"SEQ: expected at least 2 \* order \+ 1 = 5 frames"),
+            ("detect", "--method", "hoc", r"CUBE: expected at least 3 scans for the HOC"),
+        ],
+    )
+    def test_one_frame_folder(self, tmp_path, capsys, cmd, selector, method, match):
+        # item 11: dpa wrote empty results, hoc refused; both name their minimum now
+        frame = _ir_frames((1, 16, 16)) if method == "dpa" else np.zeros((1, 16, 16), bool)
+        save_frames(tmp_path / "one", frame)
+        out = tmp_path / "out"
+        code = main([cmd, str(tmp_path / "one"), selector, method, "--out", str(out)])
+        one_line_error(capsys, code, match)
+        assert not out.exists()
+
+    def test_top_level_help_and_track_ids(self, capsys):
+        # item 12
+        import torch
+
+        from hocnet.cli.track import LABEL_COLOUR, _figure
+
+        assert main(["--help"]) == 0
+        assert "Input (detect, track):" in capsys.readouterr().out
+        cube = torch.ones(4, 8, 8, dtype=torch.bool)
+        plots = [torch.tensor([[1.0, 2.0]])] * 4
+        track = {"id": 7, "points": [[t, 1.0, 2.0, 0] for t in range(4)]}
+        fig = _figure(cube, plots, [track], "t")
+        (label,) = fig.axes[0].texts
+        assert label.get_text() == "7" and label.get_color() == LABEL_COLOUR == "navy"
+        assert label.get_path_effects()  # the white outline
