@@ -21,9 +21,11 @@ a Stone Soup user can drop our models into their own tracker:
   ``ConstantVelocity`` uses continuous white noise, a different ``Q``) and
   :class:`RoadConstrainedCV` (24.2-24.8 with the relaxed noise of 24.9-24.12 and the constraint
   ``D x = L`` of 24.3-24.4, on one segment or on the nearest segment of a
-  :class:`~hocnet.tracking.road.RoadNetwork`). All are ``LinearGaussianTransitionModel`` s, so
-  Stone Soup's own ``KalmanPredictor`` accepts them too (without the relaxation, which needs the
-  prior: see :meth:`RoadConstrainedCV.covar`).
+  :class:`~hocnet.tracking.road.RoadNetwork`, following bends and junctions as
+  :func:`~hocnet.tracking.vsimm.vsimm_predict` does). All are ``LinearGaussianTransitionModel``
+  s, so Stone Soup's own ``KalmanPredictor`` accepts them too (without the relaxation, which
+  needs the prior: see :meth:`RoadConstrainedCV.covar`; a road model on a ``network`` needs
+  :class:`IMMPredictor`).
 - **IMM**: :class:`IMMPredictor` (mixing 24.33-24.35 and the mode-matched predictions, with
   :func:`~hocnet.tracking.imm.imm_mixing_probabilities`, :func:`~hocnet.tracking.imm.imm_mix`,
   :func:`~hocnet.tracking.kalman.kalman_predict`) and :class:`IMMUpdater` (mode-matched (E)KF
@@ -149,6 +151,7 @@ from hocnet.tracking.sensors import (
     gmti_measure,
 )
 from hocnet.tracking.sprt import sprt_thresholds
+from hocnet.tracking.vsimm import follow_section, junction_transition
 
 __all__ = [
     "ConstantVelocity2D",
@@ -229,9 +232,24 @@ class StopModel(LinearGaussianTransitionModel, TimeVariantModel):
         """``Q0 = 0 (4, 4)``."""
         return CovarianceMatrix(np.zeros((4, 4)))
 
-    def constraint(self, state: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """``(D, L)`` of the road segment at ``state`` (24.3-24.4), or ``None`` off-road."""
-        return _segment_constraint(self, state)
+    def constraint(
+        self, state: Any, segment: int | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(D, L)`` of the road segment at ``state`` (24.3-24.4), or ``None`` off-road.
+
+        With ``network``: the network segment ``segment`` (the mode's active segment of the
+        prediction, :attr:`IMMState.mode_segments`) or, if ``None`` / ``-1``, the nearest one.
+        """
+        return _segment_constraint(self, state, segment)
+
+    def active_segment(
+        self, prior: Any, time_interval: Any = None, segment: int | None = None, **kwargs: Any
+    ) -> int:
+        """Network segment of the stopped target: the nearest to ``prior``, or ``-1``."""
+        if self.network is None:
+            return -1
+        x = _torch(prior.state_vector).reshape(-1)
+        return int(self.network.locate(x[[0, 2]]).segment)
 
 
 class ConstantVelocity2D(LinearGaussianTransitionModel, TimeVariantModel):
@@ -264,19 +282,27 @@ class ConstantVelocity2D(LinearGaussianTransitionModel, TimeVariantModel):
         return CovarianceMatrix(_numpy(constant_velocity(_seconds(time_interval), self.sigma_a)[1]))
 
 
-def _segment_of(model: Any, state: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """Endpoints ``(p0, p1)`` of the model's segment (nearest network segment to ``state``)."""
+def _segment_of(
+    model: Any, state: Any, segment: int | None = None
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Endpoints ``(p0, p1)`` of the model's segment (``p0`` / ``p1``, or a network segment).
+
+    The network segment is ``segment`` (``>= 0``) or the one nearest to ``state``.
+    """
     if model.network is not None:
-        x = _torch(state.state_vector).reshape(-1)
-        seg = model.network.locate(x[[0, 2]]).segment
-        return model.network.p0[seg], model.network.p1[seg]
+        if segment is None or segment < 0:
+            x = _torch(state.state_vector).reshape(-1)
+            segment = model.network.locate(x[[0, 2]]).segment
+        return model.network.p0[segment], model.network.p1[segment]
     if model.p0 is None or model.p1 is None:
         return None
     return _torch(model.p0).reshape(2), _torch(model.p1).reshape(2)
 
 
-def _segment_constraint(model: Any, state: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
-    seg = _segment_of(model, state)
+def _segment_constraint(
+    model: Any, state: Any, segment: int | None = None
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    seg = _segment_of(model, state, segment)
     return None if seg is None else segment_constraint(*seg)
 
 
@@ -293,12 +319,48 @@ class RoadConstrainedCV(LinearGaussianTransitionModel, TimeVariantModel):
     segment nearest to the predicted position (the variable structure of 24.4.3 without the
     junction hypotheses). :meth:`constraint` gives ``D x = L`` (24.3-24.4) for the projection.
 
+    **Bends and junctions** (``network`` with ``junction="rotate"``, the default; the same as
+    ``VSIMMConfig(junction="rotate")``, our reading of ``F_{s,i}`` of 24.5): the active segment
+    is :func:`~hocnet.tracking.vsimm.follow_section` of the segment before the prediction and the
+    nearest one (so a bend of 90 degrees or more inside one road section is followed too), and a
+    prediction past the node ahead is carried onto the new segment by
+    :func:`~hocnet.tracking.vsimm.junction_transition`, an affine map ``x -> T x + b``: the
+    prediction is ``T F x + b`` (:meth:`function`), its matrix ``T F`` (:meth:`matrix` with
+    ``prior=``) and ``P{e_s}`` is evaluated at the carried prediction with ``T F P F' T' +
+    Q_unrelaxed``, exactly as :func:`~hocnet.tracking.vsimm.vsimm_predict`. The model has no
+    memory: the segment before the prediction is the keyword ``segment=`` of :meth:`function`,
+    :meth:`matrix`, :meth:`covar` and :meth:`active_segment` (:class:`IMMPredictor` passes the
+    mode's entry of :attr:`IMMState.mode_segments` and stores the new one in its prediction) or,
+    without it, the segment nearest to the prior. The road is the whole network (no section
+    hypotheses, unlike the VS-IMM rows). ``junction="none"``: the straight CV prediction on the
+    nearest segment (the behaviour before the junction transition; ``VSIMMConfig(junction=
+    "none")``).
+
+    Limitation (Stone Soup's design): ``b`` is not a matrix, and Stone Soup's own
+    ``KalmanPredictor`` computes the mean as ``matrix(time_interval) @ x`` without the prior
+    and calls ``covar`` without it; its ``ExtendedKalmanPredictor`` uses :meth:`function` for
+    the mean but ``matrix`` / ``covar`` without the prior too. A ``network`` model therefore
+    needs :class:`IMMPredictor` (``covar`` without ``prior`` raises ``ValueError``, so a
+    wrong prediction is never returned silently); a ``p0 -> p1`` model has one segment, no
+    junction, and works with Stone Soup's predictors as before (``matrix`` = ``F``).
+
     Examples:
         >>> from datetime import timedelta
         >>> m = RoadConstrainedCV(p0=(0.0, 0.0), p1=(100.0, 0.0), sigma_along=0.8, sigma_across=0.4)
         >>> Q = m.covar(time_interval=timedelta(seconds=1))
         >>> float(Q[1, 1]), round(float(Q[3, 3]), 12)  # along (x) and across (y) velocity noise
         (0.6400000000000001, 0.16)
+
+        Round a 90 degree bend: 40 m past the node the prediction is on the second segment.
+
+        >>> from stonesoup.types.state import State
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        >>> m = RoadConstrainedCV(network=net)
+        >>> x = State([[90.0], [10.0], [0.0], [0.0]])
+        >>> m.function(x, time_interval=timedelta(seconds=5)).ravel().round(9).tolist()
+        [100.0, 0.0, 40.0, 10.0]
+        >>> m.active_segment(x, time_interval=timedelta(seconds=5))
+        1
     """
 
     p0: Sequence[float] = Property(default=None, doc="Segment start (x, y), m.")
@@ -309,6 +371,10 @@ class RoadConstrainedCV(LinearGaussianTransitionModel, TimeVariantModel):
     network: RoadNetwork = Property(
         default=None, doc="Road network (nearest segment); replaces p0 / p1."
     )
+    junction: str = Property(
+        default="rotate",
+        doc="'rotate': follow bends and junctions (VSIMMConfig.junction); 'none': straight CV.",
+    )
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -316,26 +382,118 @@ class RoadConstrainedCV(LinearGaussianTransitionModel, TimeVariantModel):
             raise ValueError("`p0`: expected a road segment (p0, p1) or a network, got neither")
         check_number("sigma_along", self.sigma_along, low=0.0)
         check_number("sigma_across", self.sigma_across, low=0.0)
+        check_choice("junction", self.junction, ("rotate", "none"))
 
     @property
     def ndim_state(self) -> int:
         """4."""
         return 4
 
-    def matrix(self, time_interval: Any = None, **kwargs: Any) -> np.ndarray:
-        """``F (4, 4)``."""
-        return _numpy(constant_velocity(_seconds(time_interval), 0.0)[0])
+    def _transition(
+        self, x: torch.Tensor, dt: float, segment: int | None
+    ) -> tuple[torch.Tensor | None, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Segments ``(N,)``, ``T (N, 4, 4)``, ``b (N, 4)``, ``F (4, 4)`` of a prediction.
+
+        From states ``x (N, 4)`` over ``dt`` s and ``segment`` (the segment before the
+        prediction; ``None`` / ``-1``: the nearest); the segments are ``None`` without a network.
+        """
+        F = constant_velocity(dt, 0.0)[0]
+        N = x.shape[0]
+        T = torch.eye(4, dtype=DTYPE).expand(N, 4, 4)
+        b = torch.zeros(N, 4, dtype=DTYPE)
+        if self.network is None:
+            return None, T, b, F
+        net = self.network
+        x_pred = x @ F.T
+        new = net.locate(x_pred).segment.reshape(N)
+        if self.junction == "none":
+            return new, T, b, F
+        if segment is None or int(segment) < 0:
+            old = net.locate(x).segment.reshape(N)
+        else:
+            old = torch.full((N,), int(segment), dtype=torch.int64)
+        args = (x[:, None], x_pred[:, None])
+        seg = follow_section(net, old[:, None], new[:, None], *args)
+        T, b = junction_transition(net, old[:, None], seg, *args)
+        return seg[:, 0], T[:, 0], b[:, 0], F
+
+    def _prior_transition(
+        self, prior: Any, time_interval: Any, segment: int | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int | None]:
+        """``(x (4,), T F (4, 4), b (4,), segment)`` for one prior state."""
+        x = _torch(prior.state_vector).reshape(1, 4)
+        seg, T, b, F = self._transition(x, _seconds(time_interval), segment)
+        return x[0], T[0] @ F, b[0], None if seg is None else int(seg[0])
+
+    def active_segment(
+        self, prior: Any, time_interval: Any = None, segment: int | None = None, **kwargs: Any
+    ) -> int:
+        """Network segment of the prediction from ``prior`` (``-1`` without a network).
+
+        Args:
+            prior: Gaussian state (the IMM's mixed estimate).
+            time_interval: :class:`datetime.timedelta`.
+            segment: the segment before the prediction, or ``None`` (the nearest to ``prior``).
+            **kwargs: ignored.
+        """
+        seg = self._prior_transition(prior, time_interval, segment)[3]
+        return -1 if seg is None else seg
+
+    def matrix(
+        self,
+        time_interval: Any = None,
+        prior: Any = None,
+        segment: int | None = None,
+        **kwargs: Any,
+    ) -> np.ndarray:
+        """``F (4, 4)``; with ``prior`` (and a network) ``T F``, ``T`` the junction rotation."""
+        if prior is None or self.network is None:
+            return _numpy(constant_velocity(_seconds(time_interval), 0.0)[0])
+        return _numpy(self._prior_transition(prior, time_interval, segment)[1])
+
+    def function(self, state: Any, noise: Any = False, **kwargs: Any) -> Any:
+        """``T F x + b`` for each column of ``state.state_vector`` (``F x`` without a network).
+
+        Args:
+            state: Stone Soup state, ``state_vector`` ``(4, 1)`` or ``StateVectors (4, N)``.
+            noise: as Stone Soup (``True``: a sample of :meth:`covar`, which with a network
+                needs ``prior=`` in ``kwargs``).
+            **kwargs: ``time_interval`` (:class:`datetime.timedelta`), optional ``segment``.
+        """
+        if self.network is None or self.junction == "none":
+            kw = {k: v for k, v in kwargs.items() if k != "segment"}
+            return super().function(state, noise=noise, **kw)
+        sv = state.state_vector
+        x = _torch(sv).reshape(4, -1).T
+        _, T, b, F = self._transition(
+            x, _seconds(kwargs.get("time_interval")), kwargs.get("segment")
+        )
+        mean = (T @ (F @ x.unsqueeze(-1))).squeeze(-1) + b
+        out = (StateVectors if isinstance(sv, StateVectors) else StateVector)(_numpy(mean.T))
+        if isinstance(noise, bool) or noise is None:
+            noise = self.rvs(num_samples=x.shape[0], **kwargs) if noise else 0
+        return out + noise
 
     def covar(
-        self, time_interval: Any = None, prior: Any = None, **kwargs: Any
+        self,
+        time_interval: Any = None,
+        prior: Any = None,
+        segment: int | None = None,
+        **kwargs: Any,
     ) -> CovarianceMatrix:
         """``Q (4, 4)`` over ``time_interval``, relaxed (24.9-24.12) when ``prior`` is given.
 
         Args:
             time_interval: :class:`datetime.timedelta`.
             prior: optional Gaussian state (the IMM's mixed estimate) the model predicts from;
-                it selects the network segment and gives ``P{e_s}``.
+                it selects the network segment and gives ``P{e_s}`` (at the prediction carried
+                past a junction, ``T F x + b``, with ``T F P F' T' + Q_unrelaxed``).
+            segment: network segment before the prediction, or ``None`` (the nearest to
+                ``prior``).
             **kwargs: ignored (Stone Soup passes its own keywords).
+
+        Raises:
+            ValueError: a ``network`` model without ``prior``.
         """
         dt = _seconds(time_interval)
         if prior is None:
@@ -343,13 +501,12 @@ class RoadConstrainedCV(LinearGaussianTransitionModel, TimeVariantModel):
                 raise ValueError("`prior`: expected the prior state to choose the network segment")
             p0, p1 = _torch(self.p0).reshape(2), _torch(self.p1).reshape(2)
             return CovarianceMatrix(_numpy(self._q(dt, p0, p1, None)))
-        F = constant_velocity(dt, 0.0)[0]
-        x = _torch(prior.state_vector).reshape(-1)
-        P = _torch(prior.covar)
-        x_pred = F @ x
-        p0, p1 = _segment_of(self, State(StateVector(_numpy(x_pred))))
+        x, F, b, seg = self._prior_transition(prior, time_interval, segment)
+        x_pred = F @ x + b
+        p0, p1 = _segment_of(self, State(StateVector(_numpy(x_pred))), seg)
         if not self.relax:
             return CovarianceMatrix(_numpy(self._q(dt, p0, p1, None)))
+        P = _torch(prior.covar)
         P_tmp = F @ P @ F.T + self._q(dt, p0, p1, None)
         p_on = on_segment_probability(x_pred, P_tmp, p0, p1)
         return CovarianceMatrix(_numpy(self._q(dt, p0, p1, p_on)))
@@ -362,9 +519,15 @@ class RoadConstrainedCV(LinearGaussianTransitionModel, TimeVariantModel):
         cov = relaxed_road_noise_cov(p0, p1, self.sigma_along, self.sigma_across, p_on)
         return constant_velocity(dt, 0.0, acceleration_cov=cov)[1]
 
-    def constraint(self, state: Any) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """``(D (2, 4), L (2,))`` of the segment at ``state`` (eq. 24.3-24.4)."""
-        return _segment_constraint(self, state)
+    def constraint(
+        self, state: Any, segment: int | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(D (2, 4), L (2,))`` of the segment at ``state`` (eq. 24.3-24.4).
+
+        With ``network``: segment ``segment`` (the mode's active segment of the prediction,
+        :attr:`IMMState.mode_segments`) or, if ``None`` / ``-1``, the nearest one.
+        """
+        return _segment_constraint(self, state, segment)
 
 
 # ------------------------------------------------------------------------------------------
@@ -377,12 +540,19 @@ class IMMState(GaussianState):
 
     ``state_vector (n, 1)`` and ``covar (n, n)`` are the combination (24.37 and its covariance)
     of ``mode_state_vectors (r, n)``, ``mode_covars (r, n, n)`` with ``mode_probabilities (r,)``.
-    Build it with :meth:`from_modes`.
+    ``mode_segments (r,)`` (int64, optional) is the active road-network segment of each mode
+    (``-1``: none; set by :class:`IMMPredictor` from the models' ``active_segment``, kept by
+    :class:`IMMUpdater`; the ``segment`` of :class:`~hocnet.tracking.vsimm.VSIMMState`): the
+    segment a road mode's next prediction starts from (:class:`RoadConstrainedCV`) and the one
+    its update is projected on. Build it with :meth:`from_modes`.
     """
 
     mode_state_vectors: np.ndarray = Property(default=None, doc="(r, n) mode-matched means.")
     mode_covars: np.ndarray = Property(default=None, doc="(r, n, n) mode-matched covariances.")
     mode_probabilities: np.ndarray = Property(default=None, doc="(r,) mode probabilities.")
+    mode_segments: np.ndarray = Property(
+        default=None, doc="(r,) int64 active network segment of each mode (-1: none), or None."
+    )
     log_likelihood: float = Property(
         default=None,
         doc="ln Lambda (24.32) of the update (or missed detection) that produced the state.",
@@ -400,6 +570,13 @@ class IMMState(GaussianState):
             (1.0, 1.0)
         """
         mu_t, x_t, P_t = _torch(mu), _torch(x), _torch(P)
+        if kwargs.get("mode_segments") is not None:
+            seg = np.asarray(kwargs["mode_segments"], dtype=np.int64).reshape(-1)
+            if seg.shape != tuple(mu_t.shape):
+                raise ValueError(
+                    f"`mode_segments`: expected shape {tuple(mu_t.shape)}, got {seg.shape}"
+                )
+            kwargs["mode_segments"] = seg
         xc, Pc = imm_combine(mu_t[None], x_t[None], P_t[None])
         return cls(
             state_vector=StateVector(_numpy(xc[0])),
@@ -493,6 +670,12 @@ class IMMPredictor(Predictor):
     returns an :class:`IMMStatePrediction`. Mode ``j`` is predicted with
     ``transition_models[j]``: ``F = matrix(time_interval=dt, prior=mixed_j)`` (a linear model;
     otherwise its ``jacobian`` and ``function``), ``Q = covar(time_interval=dt, prior=mixed_j)``.
+    A road model (one with ``active_segment``: :class:`RoadConstrainedCV`, :class:`StopModel`)
+    also gets ``segment=`` the mode's entry of the prior's ``mode_segments`` (``None`` if
+    absent), its mean is ``function(mixed_j, ...)`` (``T F x + b`` past a junction) and its
+    ``active_segment`` goes to the prediction's ``mode_segments`` (``-1`` for other models).
+    With :class:`StopModel` / :class:`RoadConstrainedCV` on a network this is
+    :func:`~hocnet.tracking.vsimm.vsimm_predict` (its default ``junction="rotate"`` included).
 
     Args (Stone Soup properties, pass by keyword):
         transition_models: ``r`` transition models (Stone Soup ``TransitionModel`` s, e.g.
@@ -556,18 +739,25 @@ class IMMPredictor(Predictor):
         x0, P0 = imm_mix(
             _torch(state.mode_state_vectors)[None], _torch(state.mode_covars)[None], omega
         )
-        Fs, Qs, fx = [], [], {}
+        Fs, Qs, fx, segs = [], [], {}, []
+        old = state.mode_segments
         for j, model in enumerate(self.transition_models):
             mixed = GaussianState(
                 StateVector(_numpy(x0[0, j])), CovarianceMatrix(_numpy(P0[0, j])), state.timestamp
             )
+            road = hasattr(model, "active_segment")
+            kw = {"segment": None if old is None else int(old[j])} if road else {}
             if isinstance(model, LinearModel):
-                F = model.matrix(time_interval=interval, prior=mixed)
+                F = model.matrix(time_interval=interval, prior=mixed, **kw)
             else:
-                F = model.jacobian(mixed, time_interval=interval)
-                fx[j] = np.asarray(model.function(mixed, time_interval=interval), float).ravel()
+                F = model.jacobian(mixed, time_interval=interval, **kw)
+            if road or not isinstance(model, LinearModel):
+                fx[j] = np.asarray(
+                    model.function(mixed, time_interval=interval, **kw), float
+                ).ravel()
+            segs.append(model.active_segment(mixed, time_interval=interval, **kw) if road else -1)
             Fs.append(np.asarray(F, float))
-            Qs.append(np.asarray(model.covar(time_interval=interval, prior=mixed), float))
+            Qs.append(np.asarray(model.covar(time_interval=interval, prior=mixed, **kw), float))
         x_pred, P_pred = kalman_predict(x0, P0, _torch(np.stack(Fs)), _torch(np.stack(Qs)))
         for j, v in fx.items():
             x_pred[0, j] = _torch(v)
@@ -578,6 +768,7 @@ class IMMPredictor(Predictor):
             timestamp=timestamp,
             prior=prior,
             transition_models=self.transition_models,
+            mode_segments=segs,
         )
 
 
@@ -593,7 +784,10 @@ class IMMUpdater(Updater):
     mode explains a miss); the result is then an :class:`IMMStatePrediction`. With
     ``project=True`` every mode whose transition model has a road (``constraint``) is projected
     on it after the update (24.14-24.16; a pseudo-inverse for a singular ``D P D'``, e.g. the
-    stop mode, as in :mod:`hocnet.tracking.vsimm`).
+    stop mode, as in :mod:`hocnet.tracking.vsimm`): on the prediction's ``mode_segments`` entry
+    when set (the active segment, as :func:`~hocnet.tracking.vsimm.vsimm_update`), else on the
+    segment nearest to the mode's prediction. The result keeps the prediction's
+    ``mode_segments``.
 
     Args (Stone Soup properties, pass by keyword):
         measurement_model: default measurement model (a detection's own model wins).
@@ -787,6 +981,7 @@ class IMMUpdater(Updater):
                 log_likelihood=track_ll,
                 prior=getattr(pred, "prior", None),
                 transition_models=getattr(pred, "transition_models", None),
+                mode_segments=pred.mode_segments,
             )
         return IMMStateUpdate.from_modes(
             mu[0],
@@ -795,6 +990,7 @@ class IMMUpdater(Updater):
             timestamp=measurement.timestamp,
             log_likelihood=track_ll,
             hypothesis=hypothesis,
+            mode_segments=pred.mode_segments,
         )
 
     @staticmethod
@@ -812,7 +1008,8 @@ class IMMUpdater(Updater):
             if not hasattr(model, "constraint"):
                 continue
             mode_pred = State(StateVector(pred.mode_state_vectors[j]))
-            con = model.constraint(mode_pred)
+            segs = pred.mode_segments
+            con = model.constraint(mode_pred, *(() if segs is None else (int(segs[j]),)))
             if con is None:
                 continue
             D, L = con

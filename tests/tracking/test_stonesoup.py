@@ -216,25 +216,32 @@ class TestIMMAgainstImmStep:
         for j in range(2):  # on the road: y = 0 and vy = 0 for both modes (stop: pinv)
             _assert_close(D.numpy() @ b.mode_state_vectors[j], L, 1e-9)
 
+    @pytest.mark.parametrize(
+        ("junction", "segments"), [("rotate", True), ("rotate", False), ("none", True)]
+    )
     @pytest.mark.parametrize("sensor_name", ["gmti", "video"])
-    def test_equals_vsimm_on_one_road_section(self, sensor_name):
-        """Road models on a network + projection + MDV-aware PD == vsimm_predict / vsimm_update."""
+    def test_equals_vsimm_on_one_road_section(self, sensor_name, junction, segments):
+        """Road models on a network + projection + MDV-aware PD == vsimm_predict / vsimm_update.
+
+        The road has a 90 degree bend; with the default ``junction="rotate"`` both follow it
+        (the moving modes' predictions are carried onto the second segment).
+        """
         from hocnet.tracking.sensors import VideoSensor
         from hocnet.tracking.vsimm import VSIMMConfig, vsimm_init, vsimm_predict, vsimm_update
 
         net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], [1000.0, 800.0]]])
-        # stop, M1 (0.05, 0.05), M2 (0.8, 0.4), relaxed, MDV-aware PD; junction="none": the
-        # adapter's RoadConstrainedCV has no junction transition (the straight CV prediction
-        # on the nearest segment), while vsimm's default now follows the 90 degree bend
-        cfg = VSIMMConfig(junction="none")
+        # stop, M1 (0.05, 0.05), M2 (0.8, 0.4), relaxed, MDV-aware PD; the default VSIMMConfig
+        # (junction="rotate") or the straight CV prediction (junction="none") on both sides
+        cfg = VSIMMConfig() if junction == "rotate" else VSIMMConfig(junction="none")
         if sensor_name == "gmti":
             sensor = GMTISensor((-5000.0, -6000.0, 4000.0), 20.0, 0.0008, 1.0, pd=0.9, mdv=1.0)
         else:
             sensor = VideoSensor(10.0, pd=0.9)
+        kw = {} if junction == "rotate" else {"junction": "none"}  # "rotate": the default
         models = [
             StopModel(network=net),
-            RoadConstrainedCV(network=net, sigma_along=0.05, sigma_across=0.05),
-            RoadConstrainedCV(network=net, sigma_along=0.8, sigma_across=0.4),
+            RoadConstrainedCV(network=net, sigma_along=0.05, sigma_across=0.05, **kw),
+            RoadConstrainedCV(network=net, sigma_along=0.8, sigma_across=0.4, **kw),
         ]
         predictor = IMMPredictor(transition_models=models, mode_transition=cfg.trans)
         pd_fn = getattr(sensor, "expected_detection_probability", None)
@@ -245,8 +252,11 @@ class TestIMMAgainstImmStep:
             detection_probability=pd_fn if sensor_name == "gmti" else None,
         )
         ref = vsimm_init(net, torch.tensor([[700.0, 9.0, 5.0, 0.0]]), 100 * torch.eye(4), cfg)
-        state = IMMState.from_modes(ref.mu[0], ref.x[0], ref.P[0], timestamp=T0)
+        # without mode_segments the first prediction starts from the nearest segment (the same)
+        seg0 = ref.segment[0].numpy() if segments else None
+        state = IMMState.from_modes(ref.mu[0], ref.x[0], ref.P[0], timestamp=T0, mode_segments=seg0)
         rng = np.random.default_rng(7)
+        rotated = []
         truth = np.array([700.0, 10.0, 0.0, 0.0])
         for k, det in enumerate([True, True, False, True, True, False, True], start=1):
             truth = truth + 10.0 * np.array([truth[1], 0, truth[3], 0])
@@ -263,6 +273,9 @@ class TestIMMAgainstImmStep:
             pred = predictor.predict(state, timestamp=t)
             _assert_close(pred.mode_state_vectors, pred_ref.x[0], 1e-9)
             _assert_close(pred.mode_covars, pred_ref.P[0], 1e-9)
+            _assert_close(pred.mode_segments, pred_ref.segment[0])
+            eye = torch.eye(4, dtype=torch.float64)
+            rotated.append(bool((pred_ref.T[0] - eye).abs().amax() > 1e-12))
             if det:
                 if sensor_name == "gmti":
                     mm = GMTIMeasurementModel(
@@ -280,7 +293,103 @@ class TestIMMAgainstImmStep:
             _assert_close(state.mode_probabilities, ref.mu[0], 1e-9)
             _assert_close(state.mode_state_vectors, ref.x[0], 1e-9)
             _assert_close(state.mode_covars, ref.P[0], 1e-9)
+            _assert_close(state.mode_segments, ref.segment[0])
         assert truth[2] > 0  # the scene did go round the bend
+        # the junction rotation did act (once, at the bend) in the compared VS-IMM
+        assert sum(rotated) == (1 if junction == "rotate" else 0), rotated
+
+    @staticmethod
+    def _bend_errors(junction):
+        """Noise-free position reports of a target at 10 m/s round a 90 degree bend, 10 s scans."""
+        net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], [1000.0, 800.0]]])
+        models = [
+            StopModel(network=net),
+            RoadConstrainedCV(network=net, sigma_along=0.05, sigma_across=0.05, junction=junction),
+            RoadConstrainedCV(network=net, sigma_along=0.8, sigma_across=0.4, junction=junction),
+        ]
+        trans = [[0.9, 0.05, 0.05], [0.05, 0.9, 0.05], [0.05, 0.05, 0.9]]
+        predictor = IMMPredictor(transition_models=models, mode_transition=trans)
+        mm = LinearGaussian(4, (0, 2), 25.0 * np.eye(2))
+        updater = IMMUpdater(measurement_model=mm, pd=0.9, stop_mode=0, project=True)
+        x = np.tile([600.0, 10.0, 0.0, 0.0], (3, 1))
+        P = np.tile(np.diag([25.0, 4.0, 25.0, 4.0]), (3, 1, 1))
+        state = IMMState.from_modes([0.1, 0.45, 0.45], x, P, timestamp=T0)
+        errors = []
+        for k in range(1, 11):
+            s = 600.0 + 100.0 * k  # distance along the road
+            truth = np.array([s, 0.0]) if s <= 1000.0 else np.array([1000.0, s - 1000.0])
+            t = T0 + timedelta(seconds=10 * k)
+            pred = predictor.predict(state, timestamp=t)
+            det = Detection(truth.reshape(-1, 1), timestamp=t)
+            state = updater.update(SingleHypothesis(pred, det))
+            errors.append(float(np.hypot(*(state.state_vector.ravel()[[0, 2]] - truth))))
+        return errors
+
+    def test_imm_follows_a_90_degree_bend(self):
+        """With the junction transition the track rounds the bend; the straight CV loses it."""
+        rotate, straight = self._bend_errors("rotate"), self._bend_errors("none")
+        assert max(rotate) < 1.0, rotate  # measured 0.0 m at every scan
+        assert max(straight[:4]) < 1.0  # identical up to the bend (scan 4 at the node)
+        # measured: 100, 200, ..., 600 m after the bend (the track stays on the first road)
+        assert min(straight[4:]) > 50.0 and straight[-1] > 500.0, straight
+
+    def test_road_model_junction_transition_is_vsimms(self):
+        from hocnet.tracking.vsimm import follow_section, junction_transition
+
+        net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        m = RoadConstrainedCV(network=net)
+        dt = timedelta(seconds=5)
+        x0 = np.array([[90.0, 80.0, 30.0], [10.0, 10.0, 2.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+        prior = State(StateVectors(x0))
+        # a batch of columns: past the bend (2) or not (1)
+        out = m.function(prior, time_interval=dt)
+        assert isinstance(out, StateVectors) and out.shape == (4, 3)
+        F = constant_velocity(5.0, 0.0)[0]
+        xt = torch.tensor(x0.T)
+        xp = xt @ F.T
+        old = net.locate(xt).segment[:, None]
+        seg = follow_section(net, old, net.locate(xp).segment[:, None], xt[:, None], xp[:, None])
+        T, b = junction_transition(net, old, seg, xt[:, None], xp[:, None])
+        ref = (T[:, 0] @ xp[..., None])[..., 0] + b[:, 0]
+        _assert_close(out.T, ref, 1e-12)
+        assert seg[:, 0].tolist() == [1, 1, 0]
+        # matrix(prior=) is T F, function = T F x + b, per column
+        for i in range(3):
+            col = State(x0[:, i : i + 1])
+            _assert_close(m.matrix(time_interval=dt, prior=col), T[i, 0] @ F, 1e-12)
+            _assert_close(m.function(col, time_interval=dt).ravel(), ref[i], 1e-12)
+            assert m.active_segment(col, time_interval=dt) == int(seg[i, 0])
+        # the segment before the prediction decides: from segment 1 (whose node ahead at this
+        # velocity is its far end) the prediction is not past a node: nearest segment, no rotation
+        col = State(x0[:, :1])
+        assert m.active_segment(col, time_interval=dt, segment=1) == 0
+        _assert_close(m.matrix(time_interval=dt, prior=col, segment=1), F, 1e-15)
+        # junction="none": the straight prediction on the nearest segment (0 for a 90 deg bend)
+        straight = RoadConstrainedCV(network=net, junction="none")
+        _assert_close(straight.function(col, time_interval=dt).ravel(), xp[0], 1e-12)
+        assert straight.active_segment(col, time_interval=dt) == 0
+        with pytest.raises(ValueError, match="`junction`"):
+            RoadConstrainedCV(network=net, junction="turn")
+
+    def test_stonesoup_own_predictors_and_road_models(self):
+        """The documented limitation: Stone Soup's predictors give ``covar`` no prior."""
+        from stonesoup.predictor.kalman import ExtendedKalmanPredictor
+
+        net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        prior = GaussianState([[90.0], [10.0], [0.0], [0.0]], np.eye(4), timestamp=T0)
+        t1 = T0 + timedelta(seconds=5)
+        for cls in (KalmanPredictor, ExtendedKalmanPredictor):
+            with pytest.raises(ValueError, match="`prior`"):  # never a silent straight prediction
+                cls(RoadConstrainedCV(network=net)).predict(prior, timestamp=t1)
+        # one segment (no junction): Stone Soup's KalmanPredictor equals ours without relaxation
+        seg = RoadConstrainedCV(p0=(0.0, 0.0), p1=(100.0, 0.0), relax=False)
+        ours = IMMPredictor(transition_models=[seg], mode_transition=[[1.0]]).predict(
+            prior, timestamp=t1
+        )
+        theirs = KalmanPredictor(seg).predict(prior, timestamp=t1)
+        _assert_close(ours.state_vector, theirs.state_vector, 1e-12)
+        _assert_close(ours.covar, theirs.covar, 1e-12)
+        assert ours.mode_segments.tolist() == [-1]  # no network segment
 
     def test_network_segment_follows_the_prediction(self):
         net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
