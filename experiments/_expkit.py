@@ -95,6 +95,28 @@ def out_dir_of(out_dir: pathlib.Path | str | None, *, quick: bool | None = None)
     return path
 
 
+def strict_out_dir_of(
+    out: str | None, *, quick: bool, error: Callable[[str], Any]
+) -> pathlib.Path | None:
+    """:func:`out_dir_of` for scripts that write only with ``--out``, stricter on quick runs.
+
+    ``None`` without ``out``; otherwise the folder (created). ``error`` (an argparse ``error``)
+    is called for an empty name, and for a ``--quick`` run aimed into ``experiments/results``
+    even when asked by hand (the diagnostic scripts' results there are notes made from full runs).
+
+    Examples:
+        >>> strict_out_dir_of(None, quick=True, error=print) is None
+        True
+    """
+    if out is None:
+        return None
+    if not str(out).strip():
+        error("--out: expected a folder name, got an empty string")
+    if quick and pathlib.Path(out).resolve().is_relative_to(RESULTS_DIR.resolve()):
+        error(f"--out: a --quick run does not write into {RESULTS_DIR}, got {out}")
+    return out_dir_of(out, quick=quick)
+
+
 def mean_std(values: Iterable[float], digits: int = 3, scale: float = 1.0) -> str:
     """Format ``mean ± std`` (sample std, ``ddof = 1``); one value alone, with ``(n = 1)``.
 

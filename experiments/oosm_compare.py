@@ -65,10 +65,7 @@ def summary(res: dict) -> dict:
 
 def _checked(path: pathlib.Path, quick: bool, error) -> pathlib.Path:
     """``path`` (its folder created); ``error`` for a ``--quick`` output in experiments/results."""
-    full = path.resolve()
-    if quick and full.is_relative_to(E.C.RESULTS_DIR.resolve()):
-        error(f"a --quick run does not write into {E.C.RESULTS_DIR}, got {path}")
-    full.parent.mkdir(parents=True, exist_ok=True)
+    E.C.strict_out_dir_of(str(path.parent), quick=quick, error=error)
     return path
 
 

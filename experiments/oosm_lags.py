@@ -132,14 +132,9 @@ def out_path(out: str | None, quick: bool, filename: str, error) -> pathlib.Path
 
     A ``--quick`` run never writes into ``experiments/results`` (the committed full results).
     """
-    if out is None:
+    folder = C.strict_out_dir_of(out, quick=quick, error=error)
+    if folder is None:
         return None
-    if not str(out).strip():
-        error("--out: expected a folder name, got an empty string")
-    folder = pathlib.Path(out).resolve()
-    if quick and folder.is_relative_to(C.RESULTS_DIR.resolve()):
-        error(f"--out: a --quick run does not write into {C.RESULTS_DIR}, got {out}")
-    folder.mkdir(parents=True, exist_ok=True)
     return folder / filename
 
 

@@ -124,12 +124,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, dict]:
         a.duration = QUICK_DURATION if a.quick else PD_DURATION
     path = None
     if a.out is not None:
-        if not str(a.out).strip():
-            ap.error("--out: expected a folder name, got an empty string")
-        folder = pathlib.Path(a.out).resolve()
-        if a.quick and folder.is_relative_to(C.RESULTS_DIR.resolve()):
-            ap.error(f"--out: a --quick run does not write into {C.RESULTS_DIR}, got {a.out}")
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = C.strict_out_dir_of(a.out, quick=a.quick, error=ap.error)
         res_name = "off" if a.resolution is None else f"{a.resolution:g}"
         path = folder / f"{NAME}-{res_name}-{a.headway:g}.json"
     out = crosstalk(a.resolution, a.headway, a.seeds, duration=a.duration)
