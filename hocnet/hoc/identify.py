@@ -209,6 +209,7 @@ from typing import Any, Literal
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
+from hocnet.hoc import _identify_fast as _fast
 from hocnet.hoc._incremental import enumerate_paths_vectorised
 from hocnet.hoc.functional import (
     Method,
@@ -898,31 +899,28 @@ def _select_tracks(
     points on other kept tracks do not count as differing).
     """
     cands = []
-    for score, pts, pscores in _score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw):
-        if score < threshold:
-            continue
+    # the paths of _score_paths that pass the threshold (same entries, same order and bits)
+    for score, pts, pscores in _fast.score_paths_passing(
+        paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
+    ):
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
         cands.append((score, len(pts), pts, pscores))
     cands.sort(key=lambda item: (-item[0], -item[1]))
     covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
-    tracks = []
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
     xy = coords.tolist() if dedupe is not None else []
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
+    kept_items: list[tuple[float, list[int], list[float]]] = []
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
         if dedupe is not None:
-            # without ``explained`` only kept tracks sharing a point can be near-duplicated (the
-            # others differ at every scan): the same answer as asking all of them; with it, a
-            # candidate's covered points are not differences, so every kept track is asked
-            if explained:
-                others = kept_scans
-            else:
-                near = sorted({i for q in pts for i in kept_at.get(q, ())})
-                others = [kept_scans[i] for i in near]
+            # only kept tracks sharing a point with the candidate can be near-duplicated, with or
+            # without ``explained`` (next to every differing point the two tracks share one,
+            # ``_next_to_shared``): the same answer as asking all of them
+            others = [kept_scans[i] for i in _fast.kept_sharing_a_point(pts, kept_at)]
             if _is_near_duplicate(
                 pts, others, scan_of, dedupe, xy, dedupe_scans, covered, explained
             ):
@@ -931,10 +929,10 @@ def _select_tracks(
                 kept_at.setdefault(q, []).append(len(kept_scans))
             kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
-        # Track objects only for the kept candidates (the others cost no tensor work)
-        track, _ = _make_track(pts, pscores, coords, batch)
-        track.score = score
-        tracks.append((track, pts))
+        kept_items.append((score, pts, pscores))
+    # Track objects only for the kept candidates, all in one go (as ``_make_track`` each)
+    made = _fast.make_tracks(kept_items, coords, batch)
+    tracks = [(track, pts) for track, (_, pts, _) in zip(made, kept_items, strict=True)]
     if tracks:
         kept = torch.tensor([q for _, pts in tracks for q in pts])
         cleaned[flat[kept]] = True
@@ -1250,7 +1248,7 @@ def _extensions(
     lost = is_root & ~cleaned[flat]
     if not bool(lost.any()) or not tracks:
         return []
-    paths = _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
+    paths = _fast.best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
     if not paths:
         return []
     # tracks hold candidate points (indices into ``flat``): key them by index, not by coords
@@ -1356,8 +1354,10 @@ def _identify_sequences(
     s = _triple_scores(coords, p0, p1, p2, score_kwargs)
     _fill_scores(scores_cube, flat, p0, p1, p2, s)
     a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
+    rows = None  # the whole-sequence rows, built once for both uses below
     if track_kw is not None and track_kw["span"] > 1:
-        left, right, key = _whole_sequences(a_in, a_out, p0, p1, p2, coords, track_kw)
+        rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+        left, right, key = _fast.whole_sequences_from_rows(rows, p0.numel())
     is_root = torch.ones(n, dtype=torch.bool) if roots is None else roots.reshape(-1)[flat]
     image_list = None if roots is None or not case1 else is_root.tolist()
     dedupe_list = is_root.tolist() if dedupe else None
@@ -1376,7 +1376,8 @@ def _identify_sequences(
             accepted[right[sel][right[sel] >= 0]] = True
         if shared_points:  # several sequences per image point (crossings; our reading)
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
-            rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
+            if rows is None or seq_kw is not track_kw:
+                rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
             accepted |= _short_track_sequences(rows, p0, p1, p2, is_root)
         no_centre = (centre < 0) & is_root
         for pick in (end_f, end_b):
