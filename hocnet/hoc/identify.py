@@ -909,7 +909,10 @@ def _select_tracks(
     cands.sort(key=lambda item: (-item[0], -item[1]))
     covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
-    xy = coords.tolist() if dedupe is not None else []
+    xy: dict[int, list[int]] = {}  # (t, y, x) of the candidates' points: the only ones asked
+    if dedupe is not None:
+        need = sorted({q for _, _, pts, _ in cands for q in pts})
+        xy = dict(zip(need, coords[need].tolist(), strict=True))
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     kept_items: list[tuple[float, list[int], list[float]]] = []
@@ -1004,7 +1007,7 @@ def _is_near_duplicate(
     kept: list[tuple[list[int], dict[int, int]]],
     scan_of: list[int],
     image: list[bool],
-    xy: list[list[int]],
+    xy: list[list[int]] | dict[int, list[int]],
     max_diff: int = 1,
     covered: set[int] | frozenset[int] = frozenset(),
     explained: bool = False,
@@ -1066,7 +1069,9 @@ def _next_to_shared(pts: list[int], i: int, on_k: set[int]) -> bool:
     return (i > 0 and pts[i - 1] in on_k) or (i + 1 < len(pts) and pts[i + 1] in on_k)
 
 
-def _adjacent(xy: list[list[int]], q: int, k_pts: list[int], k_scan: dict[int, int]) -> bool:
+def _adjacent(
+    xy: list[list[int]] | dict[int, list[int]], q: int, k_pts: list[int], k_scan: dict[int, int]
+) -> bool:
     """Whether point ``q`` is a neighbour (8-connected) of the kept track's point in its scan."""
     p = xy[k_pts[k_scan[xy[q][0]]]]
     return max(abs(p[1] - xy[q][1]), abs(p[2] - xy[q][2])) <= 1
@@ -1088,7 +1093,7 @@ def _kept_point_wins(
     on_c: set[int],
     scan_of: list[int],
     image: list[bool],
-    xy: list[list[int]],
+    xy: list[list[int]] | dict[int, list[int]],
 ) -> bool:
     """At the scan of ``pts[i]``: is the kept track's point the better supported one?"""
     j = k_scan[scan_of[pts[i]]]
@@ -1098,7 +1103,9 @@ def _kept_point_wins(
     return _residual(k_pts, j, on_c, xy) < _residual(pts, i, on_k, xy) - RESIDUAL_MARGIN
 
 
-def _residual(pts: list[int], i: int, shared: set[int], xy: list[list[int]]) -> float:
+def _residual(
+    pts: list[int], i: int, shared: set[int], xy: list[list[int]] | dict[int, list[int]]
+) -> float:
     """Distance (pixels) of ``pts[i]`` from the position the ``shared`` points of ``pts`` predict.
 
     Linear interpolation in time between the nearest shared points before and after it, or
