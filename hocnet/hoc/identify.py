@@ -551,13 +551,9 @@ def _sequences(
     extending it backward (ending with its in-edge, -1 if none) and forward, and the sequence
     ``key = 100 * number_of_triples + mean score``.
     """
-    e_in = p0 * n + p1
-    e_out = p1 * n + p2
-    edges, inv = torch.unique(torch.cat([e_in, e_out]), return_inverse=True)
-    k = p0.numel()
-    a_in, a_out = inv[:k], inv[k:]
-    best_ending = _group_best(a_out, s, edges.numel())  # triple ending with each edge
-    best_starting = _group_best(a_in, s, edges.numel())  # triple starting with each edge
+    a_in, a_out, n_edges = _edge_ids(n, p0, p1, p2)
+    best_ending = _group_best(a_out, s, n_edges)  # triple ending with each edge
+    best_starting = _group_best(a_in, s, n_edges)  # triple starting with each edge
     left = best_ending[a_in]
     right = best_starting[a_out]
     has_l, has_r = left >= 0, right >= 0
@@ -566,6 +562,21 @@ def _sequences(
     count = 1 + has_l.long() + has_r.long()
     key = 100.0 * count + total / count
     return a_in, a_out, left, right, key
+
+
+def _edge_ids(
+    n: int, p0: torch.Tensor, p1: torch.Tensor, p2: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Edge ids ``(e_in, e_out)`` of every triple (its first and its second move) and their count.
+
+    Two triples chain (the second continues the first) when the first's ``e_out`` is the
+    second's ``e_in``; the ids number the distinct moves ``(p0, p1)`` / ``(p1, p2)`` in order.
+    """
+    e_in = p0 * n + p1
+    e_out = p1 * n + p2
+    edges, inv = torch.unique(torch.cat([e_in, e_out]), return_inverse=True)
+    k = p0.numel()
+    return inv[:k], inv[k:], edges.numel()
 
 
 def _pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -1360,11 +1371,13 @@ def _identify_sequences(
     n = flat.numel()
     s = _triple_scores(coords, p0, p1, p2, score_kwargs)
     _fill_scores(scores_cube, flat, p0, p1, p2, s)
-    a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
     rows = None  # the whole-sequence rows, built once for both uses below
-    if track_kw is not None and track_kw["span"] > 1:
+    if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
+        a_in, a_out, _ = _edge_ids(n, p0, p1, p2)
         rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
         left, right, key = _fast.whole_sequences_from_rows(rows, p0.numel())
+    else:
+        a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
     is_root = torch.ones(n, dtype=torch.bool) if roots is None else roots.reshape(-1)[flat]
     image_list = None if roots is None or not case1 else is_root.tolist()
     dedupe_list = is_root.tolist() if dedupe else None
