@@ -113,7 +113,7 @@ def best_paths(
 ) -> list[list[int]]:
     """``identify._best_paths`` with the same arithmetic in fewer, smaller tensor passes.
 
-    Same arguments, same chains in the same order. Two changes, neither touching a value:
+    Same arguments, same chains in the same order. Three changes, none touching a value:
 
     - the dynamic-programming sweeps write each column whole (``where`` on the "has a
       continuation" mask) instead of through boolean-mask indexing (a ``nonzero`` per write);
@@ -122,7 +122,9 @@ def best_paths(
       one backward length at a time (``(K, L)`` each, in cache): every entry is the same
       ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
       (``torch.max`` returns the first maximal index of a row; a later ``lb`` replaces the
-      running best only when strictly greater).
+      running best only when strictly greater);
+    - the chains are read off the pointer walks (the table of ``identify._walk``) with one
+      filter and one ``tolist`` for all of them, not a Python filter per chain.
 
     Wiring: ``identify._extensions`` calls ``best_paths`` instead of ``_best_paths`` (same
     signature).
@@ -135,7 +137,7 @@ def best_paths(
         >>> best_paths(5, p0, p1, p2, s, a_in, a_out, 5, 2.5, 5, middle)  # triples 0, 1, 2
         [[0, 1, 2]]
     """
-    from hocnet.hoc.identify import _group_best, _walk
+    from hocnet.hoc.identify import _group_best
 
     k = p0.numel()
     n_e = int(torch.maximum(a_in.max(), a_out.max())) + 1
@@ -191,9 +193,32 @@ def best_paths(
         return []
     chosen = sub[local]
     nb, nf = arg[local] // L, arg[local] % L
-    back = _walk(bptr, chosen, nb)
-    fwd = _walk(fptr, chosen, nf)
-    return [[*reversed(b), kk, *f] for b, kk, f in zip(back, chosen.tolist(), fwd, strict=True)]
+    # the rows of ``_walk`` (its table before the per-row filter), backward ones reversed, and
+    # the chosen triple between: one filter and one ``tolist`` for all chains
+    table = torch.cat([_walk_table(bptr, chosen, nb).flip(1), chosen[:, None]], dim=1)
+    table = torch.cat([table, _walk_table(fptr, chosen, nf)], dim=1)
+    keep = table >= 0
+    flat = table[keep].tolist()
+    ends = torch.cumsum(keep.sum(dim=1), 0).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+def _walk_table(ptr: torch.Tensor, start: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+    """``identify._walk`` before its per-row filter: ``(M, max steps)``, -1 past a row's end.
+
+    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order.
+    """
+    n_steps = int(steps.max()) if steps.numel() else 0
+    cur = start.clone()
+    rem = steps.clone()
+    cols = [torch.full((start.numel(), 0), -1, dtype=torch.long)]
+    for _ in range(n_steps):
+        on = rem > 0
+        nxt = ptr[cur, rem.clamp_min(0)]
+        cur = torch.where(on, nxt, cur)
+        cols.append(torch.where(on, cur, -1)[:, None])
+        rem = rem - 1
+    return torch.cat(cols, dim=1)
 
 
 def score_paths_passing(
