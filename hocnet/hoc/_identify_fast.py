@@ -98,6 +98,40 @@ def whole_sequences_from_rows(
     return left_t[best], right_t[best], key_rows[best]
 
 
+def pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``identify._pairs`` for ids ``>= 0``: all ``(i, j)`` with ``keys[j] == queries[i]``.
+
+    The same pairs in the same order (``i`` ascending, then ``j`` in ascending order within
+    equal keys): the run of each id in the stable sort of ``keys`` starts at the number of
+    smaller keys (a cumulative ``bincount``) instead of where ``searchsorted`` finds it; integer
+    work only, linear in the number of ids.
+
+    Wiring: ``identify._whole_sequence_rows`` joins the triples' edge ids
+    (``identify._edge_ids``, ``>= 0``) with ``pairs`` instead of ``_pairs``.
+
+    Args:
+        keys: ``(M,)`` int64 ids, ``>= 0``.
+        queries: ``(Q,)`` int64 ids, ``>= 0``.
+
+    Returns:
+        ``(i, j)``: int64 indices into ``queries`` and ``keys``.
+
+    Examples:
+        >>> i, j = pairs(torch.tensor([3, 1, 3]), torch.tensor([3, 2, 1]))
+        >>> i.tolist(), j.tolist()
+        ([0, 0, 2], [0, 2, 1])
+    """
+    order = torch.argsort(keys, stable=True)
+    n_ids = max((int(x.max()) for x in (keys, queries) if x.numel()), default=-1) + 1
+    count = torch.bincount(keys, minlength=n_ids)
+    lo = (torch.cumsum(count, 0) - count)[queries]
+    cnt = count[queries]
+    i = torch.repeat_interleave(torch.arange(queries.numel()), cnt)
+    start = torch.repeat_interleave(lo - torch.cumsum(cnt, 0) + cnt, cnt)
+    j = order[start + torch.arange(i.numel())]
+    return i, j
+
+
 def best_paths(
     n: int,
     p0: torch.Tensor,

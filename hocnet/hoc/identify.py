@@ -633,8 +633,8 @@ def _whole_sequence_rows(
     """
     k = p0.numel()
     none = torch.tensor([-1])
-    ci_l, l_j = _pairs(a_out, a_in)  # left triples of each centre
-    ci_r, r_j = _pairs(a_in, a_out)  # right triples of each centre
+    ci_l, l_j = _fast.pairs(a_out, a_in)  # left triples of each centre (as ``_pairs``)
+    ci_r, r_j = _fast.pairs(a_in, a_out)  # right triples of each centre
     # one row per (centre, left or none, right or none): lefts x rights per centre
     n_l = torch.bincount(ci_l, minlength=k)
     n_r = torch.bincount(ci_r, minlength=k)

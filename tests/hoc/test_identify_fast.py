@@ -189,6 +189,7 @@ def _unwired() -> SimpleNamespace:
         kept_sharing_a_point=kept_sharing_a_point,
         make_tracks=make_tracks,
         best_paths=ident._best_paths,
+        pairs=ident._pairs,
         whole_sequences_from_rows=whole_sequences_from_rows,
     )
 
@@ -229,3 +230,21 @@ def test_detect_wired_equals_unwired(seed, monkeypatch):
     for a, b in zip(wired, loop, strict=True):
         _same_result(a, b)
     assert sum(len(r.tracks) for r in wired) > 0  # tracks were found: not vacuous
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_pairs_equals_identify(seed):
+    gen = torch.Generator().manual_seed(seed)
+    for m, q, ids in ((50, 40, 10), (200, 300, 500), (0, 5, 3), (5, 0, 3), (0, 0, 1)):
+        keys = torch.randint(0, ids, (m,), generator=gen)
+        queries = torch.randint(0, ids, (q,), generator=gen)
+        want = ident._pairs(keys, queries)
+        got = fast.pairs(keys, queries)
+        for g, w in zip(got, want, strict=True):
+            assert torch.equal(g, w)
+    *_, a_in, a_out, _, _, _ = _scene(seed)
+    for keys, queries in ((a_out, a_in), (a_in, a_out)):
+        want = ident._pairs(keys, queries)
+        assert want[0].numel() > 0
+        for g, w in zip(fast.pairs(keys, queries), want, strict=True):
+            assert torch.equal(g, w)
