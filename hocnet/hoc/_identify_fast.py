@@ -70,8 +70,11 @@ def whole_sequences_from_rows(
 
         rows = None
         if track_kw is not None and track_kw["span"] > 1:
+            a_in, a_out, _ = _edge_ids(n, p0, p1, p2)  # _sequences' other results unused
             rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
             left, right, key = whole_sequences_from_rows(rows, p0.numel())
+        else:
+            a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
         ...
         if shared_points:
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
