@@ -2,16 +2,24 @@
 
 Each helper gives the same result as the :mod:`hocnet.hoc.identify` code it stands for (tested
 against it on random inputs, ``tests/hoc/test_identify_fast.py``); none changes which points,
-sequences or tracks are kept. They are not wired into :mod:`hocnet.hoc.identify` yet; how
-each is meant to be called is said in its docstring ("Wiring").
+sequences or tracks are kept. :mod:`hocnet.hoc.identify` calls them (where, is said in each
+docstring, "Wiring"); ``detect`` with them gives the same result, bit for bit, as with the code
+they replace (``test_detect_wired_equals_unwired``).
 
 Measured on 640 x 512 windows at 2 % clutter, order 2 (the scans of ``benchmarks/hoc.py
 --stream``; process time per window, one thread, on the shared machine at load 5-10, so the
 absolute values are inflated; the ratios are what counts): the near-duplicate tests 27 -> 1 ms
 (:func:`kept_sharing_a_point`), the whole-sequence rows 23 -> 11-12 ms built once instead of
 twice (:func:`whole_sequences_from_rows`), ``_best_paths`` 18.5 -> 11.7 ms
-(:func:`best_paths`), ``_score_paths`` 7.5 -> 5.3 ms (:func:`score_paths_passing`); all five
-wired (:func:`make_tracks` too), a push of ``StreamingDetector`` 117 -> 75 ms.
+(:func:`best_paths`), ``_score_paths`` 7.5 -> 5.3 ms (:func:`score_paths_passing`).
+Wired into :mod:`hocnet.hoc.identify` (with :func:`make_tracks`, :func:`pairs`, the
+near-duplicate test reading the coordinates of the candidates' points only, and ``_sequences``
+skipped where the whole-sequence scores replace it), the median process time of a
+``StreamingDetector`` push at 2 % clutter (``benchmarks/hoc.py --stream --threads 1
+--densities 0.02``, before and after at load 3-5): order 2 116 -> 69 ms (``mhoc``) and
+199 -> 98 ms (``chain``), order 3 42 -> 28 ms and 74 -> 62 ms; over the max-pool floor
+(process time, 12.4-12.9 ms): 9.3 -> 5.4, 15.6 -> 7.6, 3.2 -> 2.3 and 5.8 -> 4.8. Every
+window still equals batch ``detect``.
 """
 
 from __future__ import annotations
@@ -69,8 +77,11 @@ def whole_sequences_from_rows(
 
         rows = None
         if track_kw is not None and track_kw["span"] > 1:
+            a_in, a_out, _ = _edge_ids(n, p0, p1, p2)  # _sequences' other results unused
             rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
             left, right, key = whole_sequences_from_rows(rows, p0.numel())
+        else:
+            a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
         ...
         if shared_points:
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
@@ -97,6 +108,40 @@ def whole_sequences_from_rows(
     return left_t[best], right_t[best], key_rows[best]
 
 
+def pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``identify._pairs`` for ids ``>= 0``: all ``(i, j)`` with ``keys[j] == queries[i]``.
+
+    The same pairs in the same order (``i`` ascending, then ``j`` in ascending order within
+    equal keys): the run of each id in the stable sort of ``keys`` starts at the number of
+    smaller keys (a cumulative ``bincount``) instead of where ``searchsorted`` finds it; integer
+    work only, linear in the number of ids.
+
+    Wiring: ``identify._whole_sequence_rows`` joins the triples' edge ids
+    (``identify._edge_ids``, ``>= 0``) with ``pairs`` instead of ``_pairs``.
+
+    Args:
+        keys: ``(M,)`` int64 ids, ``>= 0``.
+        queries: ``(Q,)`` int64 ids, ``>= 0``.
+
+    Returns:
+        ``(i, j)``: int64 indices into ``queries`` and ``keys``.
+
+    Examples:
+        >>> i, j = pairs(torch.tensor([3, 1, 3]), torch.tensor([3, 2, 1]))
+        >>> i.tolist(), j.tolist()
+        ([0, 0, 2], [0, 2, 1])
+    """
+    order = torch.argsort(keys, stable=True)
+    n_ids = max((int(x.max()) for x in (keys, queries) if x.numel()), default=-1) + 1
+    count = torch.bincount(keys, minlength=n_ids)
+    lo = (torch.cumsum(count, 0) - count)[queries]
+    cnt = count[queries]
+    i = torch.repeat_interleave(torch.arange(queries.numel()), cnt)
+    start = torch.repeat_interleave(lo - torch.cumsum(cnt, 0) + cnt, cnt)
+    j = order[start + torch.arange(i.numel())]
+    return i, j
+
+
 def best_paths(
     n: int,
     p0: torch.Tensor,
@@ -112,7 +157,7 @@ def best_paths(
 ) -> list[list[int]]:
     """``identify._best_paths`` with the same arithmetic in fewer, smaller tensor passes.
 
-    Same arguments, same chains in the same order. Two changes, neither touching a value:
+    Same arguments, same chains in the same order. Three changes, none touching a value:
 
     - the dynamic-programming sweeps write each column whole (``where`` on the "has a
       continuation" mask) instead of through boolean-mask indexing (a ``nonzero`` per write);
@@ -121,7 +166,9 @@ def best_paths(
       one backward length at a time (``(K, L)`` each, in cache): every entry is the same
       ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
       (``torch.max`` returns the first maximal index of a row; a later ``lb`` replaces the
-      running best only when strictly greater).
+      running best only when strictly greater);
+    - the chains are read off the pointer walks (the table of ``identify._walk``) with one
+      filter and one ``tolist`` for all of them, not a Python filter per chain.
 
     Wiring: ``identify._extensions`` calls ``best_paths`` instead of ``_best_paths`` (same
     signature).
@@ -134,7 +181,7 @@ def best_paths(
         >>> best_paths(5, p0, p1, p2, s, a_in, a_out, 5, 2.5, 5, middle)  # triples 0, 1, 2
         [[0, 1, 2]]
     """
-    from hocnet.hoc.identify import _group_best, _walk
+    from hocnet.hoc.identify import _group_best
 
     k = p0.numel()
     n_e = int(torch.maximum(a_in.max(), a_out.max())) + 1
@@ -190,9 +237,32 @@ def best_paths(
         return []
     chosen = sub[local]
     nb, nf = arg[local] // L, arg[local] % L
-    back = _walk(bptr, chosen, nb)
-    fwd = _walk(fptr, chosen, nf)
-    return [[*reversed(b), kk, *f] for b, kk, f in zip(back, chosen.tolist(), fwd, strict=True)]
+    # the rows of ``_walk`` (its table before the per-row filter), backward ones reversed, and
+    # the chosen triple between: one filter and one ``tolist`` for all chains
+    table = torch.cat([_walk_table(bptr, chosen, nb).flip(1), chosen[:, None]], dim=1)
+    table = torch.cat([table, _walk_table(fptr, chosen, nf)], dim=1)
+    keep = table >= 0
+    flat = table[keep].tolist()
+    ends = torch.cumsum(keep.sum(dim=1), 0).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+def _walk_table(ptr: torch.Tensor, start: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+    """``identify._walk`` before its per-row filter: ``(M, max steps)``, -1 past a row's end.
+
+    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order.
+    """
+    n_steps = int(steps.max()) if steps.numel() else 0
+    cur = start.clone()
+    rem = steps.clone()
+    cols = [torch.full((start.numel(), 0), -1, dtype=torch.long)]
+    for _ in range(n_steps):
+        on = rem > 0
+        nxt = ptr[cur, rem.clamp_min(0)]
+        cur = torch.where(on, nxt, cur)
+        cols.append(torch.where(on, cur, -1)[:, None])
+        rem = rem - 1
+    return torch.cat(cols, dim=1)
 
 
 def score_paths_passing(

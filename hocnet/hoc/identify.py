@@ -209,6 +209,7 @@ from typing import Any, Literal
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number, restore_batch
+from hocnet.hoc import _identify_fast as _fast
 from hocnet.hoc._incremental import enumerate_paths_vectorised
 from hocnet.hoc.functional import (
     Method,
@@ -550,13 +551,9 @@ def _sequences(
     extending it backward (ending with its in-edge, -1 if none) and forward, and the sequence
     ``key = 100 * number_of_triples + mean score``.
     """
-    e_in = p0 * n + p1
-    e_out = p1 * n + p2
-    edges, inv = torch.unique(torch.cat([e_in, e_out]), return_inverse=True)
-    k = p0.numel()
-    a_in, a_out = inv[:k], inv[k:]
-    best_ending = _group_best(a_out, s, edges.numel())  # triple ending with each edge
-    best_starting = _group_best(a_in, s, edges.numel())  # triple starting with each edge
+    a_in, a_out, n_edges = _edge_ids(n, p0, p1, p2)
+    best_ending = _group_best(a_out, s, n_edges)  # triple ending with each edge
+    best_starting = _group_best(a_in, s, n_edges)  # triple starting with each edge
     left = best_ending[a_in]
     right = best_starting[a_out]
     has_l, has_r = left >= 0, right >= 0
@@ -565,6 +562,21 @@ def _sequences(
     count = 1 + has_l.long() + has_r.long()
     key = 100.0 * count + total / count
     return a_in, a_out, left, right, key
+
+
+def _edge_ids(
+    n: int, p0: torch.Tensor, p1: torch.Tensor, p2: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Edge ids ``(e_in, e_out)`` of every triple (its first and its second move) and their count.
+
+    Two triples chain (the second continues the first) when the first's ``e_out`` is the
+    second's ``e_in``; the ids number the distinct moves ``(p0, p1)`` / ``(p1, p2)`` in order.
+    """
+    e_in = p0 * n + p1
+    e_out = p1 * n + p2
+    edges, inv = torch.unique(torch.cat([e_in, e_out]), return_inverse=True)
+    k = p0.numel()
+    return inv[:k], inv[k:], edges.numel()
 
 
 def _pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -621,8 +633,8 @@ def _whole_sequence_rows(
     """
     k = p0.numel()
     none = torch.tensor([-1])
-    ci_l, l_j = _pairs(a_out, a_in)  # left triples of each centre
-    ci_r, r_j = _pairs(a_in, a_out)  # right triples of each centre
+    ci_l, l_j = _fast.pairs(a_out, a_in)  # left triples of each centre (as ``_pairs``)
+    ci_r, r_j = _fast.pairs(a_in, a_out)  # right triples of each centre
     # one row per (centre, left or none, right or none): lefts x rights per centre
     n_l = torch.bincount(ci_l, minlength=k)
     n_r = torch.bincount(ci_r, minlength=k)
@@ -898,31 +910,31 @@ def _select_tracks(
     points on other kept tracks do not count as differing).
     """
     cands = []
-    for score, pts, pscores in _score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw):
-        if score < threshold:
-            continue
+    # the paths of _score_paths that pass the threshold (same entries, same order and bits)
+    for score, pts, pscores in _fast.score_paths_passing(
+        paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
+    ):
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
         cands.append((score, len(pts), pts, pscores))
     cands.sort(key=lambda item: (-item[0], -item[1]))
     covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
-    tracks = []
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
-    xy = coords.tolist() if dedupe is not None else []
+    xy: dict[int, list[int]] = {}  # (t, y, x) of the candidates' points: the only ones asked
+    if dedupe is not None:
+        need = sorted({q for _, _, pts, _ in cands for q in pts})
+        xy = dict(zip(need, coords[need].tolist(), strict=True))
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
+    kept_items: list[tuple[float, list[int], list[float]]] = []
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
         if dedupe is not None:
-            # without ``explained`` only kept tracks sharing a point can be near-duplicated (the
-            # others differ at every scan): the same answer as asking all of them; with it, a
-            # candidate's covered points are not differences, so every kept track is asked
-            if explained:
-                others = kept_scans
-            else:
-                near = sorted({i for q in pts for i in kept_at.get(q, ())})
-                others = [kept_scans[i] for i in near]
+            # only kept tracks sharing a point with the candidate can be near-duplicated, with or
+            # without ``explained`` (next to every differing point the two tracks share one,
+            # ``_next_to_shared``): the same answer as asking all of them
+            others = [kept_scans[i] for i in _fast.kept_sharing_a_point(pts, kept_at)]
             if _is_near_duplicate(
                 pts, others, scan_of, dedupe, xy, dedupe_scans, covered, explained
             ):
@@ -931,10 +943,10 @@ def _select_tracks(
                 kept_at.setdefault(q, []).append(len(kept_scans))
             kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
         covered.update(pts)
-        # Track objects only for the kept candidates (the others cost no tensor work)
-        track, _ = _make_track(pts, pscores, coords, batch)
-        track.score = score
-        tracks.append((track, pts))
+        kept_items.append((score, pts, pscores))
+    # Track objects only for the kept candidates, all in one go (as ``_make_track`` each)
+    made = _fast.make_tracks(kept_items, coords, batch)
+    tracks = [(track, pts) for track, (_, pts, _) in zip(made, kept_items, strict=True)]
     if tracks:
         kept = torch.tensor([q for _, pts in tracks for q in pts])
         cleaned[flat[kept]] = True
@@ -1006,7 +1018,7 @@ def _is_near_duplicate(
     kept: list[tuple[list[int], dict[int, int]]],
     scan_of: list[int],
     image: list[bool],
-    xy: list[list[int]],
+    xy: list[list[int]] | dict[int, list[int]],
     max_diff: int = 1,
     covered: set[int] | frozenset[int] = frozenset(),
     explained: bool = False,
@@ -1068,7 +1080,9 @@ def _next_to_shared(pts: list[int], i: int, on_k: set[int]) -> bool:
     return (i > 0 and pts[i - 1] in on_k) or (i + 1 < len(pts) and pts[i + 1] in on_k)
 
 
-def _adjacent(xy: list[list[int]], q: int, k_pts: list[int], k_scan: dict[int, int]) -> bool:
+def _adjacent(
+    xy: list[list[int]] | dict[int, list[int]], q: int, k_pts: list[int], k_scan: dict[int, int]
+) -> bool:
     """Whether point ``q`` is a neighbour (8-connected) of the kept track's point in its scan."""
     p = xy[k_pts[k_scan[xy[q][0]]]]
     return max(abs(p[1] - xy[q][1]), abs(p[2] - xy[q][2])) <= 1
@@ -1090,7 +1104,7 @@ def _kept_point_wins(
     on_c: set[int],
     scan_of: list[int],
     image: list[bool],
-    xy: list[list[int]],
+    xy: list[list[int]] | dict[int, list[int]],
 ) -> bool:
     """At the scan of ``pts[i]``: is the kept track's point the better supported one?"""
     j = k_scan[scan_of[pts[i]]]
@@ -1100,7 +1114,9 @@ def _kept_point_wins(
     return _residual(k_pts, j, on_c, xy) < _residual(pts, i, on_k, xy) - RESIDUAL_MARGIN
 
 
-def _residual(pts: list[int], i: int, shared: set[int], xy: list[list[int]]) -> float:
+def _residual(
+    pts: list[int], i: int, shared: set[int], xy: list[list[int]] | dict[int, list[int]]
+) -> float:
     """Distance (pixels) of ``pts[i]`` from the position the ``shared`` points of ``pts`` predict.
 
     Linear interpolation in time between the nearest shared points before and after it, or
@@ -1250,7 +1266,7 @@ def _extensions(
     lost = is_root & ~cleaned[flat]
     if not bool(lost.any()) or not tracks:
         return []
-    paths = _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
+    paths = _fast.best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
     if not paths:
         return []
     # tracks hold candidate points (indices into ``flat``): key them by index, not by coords
@@ -1355,9 +1371,13 @@ def _identify_sequences(
     n = flat.numel()
     s = _triple_scores(coords, p0, p1, p2, score_kwargs)
     _fill_scores(scores_cube, flat, p0, p1, p2, s)
-    a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
-    if track_kw is not None and track_kw["span"] > 1:
-        left, right, key = _whole_sequences(a_in, a_out, p0, p1, p2, coords, track_kw)
+    rows = None  # the whole-sequence rows, built once for both uses below
+    if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
+        a_in, a_out, _ = _edge_ids(n, p0, p1, p2)
+        rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+        left, right, key = _fast.whole_sequences_from_rows(rows, p0.numel())
+    else:
+        a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
     is_root = torch.ones(n, dtype=torch.bool) if roots is None else roots.reshape(-1)[flat]
     image_list = None if roots is None or not case1 else is_root.tolist()
     dedupe_list = is_root.tolist() if dedupe else None
@@ -1376,7 +1396,8 @@ def _identify_sequences(
             accepted[right[sel][right[sel] >= 0]] = True
         if shared_points:  # several sequences per image point (crossings; our reading)
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
-            rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
+            if rows is None or seq_kw is not track_kw:
+                rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
             accepted |= _short_track_sequences(rows, p0, p1, p2, is_root)
         no_centre = (centre < 0) & is_root
         for pick in (end_f, end_b):

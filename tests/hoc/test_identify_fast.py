@@ -2,6 +2,8 @@
 
 import math
 import random
+import warnings
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -157,3 +159,92 @@ def test_make_tracks_equals_make_track(seed):
         assert torch.equal(tr.point_scores, want.point_scores)
         assert (tr.id, tr.score, tr.batch) == (want.id, want.score, want.batch)
         assert tr.points.dtype == want.points.dtype
+
+
+def _unwired() -> SimpleNamespace:
+    """The helpers replaced by the identify.py code they stand for (the loop references)."""
+
+    def score_paths_passing(paths, p0, p1, p2, s, coords, min_points, track_kw, threshold):
+        every = ident._score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw)
+        return [item for item in every if not item[0] < threshold]
+
+    def kept_sharing_a_point(pts, kept_at):  # every kept track (each has points in kept_at)
+        return sorted({i for tracks in kept_at.values() for i in tracks})
+
+    def make_tracks(kept, coords, batch):
+        out = []
+        for score, pts, pscores in kept:
+            track, _ = ident._make_track(pts, pscores, coords, batch)
+            track.score = score
+            out.append(track)
+        return out
+
+    def whole_sequences_from_rows(rows, k):
+        c_idx, left_t, right_t, key_rows = rows
+        best = ident._group_best_sorted(c_idx, key_rows, k)
+        return left_t[best], right_t[best], key_rows[best]
+
+    return SimpleNamespace(
+        score_paths_passing=score_paths_passing,
+        kept_sharing_a_point=kept_sharing_a_point,
+        make_tracks=make_tracks,
+        best_paths=ident._best_paths,
+        pairs=ident._pairs,
+        whole_sequences_from_rows=whole_sequences_from_rows,
+    )
+
+
+def _same_result(a: ident.HOCResult, b: ident.HOCResult) -> None:
+    assert torch.equal(a.support, b.support) and torch.equal(a.cleaned, b.cleaned)
+    assert torch.equal(a.scores.view(torch.int64), b.scores.view(torch.int64))  # the same bits
+    assert (a.saturated, a.warnings) == (b.saturated, b.warnings)
+    assert len(a.tracks) == len(b.tracks)
+    for s, t in zip(a.tracks, b.tracks, strict=True):
+        assert torch.equal(s.points, t.points) and s.points.dtype == t.points.dtype
+        assert torch.equal(s.point_scores.view(torch.int64), t.point_scores.view(torch.int64))
+        assert (s.score, s.id, s.batch) == (t.score, t.id, t.batch)
+
+
+DETECT_SETTINGS = [
+    {},
+    {"support": "chain"},
+    {"identify": "assignment"},
+    {"score_span": 1, "shared_points": False, "dedupe": False, "track_ends": False},
+    {"dedupe": 1},
+    {"max_candidates": 40},
+]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_detect_wired_equals_unwired(seed, monkeypatch):
+    """`detect` with the helpers wired == with the identify.py code they replace."""
+    from hocnet.data.binary import paper_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # density warnings, alike on both sides
+        cube = paper_scene("table3-paper", 0.02 + 0.005 * seed, seed=seed).cube
+        order = 2 + seed % 2
+        wired = [ident.detect(cube, order=order, **kw) for kw in DETECT_SETTINGS]
+        monkeypatch.setattr(ident, "_fast", _unwired())
+        loop = [ident.detect(cube, order=order, **kw) for kw in DETECT_SETTINGS]
+    for a, b in zip(wired, loop, strict=True):
+        _same_result(a, b)
+    assert sum(len(r.tracks) for r in wired) > 0  # tracks were found: not vacuous
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_pairs_equals_identify(seed):
+    gen = torch.Generator().manual_seed(seed)
+    for m, q, ids in ((50, 40, 10), (200, 300, 500), (0, 5, 3), (5, 0, 3), (0, 0, 1)):
+        keys = torch.randint(0, ids, (m,), generator=gen)
+        queries = torch.randint(0, ids, (q,), generator=gen)
+        want = ident._pairs(keys, queries)
+        got = fast.pairs(keys, queries)
+        for g, w in zip(got, want, strict=True):
+            assert torch.equal(g, w)
+    *_, a_in, a_out, _, _, _ = _scene(seed)
+    for keys, queries in ((a_out, a_in), (a_in, a_out)):
+        want = ident._pairs(keys, queries)
+        assert want[0].numel() > 0
+        for g, w in zip(fast.pairs(keys, queries), want, strict=True):
+            assert torch.equal(g, w)
