@@ -687,6 +687,12 @@ def main(argv: Sequence[str] | None = None) -> pathlib.Path:
     extra.add_argument(
         "--convoy-headway", type=float, default=10.0, help="convoy departures (s; default 10)"
     )
+    extra.add_argument(
+        "--junction-test",
+        choices=("one-step", "sprt"),
+        default="one-step",
+        help="road-section test at junctions (PDTrackerConfig.junction_test; default one-step)",
+    )
     known, rest = extra.parse_known_args(argv if argv is not None else sys.argv[1:])
     if known.jobs < 1:
         extra.error(f"--jobs: expected >= 1, got {known.jobs}")
@@ -696,6 +702,7 @@ def main(argv: Sequence[str] | None = None) -> pathlib.Path:
         max_seconds=known.max_seconds,
         gmti_resolution=known.gmti_resolution,
         convoy_headway=known.convoy_headway,
+        config=PDTrackerConfig(junction_test=known.junction_test),
     )
     return C.main_for(NAME, DESCRIPTION, fn, rest)
 

@@ -264,3 +264,126 @@ def test_coasting_track_is_penalised_after_max_coast():
         s, log_miss = f.miss(pred, cfg.pd)
         penalties.append(float(log_miss[0]) < -cfg.coast_penalty)
     assert penalties == [False, False, False, True]
+
+
+def _shallow_fork(junction_test: str, n_after: int = 4):
+    """A target at 15 m/s east takes the branch 10 degrees right of straight on at (1000, 0).
+
+    Noise-free GMTI reports; both branches are highways (``Omega`` equal). Returns the filter
+    and, after each report past the junction, ``(section, ln mu of the pending hypotheses or
+    None, combined estimate, true state, (predicted dict, z, ln Lambda))``.
+    """
+    a = math.radians(10.0)
+    c, si, L = math.cos(a), math.sin(a), 3000.0
+    net = RoadNetwork(
+        [
+            [[0.0, 0.0], [1000.0, 0.0]],
+            [[1000.0, 0.0], [1000.0 + L, 0.0]],
+            [[1000.0, 0.0], [1000.0 + L * c, -L * si]],
+        ],
+        [{"road_class": "highway"}] * 3,
+    )
+    gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
+    cfg = PDTrackerConfig(junction_test=junction_test)
+    f = VSIMMRoadFilter(
+        net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
+    )
+    v = 15.0
+    truth = [(t, [1000.0 + v * t, v, 0.0, 0.0]) for t in (-30.0, -20.0, -10.0, 0.0)]
+    for k in range(1, n_after + 1):
+        d = v * 10.0 * k
+        truth.append((10.0 * k, [1000 + d * c, v * c, -d * si, -v * si]))
+    s, out = None, []
+    for t, x in truth:
+        z = gmti.measure(torch.tensor([x], dtype=torch.float64))
+        R = gmti.covariance(z)
+        f.set_scan("gmti", t)
+        if s is None:
+            s = f.initiate(z, R)
+            continue
+        pred = f.predict(s, 10.0)
+        s, ll = f.update(pred, z, R)
+        if t > 0:
+            pend = s["j_lmu"][0] if "ja_valid" in s and bool(s["ja_valid"].any()) else None
+            out.append((int(s["section"][0]), pend, f.mean_cov(s)[0][0], x, (pred, z, ll)))
+    return f, out
+
+
+def test_sprt_junction_test_accumulates_where_the_one_step_test_keeps_the_wrong_branch():
+    # [PD] 24.4.3: "one measurement iteration is not sufficient to choose the right hypothesis"
+    f1, one = _shallow_fork("one-step")
+    fs, sprt = _shallow_fork("sprt")
+    # first report past the fork: mu_branch / mu_straight below the bound 99 of 24.39
+    sec, lmu = sprt[0][:2]
+    assert lmu is not None and sec == 1
+    assert 0.0 < float(lmu[1] - lmu[0]) < math.log(99.0)
+    assert one[0][0] == 1 and f1.junction_switches == 0  # one-step: undecided -> straight on
+    # the multi-scan test accepts the branch on the 2nd or 3rd report and ends
+    taken = [k for k, o in enumerate(sprt) if o[0] == 2 and o[1] is None]
+    assert taken and 1 <= taken[0] <= 2
+    assert fs.junction_switches == 1
+    assert all(o[0] == 2 for o in sprt[taken[0] :])
+    # one-step keeps the wrong (straight) branch to the end
+    assert all(o[0] == 1 for o in one) and f1.junction_switches == 0
+    x_s, x_true = sprt[-1][2], sprt[-1][3]
+    x_1 = one[-1][2]
+    err_s = math.hypot(x_s[0] - x_true[0], x_s[2] - x_true[2])
+    err_1 = math.hypot(x_1[0] - x_true[0], x_1[2] - x_true[2])
+    assert err_s < 15.0 < 50.0 < err_1
+
+
+def test_sprt_junction_test_against_a_loop_reference():
+    # 24.38 as a loop over the hypotheses of the pending test, each hypothesis' IMM updated on
+    # its own (vsimm_update on the stored state / prediction): ln mu_h(k) = ln Lambda_h +
+    # ln mu_h(k-1) - ln c (Omega the identity past the fork), ln c the leaf's ln Lambda
+    from hocnet.tracking.vsimm import VSIMMPrediction, VSIMMState, vsimm_update
+
+    f, sprt = _shallow_fork("sprt", n_after=2)
+    lmu1 = sprt[0][1]
+    pred, z, ll = sprt[1][4]
+    assert sprt[1][1] is not None  # still pending after two reports
+    corr = -math.log(f.cfg.pd) + math.log(f.cfg.lambda_fa / f._lambda["gmti"])
+    vs_keys = VSIMMState._fields
+    terms = []
+    for h in range(2):
+        if h == 0:
+            st = VSIMMState(*(pred["vs_section" if k == "section" else k] for k in vs_keys))
+            pr = VSIMMPrediction(
+                pred["p_cbar"], pred["p_x"], pred["p_P"], pred["p_segment"], pred["p_on"],
+                pred["p_accel"], pred["p_t"],
+            )  # fmt: skip
+        else:
+            g = "ja_"
+            st = VSIMMState(
+                *(pred[g + ("vs_section" if k == "section" else k)][:, 0] for k in vs_keys)
+            )
+            pr = VSIMMPrediction(
+                pred["p_acbar"][:, 0], pred["p_ax"][:, 0], pred["p_aP"][:, 0],
+                pred["p_aseg"][:, 0], pred["p_aon"][:, 0], pred["p_aacc"][:, 0], pred["p_t"],
+            )  # fmt: skip
+        _, u = vsimm_update(st, pr, z, f.sensors["gmti"], f.net, f.vcfg)
+        terms.append(float(u.log_likelihood[0]) + float(lmu1[h]))
+    ln_c = math.log(sum(math.exp(v) for v in terms))
+    assert math.isclose(float(ll[0]) - corr, ln_c, rel_tol=0, abs_tol=1e-9)
+    lmu2 = sprt[1][1]
+    for h in range(2):
+        assert math.isclose(float(lmu2[h]), terms[h] - ln_c, rel_tol=0, abs_tol=1e-9)
+    assert float(lmu2[1] - lmu2[0]) > float(lmu1[1] - lmu1[0])  # the evidence accumulates
+
+
+def test_junction_test_one_step_equals_the_default(short):
+    a = run_pd_tracker(short, type_tracking=False)
+    b = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="one-step"))
+    assert a.tracks.keys() == b.tracks.keys() and a.junction_switches == b.junction_switches
+    for k in a.tracks:
+        for name in ("times", "positions", "truth_ids", "types"):
+            np.testing.assert_array_equal(getattr(a.tracks[k], name), getattr(b.tracks[k], name))
+    c = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="sprt"))
+    assert c.tracks and all(np.isfinite(tr.positions).all() for tr in c.tracks.values())
+
+
+def test_junction_test_bad_value():
+    with pytest.raises(ValueError, match="junction_test"):
+        PDTrackerConfig(junction_test="wald")
+    with pytest.raises(ValueError, match="alpha"):
+        PDTrackerConfig(junction_test="sprt", junction_alpha=0.0)
