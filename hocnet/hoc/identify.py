@@ -276,8 +276,8 @@ as before.
 
 Measured out of sample (review of issue 7, 540 fresh scenes with tracks starting or ending
 mid-window, on against off, ``detect`` defaults otherwise): it saves 9 target points but keeps
-73 more clutter points, and it newly loses target points in 2 scenes. A trade-off, not a strict gain; the default is unchanged
-(``True``) so the committed results stay as they are.
+73 more clutter points, and it newly loses target points in 2 scenes. A trade-off, not a
+strict gain; the default is unchanged (``True``) so the committed results stay as they are.
 """
 
 RESCUE_BRANCH = True
@@ -297,21 +297,22 @@ and both were lost.
 BRANCH_MIXED = True
 """``RESCUE_BRANCH`` only when no single accepted track holds all the branch's other points.
 
-Our addition (issue 7; :func:`_one_track_holds`). A branch leaving one accepted track is an alternative end point of that track, which
-``dedupe`` judges already; a true track whose start lies on tracks that mix it with its
-neighbours shares points with several. Measured, ``fig5-paper`` seeds 5000-5004, windows
-1-10 / 3-12 / 5-14 / 7-16, rejection of moving clutter (the stationary clutter is kept by
-every configuration): 98.25 % without ``RESCUE_BRANCH`` and ``GUARD_MIXED``, 97.99 % with
-both, 98.21 % with both and ``BRANCH_MIXED``; so it was chosen, on those five seeds.
+Our addition (issue 7; :func:`_one_track_holds`). A branch leaving one accepted track is an
+alternative end point of that track, which ``dedupe`` judges already; a true track whose start
+lies on tracks that mix it with its neighbours shares points with several. Measured,
+``fig5-paper`` seeds 5000-5004, windows 1-10 / 3-12 / 5-14 / 7-16, rejection of moving clutter
+(the stationary clutter is kept by every configuration): 98.25 % without ``RESCUE_BRANCH`` and
+``GUARD_MIXED``, 97.99 % with both, 98.21 % with both and ``BRANCH_MIXED``; so it was chosen,
+on those five seeds.
 
-Out of sample it costs target points (review of issue 7, eligible target points lost / clutter
-points kept, ``BRANCH_MIXED`` off -> on, ``detect`` defaults otherwise):
+Out of sample it costs target points (review of issue 7, eligible target points lost /
+clutter points kept, ``BRANCH_MIXED`` off -> on, ``detect`` defaults otherwise):
 ``partial_track_scene`` seeds 5080-5399 102 / 2219 -> 111 / 2194; ``_partial_scene``
 (``tests/hoc/test_identify.py``) seeds 1080-1299 41 / 1668 -> 48 / 1651. The trade-off: on
-keeps 0.22 points more of Fig. 5's moving-clutter rejection (98.21 against 97.99 %) and a few
-clutter points fewer on partial scenes, at 7-9 more target points lost per 220-320 scenes.
-Partial scenes do lose eligible points either way (not "no point", as this note said before
-the review). Default unchanged (``True``) so the committed results stay as they are.
+keeps Fig. 5's moving-clutter rejection at 98.21 % (97.99 % off) and keeps 17-25 clutter points
+fewer on partial scenes, at 7-9 more target points lost per 220-320 scenes. Partial scenes
+lose eligible points either way (not "no point", as this note said before the review). The
+default is unchanged (``True``) so the committed results stay as they are.
 """
 
 RESCUE_SHORT = False
