@@ -792,8 +792,11 @@ def _enumerate_paths(
     ``detect`` defaults, every window at the cap): target points of tracks with >= 5 points in
     the window lost 11 in 10 windows -> 0 in 80; rejection of moving clutter (seeds
     5000-5004) 98.36 -> 98.25 % (small clusters the loop cut short are now candidates whole).
-    The bound on the work is unchanged: at most ``max_candidates`` chains enumerated in full,
-    plus one best-continuation chain per open chain of the loop.
+    The bound on the work is unchanged: fewer than ``max_candidates`` chains of whole
+    clusters, at most the rest of the budget ``b = max(1, max_candidates - used)`` enumerated
+    in full by the loop, plus one best-continuation chain per open chain of the loop (at most
+    ``max(number of starts, b + largest fan-out)``; tested in
+    ``tests/hoc/test_identify.py::TestCandidateCap``).
     """
     fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
     if fast is not None:
