@@ -409,8 +409,9 @@ class HOCResult:
             the triples through it (NaN where there is no such triple or no point).
         cleaned: bool cube shaped like the input: the points of the accepted tracks.
         saturated: whether some scene's clutter density is above the paper's discrimination
-            bound (:func:`~hocnet.hoc.functional.density_bound`) or the identification work
-            cap was hit.
+            bound (:func:`~hocnet.hoc.functional.density_bound`), some area is locally
+            saturated (``LOCAL_SATURATION``, left out of identification), or the
+            identification work cap was hit.
         warnings: the reasons, one line each (also issued with :func:`warnings.warn`).
     """
 
