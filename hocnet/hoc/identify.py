@@ -1905,8 +1905,8 @@ def detect(
     (2v + 1)`` window holding more than ``LOCAL_SATURATION`` (25 %) of its pixels are left out
     of identification too (our addition): ``saturated`` is set and ``warnings`` says which
     scans. Limit, measured with ``order=2`` on 10 x 128 x 128 cubes at 0.5 % clutter (peak RSS
-    of the process): an 8 x 8 patch on in every scan 0.2 s / 292 MB, 12 x 12 0.4 s / 478 MB,
-    4 x 4 (16 points per window, below the local limit) 0.4 s / 333 MB, a 80 x 80 region at
+    of the process): an 8 x 8 patch on in every scan 0.1 s / 294 MB, 12 x 12 0.4 s / 468 MB,
+    4 x 4 (16 points per window, below the local limit) 0.3 s / 332 MB, a 80 x 80 region at
     10 % 1.6 s / 558 MB. Ordinary scenes (uniform clutter up to the paper's bound) never reach
     the local limit, and their results are unchanged.
 
