@@ -192,10 +192,15 @@ Other methods, measured side by side in ``experiments/hoc_table2.py`` / ``hoc_ta
   when their best sequence passes the threshold.
 
 Work is bounded: the number of candidate tracks enumerated per scene is capped
-(``max_candidates``); when the cap is hit, the clusters of linked triples with the fewest chains
-are still enumerated in full (smallest first, within the cap; our addition, measured on the
-``fig5-paper`` scene, see :func:`_enumerate_paths`), in the largest ones each chain follows its
-best-scoring continuation once the cap is spent, and a warning says so.
+(``max_candidates``; our addition, a departure from section III-B, whose comparison "can only
+be made possible when all the possible target tracks are identified"); when the cap is hit,
+the clusters of linked triples with the fewest chains are still enumerated in full (smallest
+first, within the cap; our addition, measured on the ``fig5-paper`` scene, see
+:func:`_enumerate_paths`), in the largest ones each chain follows its best-scoring
+continuation once the cap is spent, and a warning says so. Areas whose local density is far
+above the paper's bound (``LOCAL_SATURATION``: more than a quarter of a ``(2v + 1)^2`` window
+in one scan) are left out of identification by :func:`detect`, with a warning: their
+five-point sequences would otherwise need unbounded memory (our addition).
 """
 
 from __future__ import annotations
@@ -258,7 +263,9 @@ GUARD_MIXED = True
 """``dedupe``: keep a candidate differing from a kept track at one scan when it mixes kept
 tracks and its own point there is an image point on no kept track, next to the kept one.
 
-Our addition (issue 7, partial tracks; :func:`_is_near_duplicate`). The guard of ``dedupe=2``
+Our addition (issue 7, partial tracks; :func:`_is_near_duplicate`): a departure from the
+association step of section III-B (the Case 1-4 comparison of five-point sequences, which
+keeps a point's best sequence and has no rule for near-duplicate tracks). The guard of ``dedupe=2``
 (an uncovered image point next to the kept track's point may be another track's own point) is
 applied to such a candidate too: one whose other points are not all on the kept track it is
 compared with (``explained`` points of other kept tracks). Review ``scene(9, partial=True)``:
@@ -266,12 +273,19 @@ two tracks one pixel apart at scans 5-6, one starting at scan 4; every kept trac
 two, the true track differed from one of them at scan 6 only and lost there by 0.68 px, and
 (6, 30, 30) was lost. A plain clutter detour (all its other points on the kept track) is judged
 as before.
+
+Measured out of sample (review of issue 7, 540 fresh scenes with tracks starting or ending
+mid-window, on against off, ``detect`` defaults otherwise): it saves 9 target points but keeps
+73 more clutter points, and it newly loses target points in 2 scenes. A trade-off, not a
+strict gain; the default is unchanged (``True``) so the committed results stay as they are.
 """
 
 RESCUE_BRANCH = True
 """Track ends step: also keep a best whole track that leaves (or joins) accepted tracks.
 
-Our addition (issue 7, partial tracks; :func:`_is_branch`): its points on no accepted track
+Our addition (issue 7, partial tracks; :func:`_is_branch`): a departure from the association
+step of section III-B (the Case 1-4 comparison of five-point sequences; the paper adds no track
+after it). Its points on no accepted track
 are its first or last points, at least two, all image points; all its triples are in kept
 sequences; and no single accepted track holds all its other points (``BRANCH_MIXED``). Review
 ``scene(49, partial=True)``: a 6-point track from scan 4 whose first four points lie on kept
@@ -283,13 +297,22 @@ and both were lost.
 BRANCH_MIXED = True
 """``RESCUE_BRANCH`` only when no single accepted track holds all the branch's other points.
 
-A branch leaving one accepted track is an alternative end point of that track, which
-``dedupe`` judges already; a true track whose start lies on tracks that mix it with its
-neighbours shares points with several. Measured, ``fig5-paper`` seeds 5000-5004, windows
-1-10 / 3-12 / 5-14 / 7-16, rejection of moving clutter (the stationary clutter is kept by
-every configuration): 98.25 % without ``RESCUE_BRANCH`` and ``GUARD_MIXED``, 97.99 % with
-both, 98.21 % with both and ``BRANCH_MIXED``; the review's partial scenes lose no eligible
-point either way.
+Our addition (issue 7; :func:`_one_track_holds`). A branch leaving one accepted track is an
+alternative end point of that track, which ``dedupe`` judges already; a true track whose start
+lies on tracks that mix it with its neighbours shares points with several. Measured,
+``fig5-paper`` seeds 5000-5004, windows 1-10 / 3-12 / 5-14 / 7-16, rejection of moving clutter
+(the stationary clutter is kept by every configuration): 98.25 % without ``RESCUE_BRANCH`` and
+``GUARD_MIXED``, 97.99 % with both, 98.21 % with both and ``BRANCH_MIXED``; so it was chosen,
+on those five seeds.
+
+Out of sample it costs target points (review of issue 7, eligible target points lost /
+clutter points kept, ``BRANCH_MIXED`` off -> on, ``detect`` defaults otherwise):
+``partial_track_scene`` seeds 5080-5399 102 / 2219 -> 111 / 2194; ``_partial_scene``
+(``tests/hoc/test_identify.py``) seeds 1080-1299 41 / 1668 -> 48 / 1651. The trade-off: on
+keeps Fig. 5's moving-clutter rejection at 98.21 % (97.99 % off) and keeps 17-25 clutter points
+fewer on partial scenes, at 7-9 more target points lost per 220-320 scenes. Partial scenes
+lose eligible points either way (not "no point", as this note said before the review). The
+default is unchanged (``True``) so the committed results stay as they are.
 """
 
 RESCUE_SHORT = False
@@ -322,6 +345,23 @@ DEFAULT_SHARED_POINTS = True
 
 MAX_CANDIDATES = 20000
 """Default cap on the candidate tracks enumerated per scene (``max_candidates``)."""
+
+LOCAL_SATURATION = 0.25
+"""Local density above which :func:`detect` skips identification in an area (our addition).
+
+A ``(2v + 1) x (2v + 1)`` window of one scan holding more than this fraction of its pixels
+(more than 20 of 81 for ``v = 4``: five times the paper's bound of 4 points per window, section
+IV-B) is saturated; the points within ``v`` pixels of such a window's centre in that scan are
+left out of track identification, with a warning. Why: the global check compares the mean
+density, and a local patch on in every scan passes it while its five-point sequences grow as
+the fourth power of the patch's density (review finding 1, issue 7: a 10 x 128 x 128 cube at
+0.5 % clutter plus an 8 x 8 patch on in every scan, global density 0.6 %, needed more than
+6 GB in ``_whole_sequence_rows``, a 12 x 12 patch 18 GB, a 6 x 6 patch 1.6 GB and 11 s). The
+factor is ours: uniform clutter at the paper's bound (4.94 %, Poisson mean 4 per window) exceeds
+20 points in a window with probability about 1e-9, so ordinary scenes never trigger it.
+Cost of the check (:func:`_local_saturation`, a block-sum pre-check first): 5 ms per
+10 x 512 x 640 cube at 1-2 % clutter (one thread).
+"""
 
 
 @dataclass
@@ -371,8 +411,9 @@ class HOCResult:
             the triples through it (NaN where there is no such triple or no point).
         cleaned: bool cube shaped like the input: the points of the accepted tracks.
         saturated: whether some scene's clutter density is above the paper's discrimination
-            bound (:func:`~hocnet.hoc.functional.density_bound`) or the identification work
-            cap was hit.
+            bound (:func:`~hocnet.hoc.functional.density_bound`), some area is locally
+            saturated (``LOCAL_SATURATION``, left out of identification), or the
+            identification work cap was hit.
         warnings: the reasons, one line each (also issued with :func:`warnings.warn`).
     """
 
@@ -754,8 +795,11 @@ def _enumerate_paths(
     ``detect`` defaults, every window at the cap): target points of tracks with >= 5 points in
     the window lost 11 in 10 windows -> 0 in 80; rejection of moving clutter (seeds
     5000-5004) 98.36 -> 98.25 % (small clusters the loop cut short are now candidates whole).
-    The bound on the work is unchanged: at most ``max_candidates`` chains enumerated in full,
-    plus one best-continuation chain per open chain of the loop.
+    The bound on the work is unchanged: fewer than ``max_candidates`` chains of whole
+    clusters, at most the rest of the budget ``b = max(1, max_candidates - used)`` enumerated
+    in full by the loop, plus one best-continuation chain per open chain of the loop (at most
+    ``max(number of starts, b + largest fan-out)``; tested in
+    ``tests/hoc/test_identify.py::TestCandidateCap``).
     """
     fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
     if fast is not None:
@@ -775,7 +819,10 @@ def _enumerate_paths(
     in_rest[acc_idx] = ~full[cluster]
     head: list[list[int]] = []
     if bool(in_full.any()):
-        head = enumerate_paths_vectorised(in_full, a_in, a_out, s, used + 1) or []
+        whole = enumerate_paths_vectorised(in_full, a_in, a_out, s, used + 1)
+        # the full clusters hold ``used`` < ``used + 1`` chains: never capped
+        assert whole is not None, "the full clusters' enumeration hit its own cap"
+        head = whole
     tail, capped = _enumerate_paths_loop(in_rest, a_in, a_out, s, max(1, max_candidates - used))
     return head + tail, capped or bool(in_rest.any())
 
@@ -785,6 +832,8 @@ def _chain_clusters(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Clusters of linked accepted triples and the number of maximal chains in each.
 
+    Our addition (the candidate cap of :func:`_enumerate_paths`; section III-B enumerates every
+    possible track and needs no clusters).
     Two accepted triples are linked when one's out-edge is the other's in-edge; a cluster is a
     connected group of linked triples (every chain lies in one cluster). The chains of a
     cluster are counted by dynamic programming over its triples (chains from a triple: 1 if no
@@ -1315,6 +1364,7 @@ def _extensions(
 def _is_branch(pts: list[int], new: list[int], root: list[bool]) -> bool:
     """Whether the ``new`` points of a proposed track are a run of image points at one end.
 
+    Our addition (``RESCUE_BRANCH``; section III-B has no such rule).
     ``pts``: the proposed track's points in scan order; ``new``: those on no accepted track;
     ``root``: per candidate point, in the modified-HOC image. True when there are at least two
     new points, all image points, and they are the first ``len(new)`` or the last ``len(new)``
@@ -1328,7 +1378,10 @@ def _is_branch(pts: list[int], new: list[int], root: list[bool]) -> bool:
 
 
 def _one_track_holds(pts: list[int], point_tracks: dict[int, list[int]]) -> bool:
-    """Whether one accepted track holds every point of ``pts`` that lies on accepted tracks."""
+    """Whether one accepted track holds every point of ``pts`` that lies on accepted tracks.
+
+    Our addition (``BRANCH_MIXED``; section III-B has no such rule).
+    """
     on = [set(point_tracks[p]) for p in pts if p in point_tracks]
     return bool(on) and bool(set.intersection(*on))
 
@@ -1846,6 +1899,17 @@ def detect(
     :func:`~hocnet.hoc.functional.density_warning` reports the densest scan). Skipping the
     identification is our addition: the paper only says such densities "lead to false tracks".
 
+    A *local* saturated area passes that check (a patch on in every scan of an otherwise sparse
+    scene) but made the memory of identification unbounded (an 8 x 8 patch in a 10 x 128 x 128
+    cube: more than 6 GB). So, per scan, the points within ``v`` pixels of a ``(2v + 1) x
+    (2v + 1)`` window holding more than ``LOCAL_SATURATION`` (25 %) of its pixels are left out
+    of identification too (our addition): ``saturated`` is set and ``warnings`` says which
+    scans. Limit, measured with ``order=2`` on 10 x 128 x 128 cubes at 0.5 % clutter (peak RSS
+    of the process): an 8 x 8 patch on in every scan 0.1 s / 294 MB, 12 x 12 0.4 s / 468 MB,
+    4 x 4 (16 points per window, below the local limit) 0.3 s / 332 MB, a 80 x 80 region at
+    10 % 1.6 s / 558 MB. Ordinary scenes (uniform clutter up to the paper's bound) never reach
+    the local limit, and their results are unchanged.
+
     Args:
         frames: ``(B, T, H, W)`` or ``(T, H, W)`` binary cube (bool or 0/1); ``B = 0`` gives an
             empty result.
@@ -1930,6 +1994,19 @@ def detect(
         roots, shown = None, cand
     work = cand.clone()
     work[dense] = False
+    local = _local_saturation(cube, v).to(work.device)
+    local[dense] = False
+    for b in local.flatten(1).any(dim=1).nonzero().squeeze(1).tolist():
+        where = f"scene {b}: " if batched else ""
+        scans = local[b].flatten(1).any(dim=1).nonzero().squeeze(1).tolist()
+        notes.append(
+            f"{where}clutter density above {100 * LOCAL_SATURATION:.0f} % in "
+            f"{2 * v + 1} x {2 * v + 1} windows of scans {scans} (the discrimination bound is "
+            f"{100 * bound:.2f} %, [LA98] section IV-B): {int((work[b] & local[b]).sum())} "
+            "candidate points there left out of track identification"
+        )
+    if bool(local.any()):
+        work &= ~local
     tracks, scores, cleaned, capped = _identify(
         work,
         v,
@@ -1950,7 +2027,7 @@ def detect(
     if capped:
         notes.append(
             f"track identification enumerated more than {max_candidates} candidate tracks in a "
-            "scene; chains followed their best continuation only"
+            "scene; the largest clusters of linked triples followed their best continuation only"
         )
     for note in notes:
         warnings.warn(note, RuntimeWarning, stacklevel=2)
@@ -1962,6 +2039,39 @@ def detect(
         saturated=bool(notes),
         warnings=notes,
     )
+
+
+def _local_saturation(cube: torch.Tensor, v: int) -> torch.Tensor:
+    """Points near a locally saturated window (``LOCAL_SATURATION``): ``(B, T, H, W)`` bool.
+
+    A window is the ``(2v + 1) x (2v + 1)`` square of one scan centred on a pixel (zero padded
+    at the borders); the result marks, per scan, every pixel within ``v`` (Chebyshev) of the
+    centre of a window holding more than ``LOCAL_SATURATION * (2v + 1) ** 2`` points.
+    """
+    n_b, n_t, h, w = cube.shape
+    side = 2 * v + 1
+    if cube.numel() == 0:
+        return torch.zeros(cube.shape, dtype=torch.bool)
+    limit = LOCAL_SATURATION * side * side + 0.5  # integer counts; float sums err < 1e-3
+    # cheap exact pre-check: a window's pixels lie within 2 x 2 aligned side x side blocks
+    hb, wb = -(-h // side) + 1, -(-w // side) + 1
+    padded = torch.zeros(n_b * n_t, hb * side, wb * side, dtype=torch.bool, device=cube.device)
+    padded[:, :h, :w] = cube.reshape(n_b * n_t, h, w)
+    blocks = padded.view(n_b * n_t, hb, side, wb, side).sum(dim=(2, 4), dtype=torch.int32)
+    quads = blocks[:, :-1, :-1] + blocks[:, 1:, :-1] + blocks[:, :-1, 1:] + blocks[:, 1:, 1:]
+    if not bool((quads > limit).any()):
+        return torch.zeros(cube.shape, dtype=torch.bool, device=cube.device)
+    flat = cube.reshape(n_b * n_t, 1, h, w).float()
+    # window sums by two separable box passes (means times the area: off by < 1e-3)
+    pool = torch.nn.functional.avg_pool2d
+    rows = pool(flat, (side, 1), stride=1, padding=(v, 0), count_include_pad=True)
+    count = pool(rows, (1, side), stride=1, padding=(0, v), count_include_pad=True)
+    count = count * float(side * side)
+    hot = count > limit
+    if not bool(hot.any()):
+        return torch.zeros(cube.shape, dtype=torch.bool, device=cube.device)
+    area = torch.nn.functional.max_pool2d(hot.float(), side, stride=1, padding=v) > 0
+    return area.reshape(n_b, n_t, h, w)
 
 
 def reject_slow_tracks(result: HOCResult, min_speed: float) -> HOCResult:

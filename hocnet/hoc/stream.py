@@ -799,7 +799,7 @@ class StreamingDetector:
                 notes.append(
                     "track identification enumerated more than "
                     f"{self._identify_kwargs['max_candidates']} candidate tracks in a scene; "
-                    "chains followed their best continuation only"
+                    "the largest clusters of linked triples followed their best continuation only"
                 )
         for note in notes:
             warnings.warn(note, RuntimeWarning, stacklevel=4)

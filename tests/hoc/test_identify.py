@@ -1,6 +1,9 @@
 import itertools
 import math
+import os
 import random
+import subprocess
+import sys
 import time
 import tracemalloc
 import warnings
@@ -618,6 +621,68 @@ class TestDetect:
             detect(torch.zeros(6, 8, 8), combine="max")
 
 
+_PATCH_SCRIPT = """
+import resource, sys, warnings
+import torch
+torch.set_num_threads(1)
+from hocnet.hoc import detect
+n = int(sys.argv[1])
+g = torch.Generator().manual_seed(0)
+cube = torch.rand(10, 128, 128, generator=g) < 0.005
+cube[:, 60 : 60 + n, 60 : 60 + n] = True
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    r = detect(cube, order=2)
+rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024
+kept = int(r.cleaned[:, 56:76, 56:76].sum())
+print(rss, int(r.saturated), kept, sum("windows" in w for w in r.warnings))
+"""
+
+
+class TestLocalSaturation:
+    """Review finding 1: a local saturated patch passes the global density check."""
+
+    @pytest.mark.parametrize("n", [8, 12])
+    def test_patch_is_bounded_and_warned(self, n):
+        # before: 8 x 8 needed more than 6 GB (killed), 12 x 12 reached 18 GB; measured after:
+        # 294 MB / 0.1 s and 468 MB / 0.4 s peak RSS for the whole process
+        out = subprocess.run(
+            [sys.executable, "-c", _PATCH_SCRIPT, str(n)],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+        )
+        assert out.returncode == 0, out.stderr[-2000:]
+        rss_mb, saturated, kept, notes = map(int, out.stdout.split())
+        assert rss_mb < 2048
+        assert saturated == 1 and notes == 1
+        assert kept == 0  # the patch is left out of identification
+
+    def test_windows_against_loop(self):
+        gen = torch.Generator().manual_seed(3)
+        cube = torch.rand(2, 3, 20, 24, generator=gen) < 0.2
+        cube[0, 1, 5:10, 6:11] = True
+        v = 2
+        got = identify_module._local_saturation(cube, v)
+        side = 2 * v + 1
+        want = torch.zeros_like(cube)
+        for b, t, y, x in itertools.product(range(2), range(3), range(20), range(24)):
+            win = cube[b, t, max(0, y - v) : y + v + 1, max(0, x - v) : x + v + 1]
+            if int(win.sum()) > identify_module.LOCAL_SATURATION * side * side:
+                want[b, t, max(0, y - v) : y + v + 1, max(0, x - v) : x + v + 1] = True
+        assert want.any() and not want.all()
+        assert torch.equal(got, want)
+
+    @pytest.mark.parametrize("seed", range(3))
+    def test_uniform_clutter_at_the_bound_is_not_local(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        cube = torch.rand(1, 10, 128, 128, generator=gen) < density_bound(
+            "modified", 4, math.pi / 4
+        )
+        assert not identify_module._local_saturation(cube, 4).any()
+
+
 class TestIdentifyTracks:
     def test_turning_track_scores_lower(self):
         s = torch.zeros(7, 20, 20, dtype=torch.bool)
@@ -963,30 +1028,96 @@ class TestCandidateCap:
             want[label] += 1
         assert count.tolist() == want
 
-    @pytest.mark.parametrize("seed", range(20))
-    @pytest.mark.parametrize("cap", [2, 10, 40])
-    def test_small_clusters_are_enumerated_whole(self, seed, cap):
-        accepted, a_in, a_out, s = self._dag(seed)
-        ref = _chains_reference(accepted, a_in, a_out)
-        if len(ref) < cap:
-            return  # below the cap: the uncapped enumeration (test_stream.py)
+    @staticmethod
+    def _check_capped(accepted, a_in, a_out, s, cap, cluster_of, n_starts):
+        """The claims of ``_enumerate_paths``' docstring at the cap, against the uncapped loop.
+
+        ``cluster_of``: per accepted triple index, its cluster label (any numbering).
+        """
+        ref = identify_module._enumerate_paths_loop(accepted, a_in, a_out, s, 10**9)[0]
+        assert len(ref) >= cap  # really at the cap
         got, capped = identify_module._enumerate_paths(accepted, a_in, a_out, s, cap)
         assert capped
-        n_c = 1 + max(label for label, _ in ref)
-        count = [sum(1 for label, _ in ref if label == c) for c in range(n_c)]
+        count: dict[int, int] = {}
+        for path in ref:
+            count[cluster_of[path[0]]] = count.get(cluster_of[path[0]], 0) + 1
         budget, whole = 0, set()
-        for c in sorted(range(n_c), key=lambda c: (count[c], c)):  # smallest first
+        for c in sorted(
+            count, key=lambda c: (count[c], min(k for k in cluster_of if cluster_of[k] == c))
+        ):
             if budget + count[c] >= cap:
                 break
             budget += count[c]
             whole.add(c)
-        every = {tuple(path) for _, path in ref}
+        every = {tuple(path) for path in ref}
         assert all(tuple(path) in every for path in got)  # maximal chains only
         assert len({tuple(path) for path in got}) == len(got)  # each chain once
-        # the whole clusters' chains first, every one of them; then the other clusters' only
-        head = {tuple(path) for label, path in ref if label in whole}
-        assert {tuple(path) for path in got[:budget]} == head
-        assert not head & {tuple(path) for path in got[budget:]}
+        # the whole clusters' chains first, all of them, in the order of the uncapped
+        # enumeration; then the other clusters' only
+        head = [path for path in ref if cluster_of[path[0]] in whole]
+        assert got[:budget] == head
+        assert all(cluster_of[path[0]] not in whole for path in got[budget:])
+        # bounded: fewer than ``cap`` chains of whole clusters, at most the rest of the budget
+        # ``b`` in full from the loop, plus one best continuation per open chain of the loop
+        # (at most ``max(starts, b + largest fan-out)``)
+        idx = accepted.nonzero().squeeze(1)
+        fan = int(torch.bincount(a_in[idx]).max())
+        rest = max(1, cap - budget)
+        assert len(got) <= budget + rest + max(n_starts, rest + fan)
+        return whole, count
+
+    @staticmethod
+    def _starts(accepted, a_in, a_out):
+        idx = accepted.nonzero().squeeze(1)
+        return int((~torch.isin(a_in[idx], a_out[idx])).sum())
+
+    @pytest.mark.parametrize("cap", [2, 10, 40])
+    def test_small_clusters_are_enumerated_whole(self, cap):
+        # only seeds whose DAG really has ``cap`` chains or more (the uncapped form otherwise)
+        hit = split = 0
+        for seed in range(200):
+            accepted, a_in, a_out, s = self._dag(seed)
+            ref = _chains_reference(accepted, a_in, a_out)
+            if len(ref) < cap:
+                continue
+            cluster, _ = identify_module._chain_clusters(accepted, a_in, a_out)
+            idx = accepted.nonzero().squeeze(1).tolist()
+            cluster_of = dict(zip(idx, cluster.tolist(), strict=True))
+            starts = self._starts(accepted, a_in, a_out)
+            whole, count = self._check_capped(accepted, a_in, a_out, s, cap, cluster_of, starts)
+            split += bool(whole) and len(whole) < len(count)  # whole clusters and the loop's
+            hit += 1
+            if hit == 15:
+                break
+        assert hit == 15 and split >= 10  # measured: 13 / 14 / 14 of 15 (cap 2 / 10 / 40)
+
+    def test_giant_plus_many_small_clusters(self):
+        # the review's case (dag.py "smallmany", smaller): 60 clusters of 32 chains each and
+        # one giant cluster of 120 * 4^5 = 122 880 chains; at a cap of 2 000 every small
+        # cluster is enumerated whole (1 920 chains), the giant follows best continuations
+        gen = torch.Generator().manual_seed(0)
+        ins, outs, labels = [], [], []
+
+        def layered(n_layers, width, fan, base, label):
+            for layer in range(n_layers - 1):
+                src = torch.arange(width).repeat_interleave(fan)
+                dst = (src + torch.arange(fan).repeat(width) + 1) % width  # distinct successors
+                ins.append(base + layer * width + src)
+                outs.append(base + (layer + 1) * width + dst)
+                labels.append(torch.full((width * fan,), label))
+
+        for c in range(60):
+            layered(5, 2, 2, base=c * 10, label=c)
+        layered(7, 30, 4, base=1000, label=60)
+        a_in, a_out, label = torch.cat(ins), torch.cat(outs), torch.cat(labels)
+        s = torch.rand(a_in.numel(), generator=gen).double()
+        accepted = torch.ones(a_in.numel(), dtype=torch.bool)
+        cluster_of = dict(enumerate(label.tolist()))
+        starts = self._starts(accepted, a_in, a_out)
+        t0 = time.perf_counter()
+        whole, count = self._check_capped(accepted, a_in, a_out, s, 2000, cluster_of, starts)
+        assert whole == set(range(60)) and count[60] == 120 * 4**5
+        assert time.perf_counter() - t0 < 60
 
 
 def _turn_ok(pts, v=4, delta=math.pi / 4):
@@ -1037,10 +1168,13 @@ def partial_track_scene(seed, ends=True, n_t=10, size=60, density=0.014):
 class TestPartialTracks:
     """Issue 7: tracks that start late (or end early), passing close to each other.
 
-    The property, on the review's 60 scenes (``_partial_scene``, tracks starting at scans
-    0-4): no point of a track the detector's criterion admits (>= 5 points, moves within ``v``,
-    turns within ``delta``) is lost after identification with the defaults. Before
-    ``GUARD_MIXED`` and ``RESCUE_BRANCH`` 3 points in 2 of these scenes were lost (9 and 49).
+    The wanted property (``_partial_scene``, tracks starting at scans 0-4): no point of a track
+    the detector's criterion admits (>= 5 points, moves within ``v``, turns within ``delta``)
+    is lost after identification with the defaults. It held on the review's 60 scenes (seeds
+    0-59), but ``GUARD_MIXED`` and ``RESCUE_BRANCH`` were built on those seeds (before them 3
+    points in scenes 9 and 49 were lost): 9 and 49 stay as regression tests, and fresh seeds
+    are counted against the measured bound (``test_fresh_seeds_lost_points``): the property
+    does not hold out of sample yet (issue 7).
     Not yet a property of every such scene (measured, module notes of ``hocnet.hoc.identify``,
     ``RESCUE_SHORT``): on 200 fresh scenes of the same kind (``partial_track_scene(seed,
     ends=False)``, seeds 0-199) 15 points in 8 scenes are still lost (20 in 12 before), and
@@ -1048,11 +1182,23 @@ class TestPartialTracks:
     tracks.
     """
 
-    @pytest.mark.parametrize("seed", range(60))
+    @pytest.mark.parametrize("seed", [9, 49])
     def test_no_eligible_point_lost(self, seed):
+        # regression: the two scenes ``GUARD_MIXED`` and ``RESCUE_BRANCH`` were built on
         cube, _, eligible = _partial_scene(seed, eligible=True)
         result = detect(cube)
         assert not (eligible & ~result.cleaned).any(), (eligible & ~result.cleaned).nonzero()
+
+    def test_fresh_seeds_lost_points(self):
+        # NOT the property (issue 7, open): on 40 fresh seeds (2000-2039, not used to build
+        # any rule) the defaults lose eligible points; measured 5 points in 3 scenes (2008: 3,
+        # 2017: 1, 2026: 1). The bound catches a regression; lower it when a fix lands.
+        lost = []
+        for seed in range(2000, 2040):
+            cube, _, eligible = _partial_scene(seed, eligible=True)
+            lost.append(int((eligible & ~detect(cube).cleaned).sum()))
+        assert sum(lost) <= 5, lost
+        assert sum(n > 0 for n in lost) <= 3, lost
 
     def test_branch_rules(self):
         root = [True] * 6
