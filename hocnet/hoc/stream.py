@@ -74,6 +74,7 @@ from hocnet.hoc.functional import density_bound, hoc_layer, support_from_levels
 from hocnet.hoc.identify import (
     DEFAULT_DEDUPE,
     DEFAULT_SHARED_POINTS,
+    LOCAL_SATURATION,
     MAX_CANDIDATES,
     HOCResult,
     Identify,
@@ -81,6 +82,7 @@ from hocnet.hoc.identify import (
     _dedupe_scans,
     _identify,
     _identify_sequences,
+    _local_saturation,
     _score_kwargs,
     _track_kwargs,
 )
@@ -484,6 +486,8 @@ class StreamingDetector:
         self._shape: tuple[int, int] | None = None
         self._grid: _Grid | None = None
         self._scans: dict[int, torch.Tensor] = {}
+        # per scan: flat pixels near a locally saturated window (detect's LOCAL_SATURATION)
+        self._local: dict[int, torch.Tensor] = {}
         self._dirs = (
             _Direction(1, self.order, self._scans),
             _Direction(-1, self.order, self._scans),
@@ -651,7 +655,9 @@ class StreamingDetector:
         first = n + 1 - self.window  # the first scan any current or future window can hold
         for t in [t for t in self._scans if t < first]:
             del self._scans[t]
+            self._local.pop(t, None)
         self._scans[n] = points
+        self._local[n] = self._local_points(points)
         for cache in self._dirs:
             cache.drop_before(first)
         self._update_links(n)
@@ -661,6 +667,14 @@ class StreamingDetector:
         if self.pushed < self.window or (self.pushed - self.window) % self.stride:
             return None
         return self._emit()
+
+    def _local_points(self, points: torch.Tensor) -> torch.Tensor:
+        """Flat pixels of one scan near a locally saturated window (as :func:`detect` marks)."""
+        h, w = self._shape
+        scan = torch.zeros(h * w, dtype=torch.bool)
+        scan[points] = True
+        local = _local_saturation(scan.reshape(1, 1, h, w), self.v)
+        return local.flatten().nonzero().squeeze(1)
 
     def _window_points(self, start: int, trees: bool) -> list[torch.Tensor]:
         """Per scan of the window starting at ``start``: sorted flat pixel indices.
@@ -792,6 +806,20 @@ class StreamingDetector:
             scores = torch.full(support.shape, math.nan, dtype=torch.float64)
             cleaned = torch.zeros_like(support)
         else:
+            local_pts = [self._local[t] for t in range(start, self.pushed)]
+            if any(p.numel() for p in local_pts):  # as detect: left out of identification
+                local = self._cube(local_pts)
+                scans = local.flatten(1).any(dim=1).nonzero().squeeze(1).tolist()
+                side = 2 * self.v + 1
+                notes.append(
+                    f"clutter density above {100 * LOCAL_SATURATION:.0f} % in {side} x {side} "
+                    f"windows of scans {scans} (the discrimination bound is "
+                    f"{100 * self._bound:.2f} %, [LA98] section IV-B): "
+                    f"{int((work & local).sum())} candidate points there left out of track "
+                    "identification"
+                )
+                work = work & ~local
+                triples = None  # the whole identify_tracks call on the reduced window
             tracks, scores, cleaned, capped = _identify_window(
                 work, roots, triples, self._identify_kwargs
             )

@@ -70,6 +70,26 @@ class TestStreamingEqualsBatch:
             assert out.result.saturated and want.saturated
             assert out.result.warnings == want.warnings
 
+    @pytest.mark.parametrize("patch", [8, 12])
+    def test_locally_saturated_patch_equals_detect(self, patch):
+        # a patch on in every scan under a low global density: detect leaves it out of track
+        # identification (LOCAL_SATURATION; unbounded memory before, 18 GB at 12 x 12); the
+        # stream must do the same, window by window
+        gen = torch.Generator().manual_seed(patch)
+        cube = torch.rand(12, 64, 64, generator=gen) < 0.005
+        cube[:, 20 : 20 + patch, 30 : 30 + patch] = True
+        cube[4:, 50, 5:13] = True  # a stationary line elsewhere: not saturated
+        det = StreamingDetector(window=10, stride=1, order=2)
+        with pytest.warns(RuntimeWarning, match="windows of scans"):
+            outs = _stream(det, cube)
+        assert len(outs) == 3
+        for out in outs:
+            with pytest.warns(RuntimeWarning, match="windows of scans"):
+                want = detect(cube[out.start : out.stop], order=2)
+            _assert_same(out.result, want)
+            assert out.result.saturated and out.result.warnings == want.warnings
+            assert not out.result.cleaned[:, 20 : 20 + patch, 30 : 30 + patch].any()
+
     @pytest.mark.parametrize("seed", range(2))
     def test_dense_clutter_and_options(self, seed):
         gen = torch.Generator().manual_seed(seed)
