@@ -621,7 +621,11 @@ def _edge_ids(
 
 
 def _pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """All ``(i, j)`` with ``keys[j] == queries[i]`` (vectorised join)."""
+    """All ``(i, j)`` with ``keys[j] == queries[i]`` (vectorised join).
+
+    The reference for :func:`hocnet.hoc._identify_fast.pairs`, which the package calls; kept
+    for its tests.
+    """
     order = torch.argsort(keys, stable=True)
     sk = keys[order]
     lo = torch.searchsorted(sk, queries)
@@ -1206,6 +1210,9 @@ def _best_paths(
     ``point score - threshold`` among chains of at least ``min_points`` points (a chain passes
     the threshold exactly when that sum is >= 0); dynamic programming over the triples, forward
     and backward, one column per chain length. Returns the passing chains (triple indices).
+
+    The reference for :func:`hocnet.hoc._identify_fast.best_paths` (same chains, same order),
+    which the package calls; kept for its tests.
     """
     k = p0.numel()
     n_e = int(torch.maximum(a_in.max(), a_out.max())) + 1
