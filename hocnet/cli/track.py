@@ -192,12 +192,16 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
     ones took 45 s, one of 40 x 64 x 64 more than 500 s). Each run of consecutive sparse
     windows is streamed by its own :class:`~hocnet.hoc.stream.StreamingDetector`, whose
     windows are those of one detector over the whole sequence (every window's result equals
-    :func:`~hocnet.hoc.detect` on its scans).
+    :func:`~hocnet.hoc.detect` on its scans). Locally saturated patches (``LOCAL_SATURATION``
+    of :mod:`hocnet.hoc.identify`: left out of identification by every window) are said once,
+    with the frame numbers of the sequence, instead of once per window with the window's own
+    scan numbers.
     """
     import torch
 
     from hocnet.cli.detect import hoc_kwargs
     from hocnet.hoc import detect, reject_slow_tracks
+    from hocnet.hoc.identify import LOCAL_SATURATION, _local_saturation
     from hocnet.hoc.stream import StreamingDetector
 
     kw = hoc_kwargs(p)
@@ -221,21 +225,37 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
             stacklevel=2,
         )
     aligned = [s for s in starts if s % stride == 0 and s not in dense]
+    # frames of the windows that are identified (the dense ones are said above)
+    covered = {t for s0 in aligned for t in range(s0, s0 + window)}
+    if starts[-1] % stride and starts[-1] not in dense:
+        covered |= set(range(starts[-1], n_t))
+    local = _local_saturation(cube[None].bool(), kw["v"])[0]
+    frames = [t for t in local.flatten(1).any(dim=1).nonzero().squeeze(1).tolist() if t in covered]
+    if frames:
+        side = 2 * kw["v"] + 1
+        warnings.warn(
+            f"clutter density above {100 * LOCAL_SATURATION:.0f} % in {side} x {side} windows "
+            f"of frames {frames}: the points there are left out of track identification",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     runs: list[list[int]] = []
     for s in aligned:  # consecutive sparse windows share one streaming detector
         if runs and s == runs[-1][-1] + stride:
             runs[-1].append(s)
         else:
             runs.append([s])
-    for run in runs:
-        det = StreamingDetector(window=window, stride=stride, **kw)
-        for t in range(run[0], run[-1] + window):
-            out = det.push(cube[t])
-            if out is not None:
-                kept[run[0] + out.start : run[0] + out.stop] |= cleaned(out.result)
-    last = starts[-1]
-    if last % stride and last not in dense:  # the last frames: one final window at the end
-        kept[last:] |= cleaned(detect(cube[last:], **kw))
+    with warnings.catch_warnings():  # said once above, with the sequence's frame numbers
+        warnings.filterwarnings("ignore", message=".*windows of scans", category=RuntimeWarning)
+        for run in runs:
+            det = StreamingDetector(window=window, stride=stride, **kw)
+            for t in range(run[0], run[-1] + window):
+                out = det.push(cube[t])
+                if out is not None:
+                    kept[run[0] + out.start : run[0] + out.stop] |= cleaned(out.result)
+        last = starts[-1]
+        if last % stride and last not in dense:  # the last frames: one final window at the end
+            kept[last:] |= cleaned(detect(cube[last:], **kw))
     plots = []
     for t in range(n_t):
         yx = kept[t].nonzero().double()

@@ -483,6 +483,19 @@ class TestNewUser:
             assert len(lines) == 1 and "discrimination bound 4.94 %" in lines[0], err
             assert "RuntimeWarning" not in err and ".py:" not in err
 
+    def test_local_saturation_is_said_once_with_frame_numbers(self, tmp_path, capsys):
+        # a second new-user trial: a saturated patch in frames 25-30 gave one warning per
+        # window, each with the window's own scan numbers
+        rng = np.random.default_rng(0)
+        cube = rng.random((40, 64, 64)) < 0.005
+        cube[25:31, 20:32, 30:42] = True
+        seq = tmp_path / "patch.npy"
+        np.save(seq, cube)
+        code = main(["track", str(seq), "--detector", "hoc", "--out", str(tmp_path / "o"), "-q"])
+        assert code == 0
+        lines = [ln for ln in _warnings(capsys.readouterr().err) if "9 x 9 windows" in ln]
+        assert len(lines) == 1 and "of frames [25, 26, 27, 28, 29, 30]" in lines[0], lines
+
     @pytest.mark.parametrize("where", ["same", "inside", "glob"])
     @pytest.mark.parametrize(("cmd", "selector"), COMMANDS)
     def test_out_in_the_input_folder_is_refused(self, tmp_path, capsys, where, cmd, selector):
