@@ -262,7 +262,7 @@ class TestDetect:
             ("ok", ["--key", "cube"], r"--key: expected no --key for the \.npy file"),
             ("ok", ["--bogus"], r"unrecognized arguments: --bogus"),
             ("npz", ["--key", "nope"], r"--key: expected one of 'a', 'b'"),
-            ("npz", [], r"--key: expected one of 'a', 'b' .* got None"),
+            ("npz", [], r"--key: expected one of 'a', 'b' .* got no --key"),
         ],
     )
     def test_bad_input(self, tmp_path, capsys, scene, case, extra, match):

@@ -617,6 +617,8 @@ def load_input(
         if files is not None and "expected finite values" in message:
             message = _nonfinite_frames(source, message)
         message = message.replace("`key`", "--key").replace("`cube`: ", "")
+        if message.startswith("--key") and message.endswith(", got None"):
+            message = message[: -len("None")] + "no --key"  # the flag as the user left it
         if binary and "binary values" in message:
             message += (
                 f"; {selector} hoc needs binary scans: give --threshold-pfa P to binarise "
