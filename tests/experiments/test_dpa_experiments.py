@@ -192,6 +192,13 @@ class TestPaperValues:
         assert p.located(near[:, 1:], still[:, 1:]).tolist() == [True]
         assert p.located(near + 1.0, still).tolist() == [False]
         assert p.located(path, truth, radius=0.5).tolist() == [False, True] + [False] * 4
+        # jitter brought the previous position within 0.3 px: the target's own pixel is nearer
+        # the previous position; own_pixel accepts it, a pixel behind stays rejected
+        short = torch.tensor([[[9.0, 10.0], [10.1, 10.0], [10.4, 10.0]]], dtype=torch.float64)
+        own = torch.tensor([[[0.0, 0.0], [0.0, 0.0], [10.0, 10.0]]], dtype=torch.float64)
+        assert p.located(own, short).tolist() == [False]
+        assert p.located(own, short, own_pixel=True).tolist() == [True]
+        assert p.located(own - 1.0, short, own_pixel=True).tolist() == [False]
         # the detected pixel is the highest of the nine blocks around the target, not of the
         # frame: a brighter pixel outside them (another target) is ignored
         asf = torch.zeros(2, 3, 40, 60)
