@@ -192,7 +192,7 @@ def located(
     trajectory: torch.Tensor,
     truth: torch.Tensor,
     radius: float = LOCATED_RADIUS,
-    own_pixel: bool = False,
+    own_pixel: bool = True,
 ) -> torch.Tensor:
     """``(B,)`` bool: the track's last-frame pixel is on the target's current position.
 
@@ -207,11 +207,11 @@ def located(
     Unlike :func:`tracked` it ignores where the back-tracked path runs in earlier frames (the
     paper calls tracking up to b = 6.0 "inaccurate" above 5.6, Figure 18, and still counts it).
     A single-frame truth (``T = 1``) or a target that did not move in the last frame has no
-    distinct previous position: the radius alone decides. ``own_pixel=True`` (not used by
-    ``dpa-b-sweep``) also accepts the pixel containing the current true position: with the
-    0.5 px jitter the previous position can lie within 0.7 px of the current one, and the rule
-    above then rejects a detection on the target's own pixel (NA23A-like at s_n = 4, b = 0,
-    12 seeds: 9 of 12 located, 12 of 12 with ``own_pixel``).
+    distinct previous position: the radius alone decides. ``own_pixel=True`` (the default,
+    used by ``dpa-b-sweep``) also accepts the pixel containing the current true position: with
+    the 0.5 px jitter the previous position can lie within 0.7 px of the current one, and the
+    rule above then rejects a detection on the target's own pixel (NA23A-like at s_n = 4,
+    b = 0, 12 seeds: 9 of 12 located without it, 12 of 12 with it).
     """
     last = trajectory[:, -1].double()
     now = truth[:, -1].double()
@@ -229,8 +229,8 @@ def located(
 
 CRITERIA = {
     "tracked": "track within 1.5 px in >= 80 % of frames",
-    "located": "last-frame detection within 1.5 px of the target and nearer its current than its "
-    "previous position (track and locate)",
+    "located": "last-frame detection on the target's pixel, or within 1.5 px of the target and "
+    "nearer its current than its previous position (track and locate)",
     "good": "located and the Max_Numbers highest pixels of the last target block on the target",
 }
 """Criteria of the b range, per scene (then: in >= 50 % of the scenes). ``good`` is our reading of

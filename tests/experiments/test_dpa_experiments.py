@@ -196,7 +196,7 @@ class TestPaperValues:
         # the previous position; own_pixel accepts it, a pixel behind stays rejected
         short = torch.tensor([[[9.0, 10.0], [10.1, 10.0], [10.4, 10.0]]], dtype=torch.float64)
         own = torch.tensor([[[0.0, 0.0], [0.0, 0.0], [10.0, 10.0]]], dtype=torch.float64)
-        assert p.located(own, short).tolist() == [False]
+        assert p.located(own, short, own_pixel=False).tolist() == [False]
         assert p.located(own, short, own_pixel=True).tolist() == [True]
         assert p.located(own - 1.0, short, own_pixel=True).tolist() == [False]
         # the detected pixel is the highest of the nine blocks around the target, not of the
