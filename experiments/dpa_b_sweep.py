@@ -25,11 +25,13 @@ centred reading beside it, and whether the track back-tracked from the highest l
 the nine blocks (section 2.3) follows the studied target (within 1.5 px in >= 80 % of the
 frames). The b range where tracking occurred (>= 50 % of the scenes) is set beside Table 2, and
 beside it the ranges of three more criteria (``_nr08.CRITERIA``): *located* (the last-frame
-detection within 1.5 px, section 3.2.1(3)'s "track and locate"), *MN highest on target* (the
-Max_Numbers highest pixels of the last target block are target pixels, Figure 16's section (1),
-``hocnet.dpa.metrics.highest_on_target``) and the *good range* (both; our reading of section
-3.2.1(3)'s "good range of EMCs"). Eq. (17)'s terms (SNR_TB, mean and std SNR_NTB,
-``algorithm_score_terms``) are recorded per b, and a noise-free run (``noise_free_gain``) shows
+detection within 1.5 px of the target and nearer its current than its previous position,
+section 3.2.1(3)'s "track and locate"), *MN highest on target* (the
+Max_Numbers highest pixels of the last target block lie in the target's 3 x 3 footprint, Figure
+16's section (1), ``hocnet.dpa.metrics.highest_on_target(..., footprint="3x3")``) and the
+*good range* (both; our reading of section 3.2.1(3)'s "good range of EMCs"). Eq. (17)'s terms
+(SNR_TB, mean and std SNR_NTB, ``algorithm_score_terms``) are recorded per b, and a noise-free run
+(``noise_free_gain``) shows
 how much memory adds to the moving target against a standing pixel. b per direction and the
 eq. (15) constants of the matrices beside the paper's.
 
@@ -164,7 +166,7 @@ def _job_rows(job: dict, frames, truth, weights, seeds, block) -> list[dict]:
     start = P.nine_block_start(state.asf, truth, block[scene])
     path = backtrack(state, start)
     hit, found = P.tracked(path, truth), P.located(path, truth)
-    top = highest_on_target(state.asf, truth, block=block[scene], max_numbers=mn)
+    top = highest_on_target(state.asf, truth, block=block[scene], max_numbers=mn, footprint="3x3")
     return [
         {
             "table": "sweep",
@@ -399,10 +401,11 @@ def noise_free_gain(bs=GAIN_BS, seeds=(0, 1, 2, 3), quick: bool = False) -> list
 
     The ``na23a_like`` scene with the noise scaled down to 1e-6 of the peak (no whitening: a
     positive, noise-free target and jitter only), run through the paper DPA at g = 0. Per b:
-    the last-frame ASF of the best pixel within 1.5 px of the target over the same at b = 0
+    the last-frame ASF of the best pixel of the target's 3 x 3 footprint (around its rounded
+    last-frame position, as ``highest_on_target(..., footprint="3x3")``) over the same at b = 0
     (its single-frame value; ``1 / (1 - gain)`` for a target whose score grows by ``gain`` per
-    frame), the per-frame gain of a standing pixel ``b max W(9)``, and the best pixel farther
-    than 1.5 px (the trail or the pixel of origin) over the target's. Our diagnostic of the A_S
+    frame), the per-frame gain of a standing pixel ``b max W(9)``, and the best pixel outside
+    the footprint (the trail or the pixel of origin) over the target's. Our diagnostic of the A_S
     curve.
     """
     from hocnet.data.infrared import na23a_like
@@ -418,9 +421,9 @@ def noise_free_gain(bs=GAIN_BS, seeds=(0, 1, 2, 3), quick: bool = False) -> list
     w = P.weights().double()
     ys = torch.arange(height).view(1, -1, 1).double()
     xs = torch.arange(width).view(1, 1, -1).double()
-    near = (xs - truth[:, -1, 0].view(-1, 1, 1)).square() + (
-        ys - truth[:, -1, 1].view(-1, 1, 1)
-    ).square() <= 1.5**2
+    tx = torch.floor(truth[:, -1, 0].double() + 0.5).view(-1, 1, 1)
+    ty = torch.floor(truth[:, -1, 1].double() + 0.5).view(-1, 1, 1)
+    near = ((xs - tx).abs() <= 1) & ((ys - ty).abs() <= 1)  # the 3 x 3 footprint
 
     def best(b: float) -> tuple[torch.Tensor, torch.Tensor]:
         last = accumulate(frames, w, b, 0.0).asf[:, -1]
@@ -470,7 +473,38 @@ MEMORY_MATRICES = {
 """Matrices whose b per direction and eq. (15) line are tabulated: (window, v_max)."""
 
 
-def _why_note(summaries, scenes, grid) -> str:
+def overtake_sentence(gains: list[dict]) -> str:
+    """Where the best non-target pixel overtakes the target in the noise-free ``gains``.
+
+    The first tabulated b whose ``other`` ratio (best non-target / target) exceeds 1 and the b
+    before it, read from the measured rows (sorted by b).
+
+    Examples:
+        >>> overtake_sentence([{"b": 0.0, "other": 0.5}, {"b": 5.6, "other": 0.9},
+        ...                    {"b": 5.8, "other": 1.1}])
+        'between b = 5.6 and 5.8'
+        >>> overtake_sentence([{"b": 0.0, "other": 0.5}, {"b": 6.0, "other": 0.9}])
+        'nowhere up to b = 6'
+        >>> overtake_sentence([{"b": 0.0, "other": 1.2}])
+        'already at b = 0'
+    """
+    rows = sorted(gains, key=lambda r: r["b"])
+    for i, r in enumerate(rows):
+        if r["other"] > 1.0:
+            return (
+                f"between b = {rows[i - 1]['b']:g} and {r['b']:g}"
+                if i
+                else (f"already at b = {r['b']:g}")
+            )
+    return f"nowhere up to b = {rows[-1]['b']:g}"
+
+
+PAPER_TOP_ON_TARGET = {5: 5.6, 3: 5.8}
+"""[NR08] section 3.2.1(3), Figures 16-17: the b up to which the 5 (3) highest last-frame pixels
+are target pixels, NA23A at g = 0, s_n = 4; above it trail pixels score higher."""
+
+
+def _why_note(summaries, scenes, grid, gains: list[dict]) -> str:
     """Why our ranges differ from Table 2's, with the measured b = 0 rates."""
     at0 = "; ".join(
         f"{scene_label(s)}: "
@@ -515,8 +549,11 @@ def _why_note(summaries, scenes, grid) -> str:
         "paper's 'track and locate', table below), and its 3 highest target-block pixels are "
         f"target pixels {top_end} (paper: up to 5.8, Figure 16). The moving target's per-frame "
         "gain stays below a standing pixel's (noise-free table below), so the trail gains on it "
-        "as b grows; noise-free, the best non-target pixel overtakes the target between b = 5.6 "
-        "and 5.8, where the paper's does. NPA's upper end is set by the cloud plateau of "
+        f"as b grows; noise-free, the best non-target pixel overtakes the target "
+        f"{overtake_sentence(gains)} (table below; the paper's 5 highest pixels are target pixels "
+        f"up to b = {PAPER_TOP_ON_TARGET[5]:g} and its 3 highest up to {PAPER_TOP_ON_TARGET[3]:g}, "
+        "Figures 16-17). "
+        "NPA's upper end is set by the cloud plateau of "
         f"`NPA_CLOUDS`, chosen to match ({NPA_CLOUDS.amplitude:g} sigma).\n"
         "- **g = 1 upper ends**: the paper's 0.2 grid cannot resolve ends between 0.8 and 1; "
         "the column 'on the paper's 0.2 grid' reads ours on that grid."
@@ -753,12 +790,16 @@ def run(
         "`_nr08.nine_block_start`) lies within 1.5 px of "
         "the studied target in >= 80 % of the frames. *Tracking occurred* at a b when it holds "
         "in >= 50 % of the scenes. Beside it (same >= 50 % rule): *located*, the last-frame "
-        "detection (the start of that track) within 1.5 px of the target (`_nr08.located`, "
+        "detection (the start of that track) within 1.5 px of the target's last-frame position "
+        "and nearer to it than to its previous-frame position, so a track one frame behind does "
+        "not count (`_nr08.located`, "
         "section 3.2.1(3): 'able to track and locate the target'), *MN highest on target*, the "
-        "Max_Numbers highest pixels of the last frame's target block all within 1.5 px of the "
-        "target (`hocnet.dpa.metrics.highest_on_target`, Figure 16's section (1), Figures 17 and "
-        "19), and the *good range*, both at once (our reading of section 3.2.1(3)'s 'good range "
-        "of EMCs').",
+        "Max_Numbers highest pixels of the last frame's target block all in the target's 3 x 3 "
+        "footprint around its rounded last-frame position (our reading: the paper's target "
+        "subtends about a pixel blurred by the 3 x 3 spread of W_basic; "
+        "`hocnet.dpa.metrics.highest_on_target(..., footprint='3x3')`, Figure 16's section (1), "
+        "Figures 17 and 19), and the *good range*, both at once (our reading of section "
+        "3.2.1(3)'s 'good range of EMCs').",
         "",
         "## b range where tracking occurred, beside Table 2 of [NR08]",
         "",
@@ -766,7 +807,7 @@ def run(
         "",
         f"Paper: {P.PAPER_B_NOTE} Goal: ends within 0.4 (g = 0) and 0.1 (g = 1) of the paper's.",
         "",
-        _why_note(summaries, scenes, grid),
+        _why_note(summaries, scenes, grid, gains),
         "",
         "## b range by criterion, beside Table 2 of [NR08]",
         "",
@@ -774,8 +815,9 @@ def run(
         "",
         "Criteria per scene (a b counts when it holds in >= 50 % of the scenes): tracked = the "
         "back-tracked track within 1.5 px in >= 80 % of the frames (the table above); located = "
-        "its last-frame pixel within 1.5 px; MN highest on target = the Max_Numbers highest "
-        "pixels of the last target block within 1.5 px of the target; good = located and MN "
+        "its last-frame pixel within 1.5 px of the target and nearer its current than its previous "
+        "position; MN highest on target = the Max_Numbers highest pixels of the last target "
+        "block in the target's 3 x 3 footprint; good = located and MN "
         "highest on target (section 3.2.1(3): 'the algorithm was able to track and locate the "
         "target up to b = 6.0. Using that and Figure 16 leads to the conclusion that a good "
         "range of EMCs would be 4.4 <= b <= 6'). The paper's lower ends are not failures of "

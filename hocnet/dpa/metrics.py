@@ -640,6 +640,7 @@ def highest_on_target(
     max_numbers: int = 1,
     radius: float = 1.5,
     anchor: str = "first",
+    footprint: str = "radius",
 ) -> torch.Tensor:
     """Whether the ``Max_Numbers`` highest pixels of the last target block are target pixels.
 
@@ -649,8 +650,13 @@ def highest_on_target(
     good where "the highest pixels taken as 'target pixels' indeed belong to the target". Our
     reading: the target block is the one of :func:`algorithm_score` (``M x N``, centred on the
     target's pixel in frame 0 with ``anchor="first"``, on its last-frame pixel with ``"each"``),
-    clipped to the frame; a pixel is a *target pixel* when its centre lies within ``radius`` px
-    (Euclidean, ``<=``) of the true last-frame position; the answer is ``True`` when all
+    clipped to the frame; a pixel is a *target pixel* when (``footprint="3x3"``) it lies in the
+    target's 3 x 3 footprint, Chebyshev distance ``<= 1`` from the pixel containing the true
+    last-frame position (rounded half up) -- our reading: [NR08]'s target subtends about a
+    pixel and is blurred by the 3 x 3 spread of ``W_basic`` (section 2.2.1), so its corner
+    pixels (up to 2.1 px from a sub-pixel truth) are target pixels -- or (``footprint="radius"``,
+    the default, kept for compatibility) when its centre lies within ``radius`` px (Euclidean,
+    ``<=``) of the true last-frame position; the answer is ``True`` when all
     ``max_numbers`` highest pixels of the block (ties: an arbitrary choice among equal values)
     are target pixels. Our addition as a function; the rule is the paper's text.
 
@@ -660,8 +666,10 @@ def highest_on_target(
         block: ``M`` or ``(M, N)`` rows x columns (default 30 x 30).
         max_numbers: number of highest pixels, ``>= 1``, fewer than the block's pixels in the
             frame.
-        radius: target-pixel radius in pixels, ``> 0``.
+        radius: target-pixel radius in pixels, ``> 0`` (read with ``footprint="radius"``).
         anchor: ``"first"`` or ``"each"``.
+        footprint: ``"radius"`` (Euclidean disc of ``radius``) or ``"3x3"`` (the 3 x 3
+            pixels around the rounded true position; our reading, used by ``dpa-b-sweep``).
 
     Returns:
         bool ``(B,)``, or a 0-d bool tensor for an unbatched ``asf``.
@@ -679,8 +687,15 @@ def highest_on_target(
         True
         >>> bool(highest_on_target(asf, truth, block=9, max_numbers=3))
         False
+        >>> asf[-1, 16, 16] = 8.5  # footprint corner, 1.98 px from (14.6, 14.6)
+        >>> near = torch.tensor([[15.0, 15.0], [14.6, 14.6]])
+        >>> bool(highest_on_target(asf, near, block=9, max_numbers=2, footprint="3x3"))
+        True
+        >>> bool(highest_on_target(asf, near, block=9, max_numbers=2))
+        False
     """
     anchor = check_choice("anchor", anchor, ("first", "each"))
+    footprint = check_choice("footprint", footprint, ("radius", "3x3"))
     rows, cols = _check_rect(block)
     max_numbers = check_int("max_numbers", max_numbers, minimum=1)
     radius = check_number("radius", radius, low=0.0, low_inclusive=False)
@@ -709,8 +724,13 @@ def highest_on_target(
     top = scores.topk(max_numbers, dim=1).indices  # (B, K)
     px = (top % width).double()
     py = torch.div(top, width, rounding_mode="floor").double()
-    dist = torch.hypot(px - pos[:, -1, 0:1], py - pos[:, -1, 1:2])
-    hit = (dist <= radius + 1e-12).all(dim=1)
+    if footprint == "3x3":
+        tx, ty = _pixels("positions", pos[:, -1], height, width)
+        cheb = torch.maximum((px - tx.view(-1, 1)).abs(), (py - ty.view(-1, 1)).abs())
+        hit = (cheb <= 1).all(dim=1)
+    else:
+        dist = torch.hypot(px - pos[:, -1, 0:1], py - pos[:, -1, 1:2])
+        hit = (dist <= radius).all(dim=1)
     return hit if batched else hit[0]
 
 

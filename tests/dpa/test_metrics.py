@@ -617,8 +617,13 @@ class TestAlgorithmScoreTerms:
             algorithm_score_terms(asf, pos, last=2, block=2, max_numbers=4)
 
 
-def highest_on_target_loop(image, truth_first, truth_last, rows, cols, m, radius, anchor):
-    """Slow oracle: the m highest pixels of the (clipped) target block all within radius."""
+def highest_on_target_loop(
+    image, truth_first, truth_last, rows, cols, m, radius, anchor, footprint="radius"
+):
+    """Slow oracle: the m highest pixels of the (clipped) target block all within radius.
+
+    ``footprint="3x3"``: all in the 3 x 3 pixels around the rounded last-frame truth.
+    """
     n_h, n_w = image.shape
     ax, ay = truth_first if anchor == "first" else truth_last
     x, y = math.floor(ax + 0.5), math.floor(ay + 0.5)
@@ -629,6 +634,9 @@ def highest_on_target_loop(image, truth_first, truth_last, rows, cols, m, radius
         if 0 <= yy < n_h and 0 <= xx < n_w
     ]
     top = sorted(values, reverse=True)[:m]
+    if footprint == "3x3":
+        tx, ty = math.floor(truth_last[0] + 0.5), math.floor(truth_last[1] + 0.5)
+        return all(abs(xx - tx) <= 1 and abs(yy - ty) <= 1 for _, xx, yy in top)
     return all(math.hypot(xx - truth_last[0], yy - truth_last[1]) <= radius for _, xx, yy in top)
 
 
@@ -649,9 +657,15 @@ class TestHighestOnTarget:
                 asf[b, -1, max(y - 3, 0), max(x - 3, 0)] += 5.0 + b
         rows, cols = [(7, 9), (5, 5), (9, 4), (30, 30)][seed]
         m, radius = 1 + seed % 3, [1.5, 1.0, 2.5, 1.5][seed]
-        for anchor in ("first", "each"):
+        for anchor, footprint in itertools.product(("first", "each"), ("radius", "3x3")):
             got = highest_on_target(
-                asf, pos, block=(rows, cols), max_numbers=m, radius=radius, anchor=anchor
+                asf,
+                pos,
+                block=(rows, cols),
+                max_numbers=m,
+                radius=radius,
+                anchor=anchor,
+                footprint=footprint,
             )
             ref = [
                 highest_on_target_loop(
@@ -663,10 +677,45 @@ class TestHighestOnTarget:
                     m,
                     radius,
                     anchor,
+                    footprint,
                 )
                 for b in range(5)
             ]
-            assert got.tolist() == ref, (anchor, got, ref)
+            assert got.tolist() == ref, (anchor, footprint, got, ref)
+
+    @pytest.mark.parametrize(
+        ("xy", "footprint", "expected"),
+        [
+            # truth (15.5, 15.0): rounded half up to pixel (16, 15)
+            ((17, 15), "radius", True),  # exactly 1.5 px: inside (<=)
+            ((17, 16), "radius", False),  # 1.80 px
+            ((14, 15), "radius", True),  # 1.5 px on the other side
+            ((17, 16), "3x3", True),  # Chebyshev 1 from (16, 15): a footprint corner
+            ((14, 15), "3x3", False),  # Chebyshev 2
+            ((15, 14), "3x3", True),  # Chebyshev 1, 1.80 px
+            ((18, 15), "3x3", False),  # Chebyshev 2, 2.5 px
+        ],
+    )
+    def test_boundary(self, xy, footprint, expected):
+        asf = torch.zeros(1, 2, 31, 31, dtype=torch.float64)
+        truth = torch.tensor([[[15.5, 15.0], [15.5, 15.0]]], dtype=torch.float64)
+        asf[0, -1, xy[1], xy[0]] = 5.0
+        got = highest_on_target(asf, truth, block=9, radius=1.5, footprint=footprint)
+        assert got.tolist() == [expected]
+        # just beyond the radius
+        if footprint == "radius" and expected:
+            far = truth.clone()
+            far[..., 0] += math.copysign(1e-9, 15.5 - xy[0])
+            assert highest_on_target(asf, far, block=9, radius=1.5).tolist() == [False]
+
+    def test_footprint_corner_beyond_radius(self):
+        # a sub-pixel truth 0.4 px off its pixel centre: the far corner of its 3 x 3 spot is
+        # 2.0 px away, a target pixel under "3x3" and not under a 1.5 px radius
+        asf = torch.zeros(1, 2, 31, 31, dtype=torch.float64)
+        truth = torch.tensor([[[15.4, 15.4], [15.4, 15.4]]], dtype=torch.float64)
+        asf[0, -1, 14, 14] = 5.0  # Chebyshev 1 from (15, 15), hypot(1.4, 1.4) = 1.98 px
+        assert highest_on_target(asf, truth, block=9, footprint="3x3").tolist() == [True]
+        assert highest_on_target(asf, truth, block=9).tolist() == [False]
 
     def test_target_then_trail(self):
         asf = torch.zeros(1, 3, 40, 40)
@@ -689,6 +738,8 @@ class TestHighestOnTarget:
             highest_on_target(asf, truth, anchor="x")
         with pytest.raises(ValueError, match="`radius`"):
             highest_on_target(asf, truth, radius=0.0)
+        with pytest.raises(ValueError, match="`footprint`"):
+            highest_on_target(asf, truth, footprint="disc")
         with pytest.raises(ValueError, match="`positions`"):
             highest_on_target(asf, truth[:, :2])
         with pytest.raises(ValueError, match="`positions`"):

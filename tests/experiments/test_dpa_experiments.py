@@ -161,6 +161,44 @@ class TestPaperValues:
         assert p.tracked(late, truth).tolist() == [True] and not bool(p.located(late, truth))
         assert p.located(early, truth).tolist() == [True] and not bool(p.tracked(early, truth))
         assert set(p.CRITERIA) == {"tracked", "located", "good"}
+
+    def test_located_is_on_the_current_position(self):
+        # 1.2 px per sampled frame (NA23A at s_n = 4): a detection one frame behind lies within
+        # 1.5 px of the current position but nearer the previous one, and is not located
+        p = paper()
+        truth = torch.tensor([[[7.5, 10.0], [8.75, 10.0], [10.0, 10.0]]], dtype=torch.float64)
+        truth = truth.expand(6, 3, 2)
+        path = torch.zeros(6, 3, 2, dtype=torch.float64)
+        path[:, -1] = torch.tensor(
+            [
+                [9.0, 10.0],  # 1.0 from now, 0.25 from before: one frame behind
+                [10.0, 10.0],  # on the truth
+                [11.0, 11.0],  # 1.41 ahead
+                [11.5, 10.0],  # exactly 1.5: inside (<=)
+                [11.5 + 1e-9, 10.0],  # just outside
+                [9.375, 10.0],  # equidistant (0.625): not nearer the current position
+            ],
+            dtype=torch.float64,
+        )
+        assert p.located(path, truth).tolist() == [False, True, True, True, False, False]
+        # the radius alone (today's tracking_success(last=1)) takes the one behind
+        from hocnet.dpa import tracking_success
+
+        assert bool(tracking_success(path[:1], truth[:1], last=1))
+        # a target that did not move: the radius alone decides; T = 1 likewise
+        still = torch.full((1, 2, 2), 5.0, dtype=torch.float64)
+        near = torch.tensor([[[0.0, 0.0], [6.0, 6.0]]], dtype=torch.float64)
+        assert p.located(near, still).tolist() == [True]
+        assert p.located(near[:, 1:], still[:, 1:]).tolist() == [True]
+        assert p.located(near + 1.0, still).tolist() == [False]
+        assert p.located(path, truth, radius=0.5).tolist() == [False, True] + [False] * 4
+        # jitter brought the previous position within 0.3 px: the target's own pixel is nearer
+        # the previous position; own_pixel accepts it, a pixel behind stays rejected
+        short = torch.tensor([[[9.0, 10.0], [10.1, 10.0], [10.4, 10.0]]], dtype=torch.float64)
+        own = torch.tensor([[[0.0, 0.0], [0.0, 0.0], [10.0, 10.0]]], dtype=torch.float64)
+        assert p.located(own, short, own_pixel=False).tolist() == [False]
+        assert p.located(own, short, own_pixel=True).tolist() == [True]
+        assert p.located(own - 1.0, short, own_pixel=True).tolist() == [False]
         # the detected pixel is the highest of the nine blocks around the target, not of the
         # frame: a brighter pixel outside them (another target) is ignored
         asf = torch.zeros(2, 3, 40, 60)
@@ -241,8 +279,20 @@ class TestBSweep:
     def test_noise_free_gain(self):
         module = load("dpa-b-sweep")
         gains = module.noise_free_gain(bs=(0.0, 2.4, 5.8), seeds=(0,), quick=True)
-        w9 = float(paper().weights()[8].max())
-        assert [r["standing"] for r in gains] == pytest.approx([0.0, 2.4 * w9, 5.8 * w9])
+        # independent check of the standing pixel's gain: a single pixel standing in place,
+        # run through the paper DPA at g = 0, grows as a_n = 1 + gain a_(n-1) (a loop)
+        from hocnet.dpa import accumulate
+
+        frames = torch.zeros(1, 6, 11, 11, dtype=torch.float64)
+        frames[0, :, 5, 5] = 1.0
+        for r in gains:
+            asf = accumulate(frames, paper().weights().double(), r["b"], 0.0).asf[0, :, 5, 5]
+            expected, a = [], 0.0
+            for _ in range(frames.shape[1]):
+                a = 1.0 + r["standing"] * a
+                expected.append(a)
+            assert asf.tolist() == pytest.approx(expected, rel=1e-9), r["b"]
+        assert gains[0]["standing"] == 0.0 and gains[2]["standing"] > 1.0  # b = 5.8 > 5.77
         assert gains[0]["target"] == pytest.approx(1.0)  # b = 0: the single-frame value
         # memory raises the target's score, and the standing trail's faster (b max W(9) = 1
         # at b = 5.77): the best non-target pixel gains on the target as b grows
