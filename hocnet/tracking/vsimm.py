@@ -882,13 +882,8 @@ def vsimm_update(
                 f"`detected`: expected a bool tensor of shape ({B},), got dtype {det.dtype} and "
                 f"shape {tuple(det.shape)}"
             )
+    zt = _measurement(z, sensor, det)
     m = sensor.dim
-    zt = torch.as_tensor(z, dtype=DTYPE)
-    if zt.shape != (B, m):
-        raise ValueError(
-            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
-        )
-    check_measurements("z", zt[det], m)
     xc_pred = _combine(pred.cbar, pred.x, pred.P)[0]
     zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc_pred))
     hx, H, R = sensor.linearize(pred.x, zt.unsqueeze(1))
@@ -1489,24 +1484,12 @@ def vsimm_oosm(
     B = state.mu.shape[0]
     tau = _times("t", t, B)
     check_oosm_time(tau, state.t_prev, state.t, too_old=too_old)
-    det = (
-        torch.ones(B, dtype=torch.bool)
-        if detected is None
-        else torch.as_tensor(detected, dtype=torch.bool)
-    )
-    if det.shape != (B,):
-        raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    det = _detected_mask(detected, B)
     dropped = oosm_too_old(tau, state.t_prev, state.t) & det
     if bool(dropped.any()):
         det = det & ~dropped
         tau = torch.where(dropped, state.t_prev.expand(B), tau)  # any in-lag time: unused
-    m = sensor.dim
-    zt = torch.as_tensor(z, dtype=DTYPE)
-    if zt.shape != (B, m):
-        raise ValueError(
-            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
-        )
-    check_measurements("z", zt[det], m)
+    zt = _measurement(z, sensor, det)
     lag = state.t - tau
     Fb, _ = _mode_F(config.kinds, -lag)
     _, Gm = _mode_F(config.kinds, lag)
@@ -1518,6 +1501,41 @@ def vsimm_oosm(
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
     new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
+
+
+def _detected_mask(detected: Any | None, B: int) -> torch.Tensor:
+    """``(B,)`` bool ``detected`` of the OOSM updates (all ``True`` for ``None``), checked."""
+    det = (
+        torch.ones(B, dtype=torch.bool)
+        if detected is None
+        else torch.as_tensor(detected, dtype=torch.bool)
+    )
+    if det.shape != (B,):
+        raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    return det
+
+
+def _measurement(z: Any, sensor: Any, det: torch.Tensor) -> torch.Tensor:
+    """``(B, m)`` float64 ``z`` of an update, checked (finite where ``det``)."""
+    B, m = det.shape[0], sensor.dim
+    zt = torch.as_tensor(z, dtype=DTYPE)
+    if zt.shape != (B, m):
+        raise ValueError(
+            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
+        )
+    check_measurements("z", zt[det], m)
+    return zt
+
+
+def _oosm_result(
+    new: VSIMMState,
+    ll_out: torch.Tensor,
+    mode_ll: torch.Tensor,
+    dropped: torch.Tensor,
+    too_old: str,
+) -> tuple[VSIMMState, VSIMMUpdate | VSIMMOOSMUpdate]:
+    """The return value of :func:`vsimm_oosm` (with ``dropped`` for ``too_old="drop"``)."""
     if too_old == "drop":
         return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
     return new, VSIMMUpdate(ll_out, mode_ll)
@@ -1789,13 +1807,7 @@ def _vsimm_oosm_lag(
     tol = 1e-9 * (1.0 + state.t.abs())
     n_new = (mt > (tau + tol).unsqueeze(-1)).sum(-1)
     old = n_new >= N
-    det = (
-        torch.ones(B, dtype=torch.bool)
-        if detected is None
-        else torch.as_tensor(detected, dtype=torch.bool)
-    )
-    if det.shape != (B,):
-        raise ValueError(f"`detected`: expected shape ({B},), got {tuple(det.shape)}")
+    det = _detected_mask(detected, B)
     if too_old == "raise" and bool((old & det).any()):
         i = int(torch.nonzero(old & det)[0])
         raise ValueError(
@@ -1812,13 +1824,7 @@ def _vsimm_oosm_lag(
     t_first = mt[rows, idx]
     birth = torch.isinf(t_first) & ~dropped
     one = (n_new == 0) & ~birth
-    m = sensor.dim
-    zt = torch.as_tensor(z, dtype=DTYPE)
-    if zt.shape != (B, m):
-        raise ValueError(
-            f"`z`: expected shape ({B}, {m}) for sensor {sensor.name!r}, got {tuple(zt.shape)}"
-        )
-    check_measurements("z", zt[det], m)
+    zt = _measurement(z, sensor, det)
     g_eq, G_eq = equivalent_memory(state.x, state.P, mx[rows, idx], mP[rows, idx])
     o1 = one.view(B, 1, 1)
     Pp = torch.where(o1.unsqueeze(-1), state.P_pred, mP[rows, idx])
@@ -1859,9 +1865,7 @@ def _vsimm_oosm_lag(
             torch.where(use.unsqueeze(-1), rr.C, r0.C),
         )
     new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
-    if too_old == "drop":
-        return new, VSIMMOOSMUpdate(ll_out, mode_ll, dropped)
-    return new, VSIMMUpdate(ll_out, mode_ll)
+    return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
 
 
 def _lag_rts(
