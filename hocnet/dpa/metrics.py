@@ -530,6 +530,27 @@ def algorithm_score(
         max_numbers = check_int("max_numbers", max_numbers, minimum=1)
     else:
         block, max_numbers = _check_block(5 if block is None else block, max_numbers)
+    args, (bsz, n_targets, last, batched, dtype) = _last_frames(
+        asf, positions, last, fixed=reading == "paper" and anchor == "first"
+    )
+    if reading == "paper":
+        snrs, usable = _paper_snrs(*args, rows, cols, max_numbers)
+        snr = _paper_score(snrs, usable, max_numbers).to(dtype)
+    else:
+        snr = _block_snr(*args, block, max_numbers)
+    score = snr.view(bsz, n_targets * last).mean(dim=1)
+    return score if batched else score[0]
+
+
+def _last_frames(
+    asf: torch.Tensor, positions: torch.Tensor, last: Any, *, fixed: bool
+) -> tuple[tuple[torch.Tensor, ...], tuple[int, int, int, bool, torch.dtype]]:
+    """The ``last`` final frames of ``asf`` and the target pixels in them, checked.
+
+    Returns ``(images (B * last, H, W), which, x, y)`` (one entry per target and frame: the
+    image index and the target's pixel; ``fixed``: every frame at the frame-0 position, the
+    paper's tiling anchored once) and ``(B, N, last, batched, dtype)``.
+    """
     cube, batched = as_cube("asf", asf)
     cube = _float(cube)
     bsz, n_t, height, width = cube.shape
@@ -538,7 +559,7 @@ def algorithm_score(
     n_targets = pos.shape[1]
     images = cube[:, n_t - last :].reshape(bsz * last, height, width)
     pos = pos.to(cube.device)
-    if reading == "paper" and anchor == "first":
+    if fixed:
         pos = pos[:, :, :1].expand(bsz, n_targets, last, 2)
     else:
         pos = pos[:, :, n_t - last :]  # (B, N, L, 2)
@@ -548,13 +569,7 @@ def algorithm_score(
         bsz, n_targets, last
     )
     args = (images, which.reshape(-1), x.reshape(-1), y.reshape(-1))
-    if reading == "paper":
-        snrs, usable = _paper_snrs(*args, rows, cols, max_numbers)
-        snr = _paper_score(snrs, usable, max_numbers).to(cube.dtype)
-    else:
-        snr = _block_snr(*args, block, max_numbers)
-    score = snr.view(bsz, n_targets * last).mean(dim=1)
-    return score if batched else score[0]
+    return args, (bsz, n_targets, last, batched, cube.dtype)
 
 
 def algorithm_score_terms(
@@ -604,30 +619,14 @@ def algorithm_score_terms(
     anchor = check_choice("anchor", anchor, ("first", "each"))
     rows, cols = _check_rect(block)
     max_numbers = check_int("max_numbers", max_numbers, minimum=1)
-    cube, batched = as_cube("asf", asf)
-    cube = _float(cube)
-    bsz, n_t, height, width = cube.shape
-    pos = _targets("positions", positions, bsz, n_t, batched, "a tensor of (x, y) positions")
-    last = check_int("last", last, minimum=1, maximum=n_t)
-    n_targets = pos.shape[1]
-    images = cube[:, n_t - last :].reshape(bsz * last, height, width)
-    pos = pos.to(cube.device)
-    if anchor == "first":
-        pos = pos[:, :, :1].expand(bsz, n_targets, last, 2)
-    else:
-        pos = pos[:, :, n_t - last :]
-    x, y = _pixels("positions", pos, height, width)
-    which = torch.arange(bsz, device=cube.device).view(bsz, 1, 1) * last
-    which = (which + torch.arange(last, device=cube.device).view(1, 1, last)).expand(
-        bsz, n_targets, last
+    args, (bsz, n_targets, last, batched, dtype) = _last_frames(
+        asf, positions, last, fixed=anchor == "first"
     )
-    snrs, usable = _paper_snrs(
-        images, which.reshape(-1), x.reshape(-1), y.reshape(-1), rows, cols, max_numbers
-    )
+    snrs, usable = _paper_snrs(*args, rows, cols, max_numbers)
     terms = _paper_terms(snrs, usable, max_numbers)
     out = {}
     for key, value in zip(("score", "snr_tb", "ntb_mean", "ntb_std"), terms, strict=True):
-        mean = value.to(cube.dtype).view(bsz, n_targets * last).mean(dim=1)
+        mean = value.to(dtype).view(bsz, n_targets * last).mean(dim=1)
         out[key] = mean if batched else mean[0]
     return out
 
