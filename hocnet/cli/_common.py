@@ -15,7 +15,7 @@ import re
 import shutil
 import sys
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -43,6 +43,44 @@ def _check_number(name: str, value: Any, **bounds: Any) -> float:
 
 class CLIError(Exception):
     """A user error: printed as ``hocnet: error: <message>``, exit code 2."""
+
+
+class _Problems:
+    """Collect the errors of independent checks and raise them together, in one line.
+
+    A user with several bad options hears of all of them at once, not one per run.
+
+    Examples:
+        >>> problems = _Problems()
+        >>> with problems.check():
+        ...     _check_int("--order", 0, minimum=1)
+        >>> with problems.check():
+        ...     _check_int("--v", 2, minimum=1)
+        >>> problems.messages
+        ['`--order`: expected an integer >= 1, got 0']
+    """
+
+    def __init__(self) -> None:
+        self.messages: list[str] = []
+
+    @contextlib.contextmanager
+    def check(self) -> Iterator[None]:
+        """Run a check; its :class:`CLIError` / ``ValueError`` / ``TypeError`` is kept."""
+        try:
+            yield
+        except (CLIError, ValueError, TypeError) as err:  # a raise_all's messages one by one
+            self.messages.extend(getattr(err, "messages", None) or [" ".join(str(err).split())])
+
+    def raise_all(self) -> None:
+        """Raise one :class:`CLIError` with every kept message (``; ``-separated), if any."""
+        if not self.messages:
+            return
+        text = self.messages[0]
+        if len(self.messages) > 1:
+            text = f"{len(self.messages)} problems: " + "; ".join(self.messages)
+        err = CLIError(text)
+        err.messages = list(self.messages)  # type: ignore[attr-defined]
+        raise err
 
 
 class _Parser(argparse.ArgumentParser):

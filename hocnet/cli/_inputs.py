@@ -15,7 +15,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hocnet.cli._common import PROG, CLIError, _check_int, _check_number, _one_line
+from hocnet.cli._common import (
+    PROG,
+    CLIError,
+    _check_int,
+    _check_number,
+    _one_line,
+    _Problems,
+)
 
 if TYPE_CHECKING:
     import torch
@@ -113,21 +120,29 @@ def prepare_hoc(args: argparse.Namespace, selector: str = "--method") -> dict[st
     preset) and ``binary`` False: intensity frames, binarised by
     :func:`hocnet.cli.detect.binarize_frames`.
     """
-    order = _check_int("--order", 2 if args.order is None else args.order, minimum=1)
-    v = _check_int("--v", 4 if args.v is None else args.v, minimum=1)
-    delta = _check_number(
-        "--delta",
-        45.0 if args.delta is None else args.delta,
-        low=0.0,
-        high=180.0,
-        low_inclusive=False,
-    )
-    threshold = _check_number("--threshold", 2.5 if args.threshold is None else args.threshold)
-    min_points = 2 * order + 1 if args.min_points is None else args.min_points
-    min_points = _check_int("--min-points", min_points, minimum=1)
-    min_speed = _check_number("--min-speed", 0.0 if args.min_speed is None else args.min_speed)
-    if min_speed < 0:
-        raise CLIError(f"--min-speed: expected a speed >= 0 pixels per scan, got {min_speed:g}")
+    problems = _Problems()  # every bad option in one message (not one per run)
+    order = 2 if args.order is None else args.order
+    with problems.check():
+        order = _check_int("--order", order, minimum=1)
+    v = 4 if args.v is None else args.v
+    with problems.check():
+        v = _check_int("--v", v, minimum=1)
+    delta = 45.0 if args.delta is None else args.delta
+    with problems.check():
+        delta = _check_number("--delta", delta, low=0.0, high=180.0, low_inclusive=False)
+    threshold = 2.5 if args.threshold is None else args.threshold
+    with problems.check():
+        threshold = _check_number("--threshold", threshold)
+    min_points = args.min_points
+    if min_points is None:
+        min_points = 2 * order + 1 if isinstance(order, int) else 1
+    with problems.check():
+        min_points = _check_int("--min-points", min_points, minimum=1)
+    min_speed = 0.0 if args.min_speed is None else args.min_speed
+    with problems.check():
+        min_speed = _check_number("--min-speed", min_speed)
+        if min_speed < 0:
+            raise CLIError(f"--min-speed: expected a speed >= 0 pixels per scan, got {min_speed:g}")
     params: dict[str, Any] = {
         "order": order,
         "v": v,
@@ -140,22 +155,26 @@ def prepare_hoc(args: argparse.Namespace, selector: str = "--method") -> dict[st
         for dest in PRE_DESTS:
             if getattr(args, dest, None) is not None:
                 flag = "--" + dest.replace("_", "-")
-                raise CLIError(
+                problems.messages.append(
                     f"{flag}: applies to intensity frames: {selector} dpa, or {selector} hoc with "
                     "--threshold-pfa"
                 )
+        problems.raise_all()
         return params
     from hocnet.dpa.presets import RECOMMENDED
 
-    params["threshold_pfa"] = _check_number(
-        "--threshold-pfa",
-        args.threshold_pfa,
-        low=0.0,
-        high=1.0,
-        low_inclusive=False,
-        high_inclusive=False,
-    )
-    params.update(prepare_preprocess(args, RECOMMENDED))
+    with problems.check():
+        params["threshold_pfa"] = _check_number(
+            "--threshold-pfa",
+            args.threshold_pfa,
+            low=0.0,
+            high=1.0,
+            low_inclusive=False,
+            high_inclusive=False,
+        )
+    with problems.check():
+        params.update(prepare_preprocess(args, RECOMMENDED))
+    problems.raise_all()
     params["binary"] = False
     return params
 
@@ -269,9 +288,10 @@ def add_dpa_options(
     add(
         "--target-free",
         default=None,
-        metavar="FILE",
-        help="target-free frames (.npy/.npz) for a CFAR (constant false-alarm rate) threshold "
-        "at --pfa",
+        metavar="FRAMES",
+        help="target-free frames for a CFAR (constant false-alarm rate) threshold at --pfa: "
+        "the same inputs as the main one (a .npy / .npz, or a folder, glob or file of image "
+        "frames) of the same frame size",
     )
     add(
         "--pfa",
@@ -342,47 +362,48 @@ def prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
     from hocnet.dpa.presets import PRESETS
 
     preset = PRESETS[args.preset or "recommended"]
-    g = _check_number("--g", preset.g if args.g is None else args.g, low=0.0, high=1.0)
+    problems = _Problems()  # every bad option in one message (not one per run)
+    g = preset.g if args.g is None else args.g
+    with problems.check():
+        g = _check_number("--g", g, low=0.0, high=1.0)
+    b = None if preset.b == "emc" else float(preset.b)
     if args.b is not None:
-        b = _check_number("--b", args.b, low=0.0)
-    else:
-        b = None if preset.b == "emc" else float(preset.b)
-    window = _check_int(
-        "--window", preset.window if args.window is None else args.window, minimum=1
-    )
-    if window % 2 == 0:
-        raise CLIError(f"--window: expected an odd integer, got {window}")
-    v_max = _check_number(
-        "--v-max", preset.v_max if args.v_max is None else args.v_max, low=0.0, low_inclusive=False
-    )
-    max_targets = _check_int(
-        "--max-targets", 5 if args.max_targets is None else args.max_targets, minimum=1
-    )
-    nms_radius = _check_int(
-        "--nms-radius", 3 if args.nms_radius is None else args.nms_radius, minimum=0
-    )
-    threshold = (
-        None if args.asf_threshold is None else _check_number("--asf-threshold", args.asf_threshold)
-    )
-    pfa = _check_number(
-        "--pfa",
-        1e-3 if args.pfa is None else args.pfa,
-        low=0.0,
-        high=1.0,
-        low_inclusive=False,
-        high_inclusive=False,
-    )
+        with problems.check():
+            b = _check_number("--b", args.b, low=0.0)
+    window = preset.window if args.window is None else args.window
+    with problems.check():
+        window = _check_int("--window", window, minimum=1)
+        if window % 2 == 0:
+            raise CLIError(f"--window: expected an odd integer, got {window}")
+    v_max = preset.v_max if args.v_max is None else args.v_max
+    with problems.check():
+        v_max = _check_number("--v-max", v_max, low=0.0, low_inclusive=False)
+    max_targets = 5 if args.max_targets is None else args.max_targets
+    with problems.check():
+        max_targets = _check_int("--max-targets", max_targets, minimum=1)
+    nms_radius = 3 if args.nms_radius is None else args.nms_radius
+    with problems.check():
+        nms_radius = _check_int("--nms-radius", nms_radius, minimum=0)
+    threshold = args.asf_threshold
+    if threshold is not None:
+        with problems.check():
+            threshold = _check_number("--asf-threshold", threshold)
+    pfa = 1e-3 if args.pfa is None else args.pfa
+    with problems.check():
+        pfa = _check_number(
+            "--pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False
+        )
     if threshold is not None and args.target_free is not None:
-        raise CLIError("--asf-threshold: expected no fixed threshold together with --target-free")
+        problems.messages.append(
+            "--asf-threshold: expected no fixed threshold together with --target-free"
+        )
+    preprocess: dict[str, Any] = {}
+    with problems.check():
+        preprocess = prepare_preprocess(args, preset)
+    problems.raise_all()  # before reading --target-free
     target_free = None
     if args.target_free is not None:
-        from hocnet.data.io import load_cube
-
-        try:
-            target_free = load_cube(args.target_free)
-        except (ValueError, TypeError, OSError) as err:
-            message = str(err).replace("`path`", "--target-free").replace("`cube`: ", "")
-            raise CLIError(message) from None
+        target_free = load_target_free(args.target_free)
     return {
         "preset": preset.name,
         "g": g,
@@ -395,7 +416,7 @@ def prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
         "memory": preset.memory,
         "memory_direction": preset.memory_direction,
         "direction_step": preset.direction_step,
-        **prepare_preprocess(args, preset),
+        **preprocess,
         "equal_gain": preset.equal_gain if args.equal_gain is None else bool(args.equal_gain),
         "max_targets": max_targets,
         "nms_radius": nms_radius,
@@ -403,6 +424,23 @@ def prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
         "pfa": pfa,
         "target_free": target_free,
     }
+
+
+def load_target_free(source: str) -> torch.Tensor:
+    """Load ``--target-free`` frames: the same inputs as the main one (:func:`load_input`).
+
+    A ``.npy`` / ``.npz`` array, or a folder, glob or file of image frames (PNG, BMP, TIFF), as
+    float64; every message names ``--target-free``.
+
+    Raises:
+        CLIError: one line naming ``--target-free`` (missing file, not an image, ...).
+    """
+    try:
+        cube, _ = load_input(source, None, False, label="--target-free")
+    except CLIError as err:
+        message = str(err).replace("--target-free: --target-free", "--target-free")
+        raise CLIError(message) from None
+    return cube
 
 
 def check_target_free(target_free: torch.Tensor, frame_size: tuple[int, int], label: str) -> None:
@@ -435,6 +473,13 @@ def check_target_free(target_free: torch.Tensor, frame_size: tuple[int, int], la
         raise CLIError(
             "--target-free: expected intensity frames like the input (the CFAR threshold is an "
             "order statistic of their DPA scores), got binary values (only 0 and 1)"
+        )
+    if target_free.numel() and bool(
+        (target_free.amax(dim=(-2, -1)) == target_free.amin(dim=(-2, -1))).all()
+    ):
+        raise CLIError(
+            "--target-free: expected intensity frames whose values vary (the CFAR threshold is "
+            "an order statistic of their DPA scores), got only flat frames (zero variance)"
         )
 
 
@@ -478,14 +523,20 @@ def out_inside_input(out: Path | str, source: str, label: str = "CUBE") -> None:
     where = Path(os.path.realpath(out))
     for folder in folders:
         real = Path(os.path.realpath(folder))
+        # the input as the user typed it; a glob also names the folder of its frames
+        given = (
+            f"{label} '{source}'"
+            if inside
+            else f"{label} '{source}' (its frames are in '{folder}')"
+        )
         if where == real:
             raise CLIError(
-                f"--out: '{out}' is the input folder of {label} '{folder}': the outputs would "
-                "become input frames of the next run; choose another --out"
+                f"--out: '{out}' is the input folder of {given}: the outputs "
+                "would become input frames of the next run; choose another --out"
             )
         if inside and real in where.parents:
             raise CLIError(
-                f"--out: '{out}' is inside the input folder of {label} '{folder}': the outputs "
+                f"--out: '{out}' is inside the input folder of {given}: the outputs "
                 "would become part of the input of the next run; choose another --out"
             )
 

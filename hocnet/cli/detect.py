@@ -24,6 +24,7 @@ from hocnet.cli._common import (
     _Formatter,
     _one_line,
     _png_writer,
+    _Problems,
     _progress,
     _reported_warnings,
     _show_progress,
@@ -123,24 +124,26 @@ def _bound_hoc(cube: torch.Tensor, params: dict[str, Any]) -> None:
             "CUBE: expected at least 3 scans for the HOC (order k needs "
             f"2k + 1 scans: 3 for --order 1, {2 * order + 1} for --order {order}), got {n_t}"
         )
+    problems = _Problems()  # a bad --order and a bad --v: said together
     if 2 * order + 1 > n_t:
-        raise CLIError(
+        problems.messages.append(
             f"--order: expected at most (T - 1) // 2 = {(n_t - 1) // 2} for a cube of T = {n_t} "
             f"scans (order k needs 2k + 1 scans), got {order}"
         )
     largest = max(height, width) - 1
+    moves = (2 * v + 1) ** 2
     if v > largest:
-        raise CLIError(
+        problems.messages.append(
             f"--v: expected at most max(H, W) - 1 = {largest} for frames of {height} x {width} "
             f"(a larger move leaves the frame), got {v}"
         )
-    moves = (2 * v + 1) ** 2
-    if 8 * moves * moves > _MAX_MOVE_TABLE_BYTES:
+    elif 8 * moves * moves > _MAX_MOVE_TABLE_BYTES:
         limit = int(((_MAX_MOVE_TABLE_BYTES / 8) ** 0.25 - 1) // 2)
-        raise CLIError(
+        problems.messages.append(
             f"--v: expected at most {limit} (the (2v + 1)^4 move tables of v = {v} would need "
             f"{8 * moves * moves / 2**30:.0f} GiB), got {v}"
         )
+    problems.raise_all()
 
 
 def binarize_frames(
@@ -221,6 +224,7 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     pfa = params.get("threshold_pfa")
     outputs: dict[str, Writer] = {}
     notes: list[str] = []
+    _bound_hoc(cube, params)  # before the pre-processing: --order and --v fit the input's shape
     if pfa is not None:
         from hocnet.data.io import save_cube
 
@@ -232,7 +236,6 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
             notes.append(_shifts_summary(shifts))
         notes.append(binarised)
     model = params.pop("model", None)
-    _bound_hoc(cube, params)
     kwargs = hoc_kwargs(params)
     if model is not None:  # --weights: the support of the learned network
         from hocnet.learn.apply import detect_hoc
@@ -341,6 +344,7 @@ def _preprocess(
             shifts = estimate_shifts(x)
             if not bool(torch.isfinite(shifts).all()):
                 raise overflow("registration (--register)")
+            _warn_unregistered(x, label)
             offsets = shifts.cumsum(dim=-2)
         if params["background"] != "none":
             x = remove_background(
@@ -361,6 +365,44 @@ def _preprocess(
         except ValueError as err:  # name the right input
             raise ValueError(str(err).replace("`frames`", label)) from None
     return x, shifts
+
+
+def _warn_unregistered(frames: torch.Tensor, label: str) -> None:
+    """Warn about the frame pairs whose registration peak fails the test (shift kept at 0).
+
+    :func:`hocnet.data.background.estimate_shifts` keeps a zero shift where the
+    phase-correlation peak does not stand out of its sidelobes (no structure to register:
+    noise, a flat sky); said here so that a 0 in ``shifts.csv`` is not read as a still camera
+    measured.
+    """
+    from hocnet.data.background import (
+        REGISTRATION_PFA,
+        registration_threshold,
+        shift_significance,
+    )
+
+    if frames.shape[-3] < 2 or frames.numel() == 0:
+        return
+    height, width = frames.shape[-2:]
+    tau = registration_threshold(height, width)
+    ratio = shift_significance(frames)[..., 1:].reshape(-1, frames.shape[-3] - 1)
+    weak = ~(ratio > tau)
+    n_weak, n_pairs = int(weak.sum()), weak.numel()
+    if n_weak == 0:
+        return
+    frames_of = sorted({int(t) + 1 for t in weak.nonzero()[:, 1]})
+    shown = ", ".join(map(str, frames_of[:8])) + (", ..." if len(frames_of) > 8 else "")
+    what = {"`frames`": "the input", "`target_free`": "--target-free"}.get(label, label)
+    every = "every frame pair" if n_weak == n_pairs else f"{n_weak} of {n_pairs} frame pairs"
+    plural = "s" * (len(frames_of) != 1)
+    warnings.warn(
+        f"--register: no structure to register in {every} of {what} (frame{plural} "
+        f"{shown}: the phase-correlation peak is not significant, peak-to-sidelobe ratio "
+        f"<= {tau:.3g} at pfa {REGISTRATION_PFA:g}; noise or flat frames): their shift is kept "
+        "at (0, 0)",
+        RuntimeWarning,
+        stacklevel=2,
+    )
 
 
 def _shifts_writer(shifts: torch.Tensor) -> Writer:
@@ -432,6 +474,71 @@ def _detection_writers(
     return writers
 
 
+def _check_flat_frames(
+    cube: torch.Tensor, label: str, frame_names: list[str] | None = None
+) -> None:
+    """Refuse input whose every frame is flat; warn about the flat frames of other input.
+
+    A flat frame (one constant value, zero variance) holds no evidence: the whitening maps it
+    to 0 and the DPA's scores on it are rounding noise, so tracks on flat frames only are
+    meaningless.
+
+    Args:
+        cube: ``(T, H, W)`` or ``(B, T, H, W)`` intensities.
+        label: the input's name in messages (``CUBE``, ``SEQ``).
+        frame_names: the image file of each frame (named in the messages), if any.
+
+    Raises:
+        CLIError: every frame is flat (exit code 2).
+
+    Examples:
+        >>> import torch
+        >>> _check_flat_frames(torch.rand(3, 4, 4), "CUBE")
+        >>> _check_flat_frames(torch.ones(3, 4, 4), "CUBE")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        hocnet.cli._common.CLIError: CUBE: all 3 frames are flat ...
+    """
+    if cube.numel() == 0:
+        return
+    flat = cube.amax(dim=(-2, -1)) == cube.amin(dim=(-2, -1))  # (..., T)
+    n_flat, n_frames = int(flat.sum()), flat.numel()
+    if n_flat == 0:
+        return
+    where = flat.reshape(-1, flat.shape[-1]).nonzero().tolist()
+    batched = cube.dim() == 4
+
+    def name(b: int, t: int) -> str:
+        text = f"{b}:{t}" if batched else str(t)
+        return f"{text} '{frame_names[t]}'" if frame_names and not batched else text
+
+    shown = ", ".join(name(b, t) for b, t in where[:6]) + (", ..." if n_flat > 6 else "")
+    which = "frames (batch:frame)" if batched else "frames"
+    if n_flat == n_frames:
+        first = float(cube.reshape(-1)[0])
+        value = (
+            f"the constant value {first:g}"
+            if bool((cube == first).all())
+            else "one constant value per frame"
+        )
+        files = ""
+        if frame_names:
+            files = f" ('{frame_names[0]}'" + (
+                f" ... '{frame_names[-1]}')" if len(frame_names) > 1 else ")"
+            )
+        raise CLIError(
+            f"{label}: all {n_frames} frames are flat{files} ({value}, zero variance): "
+            "nothing can be detected; the DPA needs intensity frames whose values vary"
+        )
+    warnings.warn(
+        f"{label}: {n_flat} of {n_frames} frames are flat (one constant value, zero variance), "
+        f"{which} {shown} (0-based): they hold no evidence (0 after the whitening), the DPA "
+        "only carries the earlier frames' scores through them",
+        RuntimeWarning,
+        stacklevel=2,
+    )
+
+
 def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     """Pre-process, accumulate (eq. 11 of [NR08]), pick the last-frame peaks, back-track them.
 
@@ -446,12 +553,14 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     from hocnet.plot import plot_dpa
 
     label = params.pop("label", "CUBE")  # the input's name in messages (track: SEQ)
+    frame_names = params.pop("frame_names", None)  # the image files of the frames, if any
     n_t = cube.shape[-3]
     if n_t < MIN_DPA_FRAMES:
         raise CLIError(
             f"{label}: expected at least {MIN_DPA_FRAMES} frames for the DPA (it accumulates "
             f"evidence over frames; one frame is a single-frame detector), got {n_t}"
         )
+    _check_flat_frames(cube, label, frame_names)
     _check_float32_range(cube, "`frames`")
     if params["target_free"] is not None:
         check_target_free(params["target_free"], tuple(cube.shape[-2:]), label)
@@ -545,13 +654,35 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         f"dpa: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
         f"{' x '.join(map(str, frames.shape))} frames (preset {params['preset']}, g = "
         f"{params['g']:g}, b = {b:.4g}, threshold = "
-        f"{found.threshold if found.threshold is not None else 'none'})"
+        f"{_threshold_text(found.threshold, params['pfa'] if target_free is not None else None)})"
     )
     if not found.confirmed:
         summary += "\n  note: " + _to_flags(found.note, _FLAGS["dpa"])
     if shifts is not None:
         summary += "\n  " + _shifts_summary(shifts)
     return Detection(result=result, params=params, outputs=outputs, summary=summary)
+
+
+def _threshold_text(threshold: float | None, pfa: float | None) -> str:
+    """The DPA's ASF threshold as printed: 4 significant digits, its units and its origin.
+
+    ``pfa``: the CFAR's false-alarm probability when the threshold comes from ``--target-free``
+    (``None``: the fixed ``--asf-threshold``). The ASF accumulates whitened frames, so it is in
+    the input's intensity units (grey levels for 8- or 16-bit frames); ``tracks.json`` keeps the
+    exact value (``meta.threshold_used``).
+
+    Examples:
+        >>> _threshold_text(3.1415926535, None)
+        '3.142 (ASF, input intensity units; --asf-threshold)'
+        >>> _threshold_text(60.904544830322266, 0.01)
+        '60.9 (ASF, input intensity units; CFAR at --pfa 0.01 on --target-free)'
+        >>> _threshold_text(None, None)
+        'none'
+    """
+    if threshold is None:
+        return "none"
+    origin = "--asf-threshold" if pfa is None else f"CFAR at --pfa {pfa:g} on --target-free"
+    return f"{threshold:.4g} (ASF, input intensity units; {origin})"
 
 
 _METHODS: dict[str, _Method] = {
@@ -666,15 +797,22 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     from hocnet.data.io import save_cube, save_tracks_json
     from hocnet.plot import plot_before_after
 
-    method, params = _prepare_method(args)
+    problems = _Problems()  # every bad option in one message, before any work
+    max_per_frame = args.max_per_frame
+    with problems.check():
+        max_per_frame = _check_int("--max-per-frame", max_per_frame, minimum=1)
+    with problems.check():
+        method, params = _prepare_method(args)
+    problems.raise_all()
     _load_weights(args, method.name, params)
-    params["max_per_frame"] = _check_int("--max-per-frame", args.max_per_frame, minimum=1)
+    params["max_per_frame"] = max_per_frame
     binary = params.pop("binary", method.binary)
     out = _check_out_dir(args.out)
     out_inside_input(out, args.cube)
     inputs = input_paths(args.cube)
-    if getattr(args, "target_free", None) is not None:
-        inputs["--target-free"] = Path(args.target_free)
+    if getattr(args, "target_free", None) is not None:  # a file, or image frames like the input
+        inputs.update(input_paths(args.target_free, "--target-free"))
+        out_inside_input(out, args.target_free, "--target-free")
     if args.weights is not None:
         inputs["--weights"] = Path(args.weights)
     # no directory in the way, no input replaced: checked now, before any work; files hocnet
@@ -687,6 +825,8 @@ def _cmd_detect(args: argparse.Namespace) -> int:
         stages.next("load")
         cube, files = load_input(args.cube, args.key, binary)
         inputs.update(frame_paths(files))
+        if files and method.name == "dpa":  # named in the messages about single frames
+            params["frame_names"] = [file.name for file in files]
         planned = _planned_names(method, params, args, tuple(cube.shape))
         _check_destinations(out, planned, inputs, force=force)
         batched = cube.dim() == 4

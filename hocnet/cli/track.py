@@ -44,6 +44,7 @@ from hocnet.cli._common import (
     _check_out_dir,
     _Formatter,
     _png_writer,
+    _Problems,
     _reported_warnings,
     _table,
     _torch_threads,
@@ -101,32 +102,63 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
         if dest not in mine and getattr(args, dest, None) is not None:
             flag = "--" + dest.replace("_", "-")
             raise CLIError(f"{flag}: does not apply to --detector {det}")
-    _mht_params(args, [], 1.0)  # the tracker's options too, before any work
+    problems = _Problems()  # every bad option in one message, before any work
+    with problems.check():
+        _mht_params(args, [], 1.0)  # the tracker's options too
     if det == "hoc":
-        params = _inputs.prepare_hoc(args, _SELECTOR)
-        order = params["order"]
-        window = 10 if args.window is None else args.window
-        if args.order is not None:  # the order is what the window must hold: name --order
-            window = _check_int("--window", window, minimum=1)
-            if window < 2 * order + 1:
-                given = "the default --window" if args.window is None else "--window"
-                raise CLIError(
-                    f"--order: {order} needs --window >= 2 * order + 1 = {2 * order + 1}, "
-                    f"got {given} {window}"
-                )
-        params["window"] = _check_int("--window", window, minimum=2 * order + 1)
-        params["stride"] = _check_int(
-            "--stride", 2 if args.stride is None else args.stride, minimum=1
-        )
+        params: dict[str, Any] = {}
+        with problems.check():
+            params = _inputs.prepare_hoc(args, _SELECTOR)
+        order = params.get("order")
+        if args.window is None:  # the default holds the order: 10, or 2 * order + 1
+            window = max(10, 2 * order + 1) if order is not None else 10
+        else:
+            window = args.window
+            with problems.check():
+                window = _check_int("--window", window, minimum=1)
+                if order is not None and args.order is not None and window < 2 * order + 1:
+                    # the order is what the window must hold: name --order, and its range
+                    raise CLIError(
+                        f"--order: expected at most (--window - 1) // 2 = {(window - 1) // 2} "
+                        f"for --window {window} (order k needs 2k + 1 frames per window), "
+                        f"got {order}"
+                    )
+                if order is not None:
+                    window = _check_int("--window", window, minimum=2 * order + 1)
+        params["window"] = window
+        stride = 2 if args.stride is None else args.stride
+        with problems.check():
+            stride = _check_int("--stride", stride, minimum=1)
+        params["stride"] = stride
+        problems.raise_all()
         return params
     dpa = argparse.Namespace(**vars(args))
     for dest in _DPA_SKIP:  # not options of this command: the preset's / detect's defaults
         setattr(dpa, dest, None)
-    params = _inputs.prepare_dpa(dpa)
-    params["max_per_frame"] = _check_int(
-        "--max-per-frame", 5 if args.max_per_frame is None else args.max_per_frame, minimum=1
-    )
+    max_per_frame = 5 if args.max_per_frame is None else args.max_per_frame
+    with problems.check():
+        max_per_frame = _check_int("--max-per-frame", max_per_frame, minimum=1)
+    params = {}
+    with problems.check():
+        params = _inputs.prepare_dpa(dpa)
+    problems.raise_all()
+    params["max_per_frame"] = max_per_frame
     return params
+
+
+def _check_order_fits(args: argparse.Namespace, n_frames: int, order: int) -> None:
+    """Refuse an ``--order`` the sequence cannot hold, with the range it can (after loading)."""
+    if n_frames >= 2 * order + 1:
+        return
+    if args.order is not None and n_frames >= 3:
+        raise CLIError(
+            f"--order: expected at most (T - 1) // 2 = {(n_frames - 1) // 2} for SEQ of T = "
+            f"{n_frames} frames (order k needs 2k + 1 frames), got {order}"
+        )
+    raise CLIError(
+        f"SEQ: expected at least 2 * order + 1 = {2 * order + 1} frames for --order "
+        f"{order}, got {n_frames}"
+    )
 
 
 def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
@@ -458,14 +490,17 @@ def _cmd_track(args: argparse.Namespace) -> int:
     out = _check_out_dir(args.out)
     _inputs.out_inside_input(out, args.seq, _LABEL)
     inputs = _inputs.input_paths(args.seq, _LABEL)
-    if getattr(args, "target_free", None) is not None:
-        inputs["--target-free"] = Path(args.target_free)
+    if getattr(args, "target_free", None) is not None:  # a file, or image frames like the input
+        inputs.update(_inputs.input_paths(args.target_free, "--target-free"))
+        _inputs.out_inside_input(out, args.target_free, "--target-free")
     names = [n for n in OUTPUT_NAMES if not (args.no_plot and n.endswith(".png"))]
     _check_destinations(out, names, inputs, force=args.force)
     cube, files = _load(args, binary)
     inputs.update(_inputs.frame_paths(files, _LABEL))
     _check_destinations(out, names, inputs, force=args.force)
     n_t, h, w = cube.shape
+    if det == "hoc":
+        _check_order_fits(args, n_t, det_params["order"])
     notes: list[str] = []
     messages: list[str] = []
     shifts = None
@@ -475,7 +510,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
             scans, notes, shifts = _hoc_input(cube, det_params)
             plots = _hoc_plots(scans, det_params)
         else:
-            plots, det_params, shifts = _dpa_plots(cube, det_params)
+            names = {"frame_names": [file.name for file in files]}  # said about flat frames
+            plots, det_params, shifts = _dpa_plots(cube, {**det_params, **names})
             if shifts is not None:
                 notes.append(_shifts_summary(shifts, _SHIFTS_AT))
         params = _mht_params(args, plots, float(h * w))
@@ -607,7 +643,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     hoc = p.add_argument_group("hoc options (--detector hoc; as in 'hocnet detect')")
     _inputs.add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
     hoc.add_argument(
-        "--window", type=int, default=None, metavar="N", help="frames per window (default: 10)"
+        "--window",
+        type=int,
+        default=None,
+        metavar="N",
+        help="frames per window, >= 2 * order + 1 (default: 10, or 2 * order + 1 if larger)",
     )
     hoc.add_argument(
         "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"

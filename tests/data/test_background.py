@@ -4,6 +4,7 @@ from statistics import NormalDist
 import numpy as np
 import pytest
 import torch
+from scipy.stats import t as student
 
 from hocnet.data.background import (
     REGISTRATION_PFA,
@@ -11,6 +12,7 @@ from hocnet.data.background import (
     Registration,
     estimate_shifts,
     register,
+    registration_threshold,
     remove_background,
     shift_frames,
     shift_significance,
@@ -424,7 +426,10 @@ class TestPeakTest:
             assert float(got[n]) == pytest.approx(want, rel=1e-6, abs=1e-9)
 
     def test_threshold_rule(self):
-        """A shift is kept iff the ratio exceeds Phi^-1(1 - pfa / (H W))."""
+        """A shift is kept iff the ratio exceeds sqrt(1 + 1/n) t_{n-1}^-1(1 - pfa / (H W)).
+
+        32 x 32 without taper: n = 13 x 13 - 5 x 5 = 144 training cells.
+        """
         g = torch.Generator().manual_seed(5)
         img = torch.randn(32, 32, generator=g)
         frames = torch.stack(
@@ -437,11 +442,50 @@ class TestPeakTest:
         ratio = shift_significance(frames, taper=False)
         free = estimate_shifts(frames, taper=False, pfa=None)
         for pfa in (1e-2, 1e-6, 1e-12):
-            tau = NormalDist().inv_cdf(1 - pfa / (32 * 32))
+            tau = math.sqrt(1 + 1 / 144) * student.isf(pfa / (32 * 32), 143)
+            assert registration_threshold(32, 32, pfa=pfa, taper=False) == pytest.approx(tau)
             got = estimate_shifts(frames, taper=False, pfa=pfa)
             keep = (ratio > tau).unsqueeze(-1)
             torch.testing.assert_close(got, torch.where(keep, free, torch.zeros_like(free)))
         assert (ratio[1:] > 6.0).any() and (ratio[1:] < 6.0).any()  # both sides are exercised
+
+    def test_threshold_hann_effective_cells(self):
+        """With the taper the training cells count by the Hann window's (18/35)^2."""
+        n = 144 * (18 / 35) ** 2
+        want = math.sqrt(1 + 1 / n) * student.isf(1e-6 / (48 * 48), n - 1)
+        assert registration_threshold(48, 48) == pytest.approx(want)
+        # tends to the Gaussian bound of many independent cells; none fits in 1 x 1
+        assert registration_threshold(48, 48) > NormalDist().inv_cdf(1 - 1e-6 / (48 * 48))
+        assert registration_threshold(1, 1) == math.inf
+        with pytest.raises(ValueError, match="`height`"):
+            registration_threshold(0, 4)
+        with pytest.raises(ValueError, match="`pfa`"):
+            registration_threshold(4, 4, pfa=1.5)
+
+    @pytest.mark.parametrize("size", [8, 12, 16])
+    def test_small_noise_frames_no_shift(self, size):
+        """i.i.d. Gaussian noise frames have no structure: every shift is (0, 0).
+
+        The first version of the test (Gaussian bound Phi^-1(1 - pfa / (H W))) invented
+        shifts on small frames: measured 13 % (8 x 8), 4.7 % (12 x 12), 0.6-1 % (16 x 16)
+        of the pairs.
+        """
+        g = torch.Generator().manual_seed(21)
+        frames = torch.randn(300, size, size, generator=g, dtype=torch.float64)
+        assert estimate_shifts(frames).abs().max() == 0
+        ratio = shift_significance(frames)[1:]
+        gauss = NormalDist().inv_cdf(1 - REGISTRATION_PFA / size**2)
+        assert (ratio > gauss).any()  # the old bound would have kept a shift (can fail)
+
+    @pytest.mark.parametrize("size", [24, 32, 64])
+    def test_textured_shift_3_minus_2(self, size):
+        """Real content shifted by (dx, dy) = (3, -2) still registers (crops of a texture)."""
+        img = power_law_texture(size + 16, size + 16, 7)
+        a = img[8 : 8 + size, 8 : 8 + size]
+        b = img[10 : 10 + size, 5 : 5 + size]  # content at (x, y) moves to (x + 3, y - 2)
+        got = estimate_shifts(torch.stack([a, b]))
+        assert got[1].tolist() == pytest.approx([3.0, -2.0], abs=0.2)
+        assert shift_significance(torch.stack([a, b]))[1] > registration_threshold(size, size)
 
     def test_batched_and_empty(self):
         frames = torch.randn(2, 4, 16, 16)
