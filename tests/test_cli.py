@@ -1625,3 +1625,165 @@ class TestWeights:
             assert [str(w.message) for w in caught] == []  # nothing leaks before the error
             assert_one_line_error(capsys, code, match)
             assert not out.exists()
+
+
+# --------------------------------------------------------------------------------------------
+# a fresh clone: six small problems of new users (registration on noise, glob names, --order
+# range, --target-free frames, threshold precision, flat frames)
+# --------------------------------------------------------------------------------------------
+
+
+def _save_png_frames(folder: Path, arrays: np.ndarray) -> Path:
+    from PIL import Image
+
+    folder.mkdir()
+    for t, a in enumerate(arrays):
+        Image.fromarray(a).save(folder / f"f{t:02d}.png")
+    return folder
+
+
+class TestFreshClone:
+    def test_noise_frames_register_no_shift_and_say_so(self, tmp_path, capsys):
+        # item 1: pure noise has no structure to register: every shift 0, and the user is told
+        noise = np.random.default_rng(4).normal(100.0, 5.0, (12, 32, 32))
+        path = tmp_path / "noise.npy"
+        np.save(path, noise)
+        out = tmp_path / "out"
+        assert main(["detect", str(path), "--method", "dpa", "--out", str(out), "-q"]) == 0
+        stdout = capsys.readouterr().out
+        assert "registration: no structure to register in 11 of 11 frame pairs" in stdout
+        assert "every shift kept at (0, 0)" in stdout
+        rows = _read_csv(out / "shifts.csv")
+        assert {(r["dx"], r["dy"]) for r in rows} == {("0.0000", "0.0000")}
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["unregistered_pairs"] == 11
+
+    def test_textured_clip_registers_without_note(self, tmp_path, png_clip, capsys):
+        folder, _ = png_clip  # a textured ground: every pair has structure
+        out = tmp_path / "out"
+        assert main(["detect", str(folder), "--method", "dpa", "--out", str(out), "-q"]) == 0
+        stdout = capsys.readouterr().out
+        assert "registration: mean shift" in stdout and "no structure" not in stdout
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["unregistered_pairs"] == 0
+
+    def test_glob_out_error_names_the_pattern(self, tmp_path, png_clip, capsys):
+        # item 2: the message named the folder 'clip', not the pattern the user typed
+        folder, _ = png_clip
+        pattern = str(folder / "f0*.png")
+        code = main(["detect", pattern, "--method", "dpa", "--out", str(folder)])
+        line = assert_one_line_error(capsys, code, r"--out: .* is the input folder of CUBE")
+        assert f"CUBE '{pattern}'" in line
+        assert f"its frames are in '{folder}'" in line
+        # a folder input is named as typed too (with its trailing slash)
+        typed = str(folder) + os.sep
+        code = main(["detect", typed, "--method", "dpa", "--out", str(folder / "sub")])
+        line = assert_one_line_error(capsys, code, r"--out: .* is inside the input folder")
+        assert f"CUBE '{typed}'" in line
+
+    def test_order_99_refused_at_once_with_its_range(self, tmp_path, capsys, monkeypatch):
+        # item 3: every bad option in one message, the shape's bounds before any pre-processing
+        cube = tmp_path / "c.npy"
+        np.save(cube, np.zeros((10, 24, 24), dtype=bool))
+        out = str(tmp_path / "o")
+        code = main(["detect", str(cube), "--order", "99", "--v", "500", "--out", out])
+        line = assert_one_line_error(capsys, code, r"^hocnet: error: 2 problems: --order: ")
+        assert "--order: expected at most (T - 1) // 2 = 4 for a cube of T = 10" in line
+        assert "--v: expected at most max(H, W) - 1 = 23" in line
+        argv = ["detect", str(cube), "--order", "0", "--v", "0", "--delta", "400"]
+        code = main([*argv, "--max-per-frame", "0", "--out", out])
+        line = assert_one_line_error(capsys, code, r"^hocnet: error: 4 problems: ")
+        for flag in ("--order", "--v", "--delta", "--max-per-frame"):
+            assert f"{flag}: expected" in line
+        code = main(["detect", str(cube), "--method", "dpa", "--g", "5", "--window", "4"])
+        assert_one_line_error(capsys, code, r"2 problems: --g: .*; --window: expected an odd")
+        # intensity frames: --order is checked before the registration runs
+
+        def no_registration(*args, **kwargs):
+            raise AssertionError("registration ran before --order was checked")
+
+        monkeypatch.setattr("hocnet.data.background.estimate_shifts", no_registration)
+        frames = tmp_path / "f.npy"
+        np.save(frames, np.random.default_rng(0).normal(size=(10, 24, 24)))
+        code = main(["detect", str(frames), "--threshold-pfa", "0.01", "--order", "99"])
+        assert_one_line_error(capsys, code, r"--order: expected at most \(T - 1\) // 2 = 4")
+        assert not Path(out).exists()
+
+    def test_target_free_png_folder(self, tmp_path, ir_sequence, capsys):
+        # item 4: --target-free took .npy / .npz only; it takes what the input takes
+        to8 = lambda x: np.clip(x.numpy() * 20 + 100, 0, 255).astype(np.uint8)  # noqa: E731
+        clip = _save_png_frames(tmp_path / "clip", to8(ir_sequence.frames))
+        free = _save_png_frames(tmp_path / "free", to8(ir_sequence.target_free))
+        np.save(tmp_path / "free.npy", to8(ir_sequence.target_free).astype(np.float64))
+        thresholds = []
+        for name, source in (
+            ("npy", tmp_path / "free.npy"),
+            ("folder", free),
+            ("glob", free / "f*.png"),
+        ):
+            out = tmp_path / f"out_{name}"
+            argv = ["detect", str(clip), "--method", "dpa", "--target-free", str(source)]
+            assert main([*argv, "--pfa", "0.01", "--out", str(out), "-q"]) == 0
+            _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+            assert meta["cfar"] is True
+            thresholds.append(meta["threshold_used"])
+        assert thresholds[0] == thresholds[1] == thresholds[2]
+        capsys.readouterr()
+        # its frames are inputs: no output inside that folder, none replaces a frame
+        argv = ["detect", str(clip), "--method", "dpa", "--target-free", str(free)]
+        code = main([*argv, "--pfa", "0.01", "--out", str(free)])
+        assert_one_line_error(capsys, code, rf"--out: .* input folder of --target-free '{free}'")
+        code = main([*argv[:-1], str(tmp_path / "nothing" / "*.png"), "--out", str(tmp_path)])
+        assert_one_line_error(capsys, code, r"^hocnet: error: --target-free: ")
+
+    def test_threshold_printed_with_4_digits_and_units(self, tmp_path, frames_file, capsys):
+        # item 5: "threshold = 3.1415926535"
+        out = tmp_path / "out"
+        argv = ["detect", str(frames_file), "--method", "dpa", "--out", str(out), "-q"]
+        assert main([*argv, "--asf-threshold", "3.1415926535"]) == 0
+        stdout = capsys.readouterr().out
+        assert "threshold = 3.142 (ASF, input intensity units; --asf-threshold)" in stdout
+        assert "3.1415" not in stdout
+        free = tmp_path / "free.npy"
+        np.save(free, np.random.default_rng(1).normal(size=(20, 24, 28)))
+        assert main([*argv, "--target-free", str(free), "--pfa", "0.01", "--force"]) == 0
+        stdout = capsys.readouterr().out
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        shown = re.search(r"threshold = (\S+) \(ASF, input intensity units; CFAR at", stdout)
+        assert shown is not None, stdout
+        assert shown.group(1) == f"{meta['threshold_used']:.4g}"
+        assert len(shown.group(1).replace(".", "").replace("-", "").lstrip("0")) <= 4
+        assert "--pfa 0.01 on --target-free" in stdout
+
+    def test_flat_frames_dpa_refused_or_warned(self, tmp_path, capsys):
+        # item 6: constant frames ran silently, with tracks on rounding noise
+        flat = _save_png_frames(tmp_path / "flat", np.full((8, 24, 24), 100, np.uint8))
+        for cmd, selector in (("detect", "--method"), ("track", "--detector")):
+            out = tmp_path / f"out_{cmd}"
+            code = main([cmd, str(flat), selector, "dpa", "--out", str(out), "-q"])
+            label = "CUBE" if cmd == "detect" else "SEQ"
+            assert_one_line_error(
+                capsys,
+                code,
+                rf"^hocnet: error: {label}: all 8 frames are flat \('f00\.png' \.\.\. 'f07\.png'\) "
+                r"\(the constant value 100, zero variance\): nothing can be detected",
+            )
+            assert not out.exists()
+        # some flat frames: the run goes on, and the frames are named
+        part = np.random.default_rng(0).normal(100.0, 5.0, (8, 24, 24))
+        part[2], part[5] = 7.0, 7.0
+        path = tmp_path / "part.npy"
+        np.save(path, part)
+        out = tmp_path / "out_part"
+        assert main(["detect", str(path), "--method", "dpa", "--out", str(out), "-q"]) == 0
+        err = capsys.readouterr().err
+        assert "hocnet: warning: CUBE: 2 of 8 frames are flat" in err
+        assert "frames 2, 5 (0-based)" in err
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert any("2 of 8 frames are flat" in w for w in meta["warnings"])
+        # flat --target-free frames cannot give a CFAR threshold
+        free = tmp_path / "free.npy"
+        np.save(free, np.full((4, 24, 24), 3.0))
+        argv = ["detect", str(path), "--method", "dpa", "--target-free", str(free)]
+        code = main([*argv, "--out", str(tmp_path / "o2")])
+        assert_one_line_error(capsys, code, r"--target-free: expected intensity frames whose")

@@ -233,7 +233,7 @@ def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
         outputs["binary.npy"] = lambda path: save_cube(path, binary)
         if shifts is not None:
             outputs["shifts.csv"] = _shifts_writer(shifts)
-            notes.append(_shifts_summary(shifts))
+            notes.append(_shifts_summary(shifts, unregistered=params.get("unregistered_pairs")))
         notes.append(binarised)
     model = params.pop("model", None)
     kwargs = hoc_kwargs(params)
@@ -344,7 +344,8 @@ def _preprocess(
             shifts = estimate_shifts(x)
             if not bool(torch.isfinite(shifts).all()):
                 raise overflow("registration (--register)")
-            _warn_unregistered(x, label)
+            if label == "`frames`":  # said with the shifts (the input's, not --target-free's)
+                params["unregistered_pairs"] = _unregistered_pairs(x)
             offsets = shifts.cumsum(dim=-2)
         if params["background"] != "none":
             x = remove_background(
@@ -367,42 +368,27 @@ def _preprocess(
     return x, shifts
 
 
-def _warn_unregistered(frames: torch.Tensor, label: str) -> None:
-    """Warn about the frame pairs whose registration peak fails the test (shift kept at 0).
+def _unregistered_pairs(frames: torch.Tensor) -> int:
+    """How many frame pairs the registration left at shift 0 for lack of a significant peak.
 
     :func:`hocnet.data.background.estimate_shifts` keeps a zero shift where the
-    phase-correlation peak does not stand out of its sidelobes (no structure to register:
-    noise, a flat sky); said here so that a 0 in ``shifts.csv`` is not read as a still camera
-    measured.
+    phase-correlation peak does not pass its test (no structure to register: noise, a flat
+    sky); counted here so that a 0 in ``shifts.csv`` is not read as a still camera measured.
+
+    Args:
+        frames: ``(T, H, W)`` or ``(B, T, H, W)`` float frames, as registered.
+
+    Returns:
+        The number of pairs (frame ``n`` against ``n - 1``, over the batch) whose
+        peak-to-sidelobe ratio is at most :func:`hocnet.data.background.registration_threshold`.
     """
-    from hocnet.data.background import (
-        REGISTRATION_PFA,
-        registration_threshold,
-        shift_significance,
-    )
+    from hocnet.data.background import registration_threshold, shift_significance
 
     if frames.shape[-3] < 2 or frames.numel() == 0:
-        return
+        return 0
     height, width = frames.shape[-2:]
-    tau = registration_threshold(height, width)
-    ratio = shift_significance(frames)[..., 1:].reshape(-1, frames.shape[-3] - 1)
-    weak = ~(ratio > tau)
-    n_weak, n_pairs = int(weak.sum()), weak.numel()
-    if n_weak == 0:
-        return
-    frames_of = sorted({int(t) + 1 for t in weak.nonzero()[:, 1]})
-    shown = ", ".join(map(str, frames_of[:8])) + (", ..." if len(frames_of) > 8 else "")
-    what = {"`frames`": "the input", "`target_free`": "--target-free"}.get(label, label)
-    every = "every frame pair" if n_weak == n_pairs else f"{n_weak} of {n_pairs} frame pairs"
-    plural = "s" * (len(frames_of) != 1)
-    warnings.warn(
-        f"--register: no structure to register in {every} of {what} (frame{plural} "
-        f"{shown}: the phase-correlation peak is not significant, peak-to-sidelobe ratio "
-        f"<= {tau:.3g} at pfa {REGISTRATION_PFA:g}; noise or flat frames): their shift is kept "
-        "at (0, 0)",
-        RuntimeWarning,
-        stacklevel=2,
-    )
+    ratio = shift_significance(frames)[..., 1:]
+    return int((~(ratio > registration_threshold(height, width))).sum())
 
 
 def _shifts_writer(shifts: torch.Tensor) -> Writer:
@@ -428,16 +414,42 @@ def _shifts_writer(shifts: torch.Tensor) -> Writer:
     return write
 
 
-def _shifts_summary(shifts: torch.Tensor, where: str = "shifts.csv") -> str:
-    """One line about the estimated camera motion; ``where``: the output that lists the shifts."""
+def _shifts_summary(
+    shifts: torch.Tensor, where: str = "shifts.csv", unregistered: int | None = None
+) -> str:
+    """One line about the estimated camera motion; ``where``: the output that lists the shifts.
+
+    ``unregistered``: the frame pairs left at shift 0 for lack of structure
+    (:func:`_unregistered_pairs`), said when there are any.
+
+    Examples:
+        >>> import torch
+        >>> _shifts_summary(torch.zeros(4, 2), unregistered=3)  # doctest: +ELLIPSIS
+        'registration: no structure to register in 3 of 3 frame pairs ... (0, 0); ...'
+    """
+    from hocnet.data.background import REGISTRATION_PFA
+
     step = shifts.norm(dim=-1)
     drift = shifts.sum(dim=-2).reshape(-1, 2)
     far = int(drift.norm(dim=-1).argmax()) if drift.numel() else 0
     dx, dy = (float(v) for v in drift[far]) if drift.numel() else (0.0, 0.0)
+    pairs = drift.shape[0] * max(shifts.shape[-2] - 1, 0)
+    if unregistered and unregistered == pairs:  # nothing was registered: no motion measured
+        return (
+            f"registration: no structure to register in {unregistered} of {pairs} frame pairs "
+            f"(no significant phase-correlation peak at pfa {REGISTRATION_PFA:g}: noise or "
+            f"flat frames), every shift kept at (0, 0); see {where}"
+        )
+    weak = (
+        f"; {unregistered} of {pairs} frame pairs without structure to register (no "
+        "significant phase-correlation peak), kept at (0, 0)"
+        if unregistered
+        else ""
+    )
     return (
         f"registration: mean shift {float(step.mean()) if step.numel() else 0.0:.2f} px/frame, "
         f"largest {float(step.max()) if step.numel() else 0.0:.2f} px, total drift "
-        f"({dx:+.1f}, {dy:+.1f}) px (x, y); see {where}"
+        f"({dx:+.1f}, {dy:+.1f}) px (x, y){weak}; see {where}"
     )
 
 
@@ -659,7 +671,7 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
     if not found.confirmed:
         summary += "\n  note: " + _to_flags(found.note, _FLAGS["dpa"])
     if shifts is not None:
-        summary += "\n  " + _shifts_summary(shifts)
+        summary += "\n  " + _shifts_summary(shifts, unregistered=params.get("unregistered_pairs"))
     return Detection(result=result, params=params, outputs=outputs, summary=summary)
 
 

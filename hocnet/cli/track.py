@@ -177,7 +177,7 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
     if params.get("threshold_pfa") is not None:
         cube, shifts, note = binarize_frames(cube, params)
         if shifts is not None:
-            notes.append(_shifts_summary(shifts, _SHIFTS_AT))
+            notes.append(_shifts_summary(shifts, _SHIFTS_AT, params.get("unregistered_pairs")))
         notes.append(note)
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
@@ -341,7 +341,16 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, 
         "nms_radius": DETECTION_NMS_RADIUS,
         **{
             k: used[k]
-            for k in ("g", "b", "window", "v_max", "equal_gain", "pfa", *_inputs.PRE_DESTS)
+            for k in (
+                "g",
+                "b",
+                "window",
+                "v_max",
+                "equal_gain",
+                "pfa",
+                *_inputs.PRE_DESTS,
+                "unregistered_pairs",
+            )
             if k in used
         },
     }
@@ -513,7 +522,8 @@ def _cmd_track(args: argparse.Namespace) -> int:
             names = {"frame_names": [file.name for file in files]}  # said about flat frames
             plots, det_params, shifts = _dpa_plots(cube, {**det_params, **names})
             if shifts is not None:
-                notes.append(_shifts_summary(shifts, _SHIFTS_AT))
+                weak = det_params.get("unregistered_pairs")
+                notes.append(_shifts_summary(shifts, _SHIFTS_AT, weak))
         params = _mht_params(args, plots, float(h * w))
         tracks = _run_mht(plots, params)
     runtime = time.perf_counter() - start

@@ -612,10 +612,38 @@ class TestNewUser:
         # item 9: "--window: expected an integer >= 199, got 10" for --order 99
         seq = tmp_path / "scans.npy"
         np.save(seq, np.zeros((6, 12, 12), dtype=bool))
-        code = main(["track", str(seq), "--order", "99", "--out", str(tmp_path / "o")])
-        one_line_error(capsys, code, r"^hocnet: error: --order: 99 needs --window >= .* = 199, ")
         code = main(["track", str(seq), "--window", "3", "--out", str(tmp_path / "o")])
         one_line_error(capsys, code, r"^hocnet: error: --window: expected an integer >= 5, got 3")
+        code = main(["track", str(seq), "--order", "3", "--window", "5", "--out", str(tmp_path)])
+        one_line_error(
+            capsys, code, r"^hocnet: error: --order: expected at most \(--window - 1\) // 2 = 2 "
+        )
+
+    @pytest.mark.parametrize("window", [None, "300"])
+    def test_order_99_one_round_trip(self, tmp_path, capsys, window):
+        """`--order 99` was refused twice (first: the default --window 10 cannot hold it; with
+        --window 300: SEQ has too few frames). Now one error, with the range that works."""
+        seq = tmp_path / "scans.npy"
+        np.save(seq, np.zeros((10, 12, 12), dtype=bool))
+        extra = [] if window is None else ["--window", window]
+        argv = ["track", str(seq), "--order", "99", *extra, "--out", str(tmp_path / "o"), "-q"]
+        one_line_error(
+            capsys,
+            main(argv),
+            r"^hocnet: error: --order: expected at most \(T - 1\) // 2 = 4 for SEQ of T = 10 "
+            r"frames \(order k needs 2k \+ 1 frames\), got 99$",
+        )
+        argv[argv.index("99")] = "4"  # the range given works at once
+        assert main([*argv, "--no-plot"]) == 0
+
+    def test_bad_options_said_together(self, tmp_path, capsys):
+        seq = tmp_path / "scans.npy"
+        np.save(seq, np.zeros((10, 12, 12), dtype=bool))
+        argv = ["track", str(seq), "--order", "0", "--v", "0", "--delta", "400", "--stride", "0"]
+        line = one_line_error(capsys, main([*argv, "--out", str(tmp_path / "o")]), "4 problems")
+        for flag in ("--order", "--v", "--delta", "--stride"):
+            assert f"{flag}: expected" in line
+        assert not (tmp_path / "o").exists()
 
     def test_messages_name_the_flags_as_typed(self, tmp_path, capsys):
         # item 10
