@@ -1658,6 +1658,25 @@ class TestFreshClone:
         _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
         assert meta["unregistered_pairs"] == 11
 
+    def test_textured_shift_3_minus_2_registers(self, tmp_path, capsys):
+        # item 1, the other side: real content moving by (dx, dy) = (3, -2) still registers
+        from scipy.ndimage import gaussian_filter
+
+        rng = np.random.default_rng(2)
+        ground = gaussian_filter(rng.normal(size=(96, 96)), 0.7) * 40 + 100
+        # frame t shows ground pixel (x - 3 t, y + 2 t) at (x, y): content moves by (3, -2)
+        frames = np.stack(
+            [ground[20 + 2 * t : 68 + 2 * t, 30 - 3 * t : 78 - 3 * t] for t in range(6)]
+        )
+        path = tmp_path / "pan.npy"
+        np.save(path, frames + rng.normal(0.0, 0.5, frames.shape))
+        out = tmp_path / "out"
+        assert main(["detect", str(path), "--method", "dpa", "--out", str(out), "-q"]) == 0
+        assert "no structure" not in capsys.readouterr().out
+        rows = _read_csv(out / "shifts.csv")[1:]
+        assert [float(r["dx"]) for r in rows] == pytest.approx([3.0] * 5, abs=0.2)
+        assert [float(r["dy"]) for r in rows] == pytest.approx([-2.0] * 5, abs=0.2)
+
     def test_textured_clip_registers_without_note(self, tmp_path, png_clip, capsys):
         folder, _ = png_clip  # a textured ground: every pair has structure
         out = tmp_path / "out"
