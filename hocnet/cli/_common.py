@@ -55,9 +55,15 @@ class _Problems:
         >>> with problems.check():
         ...     _check_int("--order", 0, minimum=1)
         >>> with problems.check():
-        ...     _check_int("--v", 2, minimum=1)
-        >>> problems.messages
-        ['`--order`: expected an integer >= 1, got 0']
+        ...     v = _check_int("--v", 2, minimum=1)
+        >>> with problems.check():
+        ...     raise CLIError("--delta: expected a number in (0, 180], got 400")
+        >>> len(problems.messages), problems.messages[0]
+        (2, '`--order`: expected an integer >= 1, got 0')
+        >>> problems.raise_all()  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        hocnet.cli._common.CLIError: 2 problems: `--order`: expected ...; --delta: expected ...
     """
 
     def __init__(self) -> None:

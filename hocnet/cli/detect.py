@@ -975,7 +975,10 @@ outputs of every method (in --out DIR):
                  an operating point. dpa: the ASF of that frame, causal (frame n uses frames
                  0..n only); hoc: the HOC point score of the support points.
   shifts.csv     with registration: frame,dx,dy,offset_x,offset_y, the estimated camera shift of
-                 each frame relative to the previous one and to frame 0, in pixels
+                 each frame relative to the previous one and to frame 0, in pixels; a frame
+                 pair without structure to register (no significant phase-correlation peak:
+                 noise, flat frames) keeps (0, 0), counted on stdout and in
+                 meta["unregistered_pairs"]
 
 outputs of --method hoc:
   cleaned.npy   bool cube of the points on the identified tracks, shaped like the input
@@ -995,7 +998,7 @@ outputs of --method dpa:
   skips the pictures). Files of the same names already in DIR are replaced only if hocnet
   wrote them and nobody changed them since (DIR/.hocnet-outputs.json records the size and
   modification time of each file written), or with --force; an output never replaces an
-  input file (CUBE or any of its image frames, --target-free). Nothing is written if the
+  input file (CUBE, --target-free, or any of their image frames). Nothing is written if the
   input or an option is invalid, and either every file is written or none.
 
 defaults (--method dpa):
