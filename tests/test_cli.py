@@ -1716,6 +1716,10 @@ class TestFreshClone:
             assert f"{flag}: expected" in line
         code = main(["detect", str(cube), "--method", "dpa", "--g", "5", "--window", "4"])
         assert_one_line_error(capsys, code, r"2 problems: --g: .*; --window: expected an odd")
+        code = main(["detect", str(cube), "--g", "0.5", "--order", "0", "--out", out])
+        assert_one_line_error(
+            capsys, code, r"2 problems: --g: applies to --method dpa, not hoc; --order: expected"
+        )
         # intensity frames: --order is checked before the registration runs
 
         def no_registration(*args, **kwargs):

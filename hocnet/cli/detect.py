@@ -763,14 +763,21 @@ def _load_weights(args: argparse.Namespace, method: str, params: dict[str, Any])
 
 def _prepare_method(args: argparse.Namespace) -> tuple[_Method, dict[str, Any]]:
     method = _METHODS[args.method]
+    problems = _Problems()  # options of the other method and bad values: said together
     for other in _METHODS.values():
         if other is method:
             continue
         for dest in other.option_dests:
             if dest not in method.option_dests and getattr(args, dest, None) is not None:
                 flag = "--" + dest.replace("_", "-")
-                raise CLIError(f"{flag}: applies to --method {other.name}, not {method.name}")
-    return method, method.prepare(args)
+                problems.messages.append(
+                    f"{flag}: applies to --method {other.name}, not {method.name}"
+                )
+    params: dict[str, Any] = {}
+    with problems.check():
+        params = method.prepare(args)
+    problems.raise_all()
+    return method, params
 
 
 # --------------------------------------------------------------------------------------------
