@@ -341,11 +341,13 @@ def _preprocess(
 
     try:
         if params["register"]:
-            shifts = estimate_shifts(x)
+            # pairs without a significant correlation peak keep (0, 0) (no structure to
+            # register: noise, flat frames); counted, and said with the shifts
+            shifts, rejected = estimate_shifts(x, return_rejected=True)
             if not bool(torch.isfinite(shifts).all()):
                 raise overflow("registration (--register)")
-            if label == "`frames`":  # said with the shifts (the input's, not --target-free's)
-                params["unregistered_pairs"] = _unregistered_pairs(x)
+            if label == "`frames`":  # the input's, not --target-free's
+                params["unregistered_pairs"] = int(rejected.sum())
             offsets = shifts.cumsum(dim=-2)
         if params["background"] != "none":
             x = remove_background(
@@ -366,29 +368,6 @@ def _preprocess(
         except ValueError as err:  # name the right input
             raise ValueError(str(err).replace("`frames`", label)) from None
     return x, shifts
-
-
-def _unregistered_pairs(frames: torch.Tensor) -> int:
-    """How many frame pairs the registration left at shift 0 for lack of a significant peak.
-
-    :func:`hocnet.data.background.estimate_shifts` keeps a zero shift where the
-    phase-correlation peak does not pass its test (no structure to register: noise, a flat
-    sky); counted here so that a 0 in ``shifts.csv`` is not read as a still camera measured.
-
-    Args:
-        frames: ``(T, H, W)`` or ``(B, T, H, W)`` float frames, as registered.
-
-    Returns:
-        The number of pairs (frame ``n`` against ``n - 1``, over the batch) whose
-        peak-to-sidelobe ratio is at most :func:`hocnet.data.background.registration_threshold`.
-    """
-    from hocnet.data.background import registration_threshold, shift_significance
-
-    if frames.shape[-3] < 2 or frames.numel() == 0:
-        return 0
-    height, width = frames.shape[-2:]
-    ratio = shift_significance(frames)[..., 1:]
-    return int((~(ratio > registration_threshold(height, width))).sum())
 
 
 def _shifts_writer(shifts: torch.Tensor) -> Writer:
@@ -419,8 +398,8 @@ def _shifts_summary(
 ) -> str:
     """One line about the estimated camera motion; ``where``: the output that lists the shifts.
 
-    ``unregistered``: the frame pairs left at shift 0 for lack of structure
-    (:func:`_unregistered_pairs`), said when there are any.
+    ``unregistered``: the frame pairs left at shift 0 for lack of structure (the rejected
+    pairs of :func:`hocnet.data.background.estimate_shifts`), said when there are any.
 
     Examples:
         >>> import torch

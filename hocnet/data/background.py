@@ -301,8 +301,12 @@ def registration_threshold(
 
 
 def estimate_shifts(
-    frames: torch.Tensor, *, taper: bool = True, pfa: float | None = REGISTRATION_PFA
-) -> torch.Tensor:
+    frames: torch.Tensor,
+    *,
+    taper: bool = True,
+    pfa: float | None = REGISTRATION_PFA,
+    return_rejected: bool = False,
+) -> Any:
     """Global shift of every frame relative to the previous one, by phase correlation.
 
     For frames ``a = frame[n - 1]`` and ``b = frame[n]`` (each minus its mean, times a 2-D Hann
@@ -336,12 +340,15 @@ def estimate_shifts(
         pfa: false-alarm probability per frame pair of the peak test, in ``(0, 1)``; ``None``
             accepts every peak that rises above its sidelobes (ratio > 0; the behaviour before
             the test, except that flat frames, whose surface is all zero, keep a zero shift).
+        return_rejected: also return which frames failed the peak test.
 
     Returns:
         ``(B, T, 2)`` or ``(T, 2)`` shifts ``(dx, dy)`` in pixels in the frames' float dtype;
         ``shifts[..., 0, :] = 0``, and ``0`` for every frame whose peak fails the test.
         Phase correlation measures shifts modulo the frame size, so shifts must be smaller than
-        half the frame.
+        half the frame. With ``return_rejected``: ``(shifts, rejected)``, ``rejected`` a bool
+        ``(B, T)`` or ``(T,)`` tensor, true for the frames kept at 0 by the test (no structure
+        to register; ``rejected[..., 0]`` is false: frame 0 has no pair).
 
     Raises:
         TypeError: non-numeric frames or ``pfa``.
@@ -355,14 +362,22 @@ def estimate_shifts(
         >>> still = torch.randn(3, 32, 32, generator=torch.Generator().manual_seed(0))
         >>> estimate_shifts(still).abs().max().item()  # white noise: no significant peak
         0.0
+        >>> estimate_shifts(still, return_rejected=True)[1].tolist()
+        [False, True, True]
     """
     cube, batched = _float_cube("frames", frames)
     if pfa is not None:
         pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
     b, t, h, w = cube.shape
     shifts = torch.zeros(b, t, 2, device=cube.device, dtype=cube.dtype)
+    rejected = torch.zeros(b, t, device=cube.device, dtype=torch.bool)
+
+    def result() -> Any:
+        out = restore_batch(shifts, batched)
+        return (out, restore_batch(rejected, batched)) if return_rejected else out
+
     if t < 2 or b == 0:
-        return restore_batch(shifts, batched)
+        return result()
     cross, r = _phase_correlation(cube, bool(taper))
     idx, ratio = _peak_to_sidelobe(r)
     iy, ix = idx // w, idx % w
@@ -381,7 +396,8 @@ def estimate_shifts(
     dx, dy = dx.where(keep, torch.zeros_like(dx)), dy.where(keep, torch.zeros_like(dy))
     shifts[:, 1:, 0] = dx.reshape(b, t - 1)
     shifts[:, 1:, 1] = dy.reshape(b, t - 1)
-    return restore_batch(shifts, batched)
+    rejected[:, 1:] = ~keep.reshape(b, t - 1)
+    return result()
 
 
 def _bilinear(images: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:

@@ -473,6 +473,9 @@ class TestPeakTest:
         g = torch.Generator().manual_seed(21)
         frames = torch.randn(300, size, size, generator=g, dtype=torch.float64)
         assert estimate_shifts(frames).abs().max() == 0
+        shifts, rejected = estimate_shifts(frames, return_rejected=True)
+        assert shifts.abs().max() == 0 and rejected.shape == (300,)
+        assert rejected[1:].all() and not rejected[0]  # every pair said to be unregistered
         ratio = shift_significance(frames)[1:]
         gauss = NormalDist().inv_cdf(1 - REGISTRATION_PFA / size**2)
         assert (ratio > gauss).any()  # the old bound would have kept a shift (can fail)
@@ -483,9 +486,25 @@ class TestPeakTest:
         img = power_law_texture(size + 16, size + 16, 7)
         a = img[8 : 8 + size, 8 : 8 + size]
         b = img[10 : 10 + size, 5 : 5 + size]  # content at (x, y) moves to (x + 3, y - 2)
-        got = estimate_shifts(torch.stack([a, b]))
+        got, rejected = estimate_shifts(torch.stack([a, b]), return_rejected=True)
         assert got[1].tolist() == pytest.approx([3.0, -2.0], abs=0.2)
+        assert rejected.tolist() == [False, False]
         assert shift_significance(torch.stack([a, b]))[1] > registration_threshold(size, size)
+
+    def test_rejected_matches_the_threshold(self):
+        """``return_rejected``: the pairs whose ratio is at most the threshold, batched."""
+        g = torch.Generator().manual_seed(6)
+        img = power_law_texture(40, 40, 2)
+        frames = torch.stack([img.roll(n, dims=1) for n in range(4)])
+        frames[2] = torch.randn(40, 40, generator=g, dtype=torch.float64)
+        cube = torch.stack([frames, torch.randn(4, 40, 40, generator=g, dtype=torch.float64)])
+        shifts, rejected = estimate_shifts(cube, return_rejected=True)
+        torch.testing.assert_close(shifts, estimate_shifts(cube))
+        want = ~(shift_significance(cube) > registration_threshold(40, 40))
+        want[:, 0] = False
+        assert rejected.tolist() == want.tolist()
+        assert rejected.tolist() == [[False, False, True, True], [False, True, True, True]]
+        assert estimate_shifts(torch.zeros(0, 3, 8, 8), return_rejected=True)[1].shape == (0, 3)
 
     def test_batched_and_empty(self):
         frames = torch.randn(2, 4, 16, 16)
