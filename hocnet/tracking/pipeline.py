@@ -40,17 +40,23 @@ Our readings and choices (the chapter leaves them to its references):
   back to the report time with the larger mode noise (an approximation: gating only; the score
   uses the exact OOSM likelihood). A report older than a row's one-step lag is not associated
   with that row (it can still start a track); :attr:`VSIMMRoadFilter.out_of_lag` counts them.
-- **Reports older than the OOSM lag of every track (our rule, issue 12 bad input).** A scan that
-  no existing row can take (every row's estimate is newer and the scan is older than every
-  row's lag limit, :meth:`VSIMMRoadFilter.lag_limit`: its previous step with ``max_lag=None``,
-  the oldest step of its lag memory with ``max_lag=N``) is refused before any track is touched:
-  ``PDTrackerConfig.too_old="raise"`` (default) raises ``ValueError`` naming the scan time and
-  the limit (from :meth:`VSIMMRoadFilter.predict`, so also when the MHT is driven by hand);
-  ``too_old="drop"`` makes :func:`run_pd_tracker` skip the scan, counted in
-  :attr:`TrackerRun.too_old_dropped`. Either way such reports never start tracks (before, a
-  video scan 100 s late started one tentative track per report at the stale time). Without
-  rows (an empty tracker) no scan is too old. The 24.6 scenario has none (10 s at most, seed
-  2400, 1200 s, ``max_lag`` None and 3: no scan refused).
+- **Scans older than the tracker's OOSM lag (our rule, issue 12 bad input).** The filter keeps
+  the times of the in-sequence scans it processed (scan time >= every earlier one); the lag
+  limit (:meth:`VSIMMRoadFilter.lag_limit`) is the time of the ``L``-th last of them, ``L = 1``
+  with ``max_lag=None`` (the one-step A1: the ``t_prev`` of every row that has seen the last
+  two scans) and ``L = max_lag`` with a lag memory (its oldest entry); ``-inf`` while fewer
+  than ``L + 1`` scans were processed. A scan older than the limit cannot be retrodicted on
+  any established track and is refused before any track is touched (checked by
+  :meth:`VSIMMRoadFilter.predict` and :meth:`VSIMMRoadFilter.initiate`, so also when the MHT
+  is driven by hand): ``PDTrackerConfig.too_old="raise"`` (default) raises ``ValueError``
+  naming the scan time, the limit and the lag; ``too_old="drop"`` makes
+  :func:`run_pd_tracker` skip the scan, counted in :attr:`TrackerRun.too_old_dropped`. Either
+  way such reports never start tracks (before, a video scan 100 s late was counted in
+  ``out_of_lag`` and started one tentative track per report at the stale time). A scan within
+  the limit but older than the lag of a young row (born after the limit) is not associated
+  with that row, as above. Our 24.6 scenario has no such scan: video / UGS reports are at most
+  11 s late with a 10 s GMTI revisit (checked on the scan times of seeds 2400-2449, 1200 s,
+  for lags of 1, 2 and 3 steps: none refused, the closest exactly at the one-step limit).
 - **Road sections.** Each leaf runs one VS-IMM over the whole network (section ``-1``): every
   mode's active segment is the segment nearest to its predicted state (24.4.3), relaxed near
   segment ends (24.9-24.12); past a junction the prediction is carried onto the new segment
@@ -249,11 +255,12 @@ class PDTrackerConfig:
             ``"rts"`` (default; exact per mode from the stored steps, issue 12 review) or
             ``"al1"`` (the equivalent-measurement Al1, the former behaviour; see
             ``vsimm_oosm(lag_method=...)``).
-        too_old: a scan older than the OOSM lag of every track row (module docstring, our
-            rule): ``"raise"`` (default: ``ValueError``, no track changed; a demanding user
-            wants to know that the feed is late or the clock wrong) or ``"drop"``
-            (:func:`run_pd_tracker` skips it and counts its reports in
-            :attr:`TrackerRun.too_old_dropped`). Such reports never start tracks.
+        too_old: a scan older than the tracker's OOSM lag (the last in-sequence scan but one,
+            or but ``max_lag``; module docstring, our rule): ``"raise"`` (default:
+            ``ValueError``, no track changed; a demanding user wants to know that the feed is
+            late or the clock wrong) or ``"drop"`` (:func:`run_pd_tracker` skips it and counts
+            its reports in :attr:`TrackerRun.too_old_dropped`). Such reports never start
+            tracks.
         junction_hypotheses: road-section hypotheses at junctions (24.38-24.40 inside one leaf,
             our reading; see the module docstring). ``False``: only the segment nearest to the
             prediction (the previous behaviour).
@@ -481,6 +488,8 @@ class VSIMMRoadFilter:
         self.max_jump = 1000.0
         self.junction_switches = 0
         self.too_old_dropped = 0
+        self._clock: list[float] = []  # times of the last in-sequence scans (lag_limit)
+        self._scan_checked = False
         deg = int(net.node_degree.max()) if net.node_degree.numel() else 0
         self._n_alt = max(deg - 1, 0) if config.junction_hypotheses else 0
         self._road_class = [p.get("road_class") for p in net.section_properties]
@@ -517,26 +526,48 @@ class VSIMMRoadFilter:
         time = check_number("time", time)
         self.kind = kind
         self.time = time
+        self._scan_checked = False
 
-    def lag_limit(self, states: dict[str, torch.Tensor] | None) -> float:
-        """Oldest measurement time (s) that some row of ``states`` can still take.
+    def lag_limit(self) -> float:
+        """Oldest scan time (s) the tracker can still take out of sequence (module docstring).
 
-        Per row: its previous step ``t_prev`` (``max_lag=None``, the one-step A1) or the oldest
-        step of its lag memory (``max_lag=N``; ``-inf`` while that memory is not full: a report
-        older than the row's birth gets the diffuse-prior retrodiction). The tracker's limit is
-        the smallest over the rows; ``-inf`` without rows.
+        The time of the ``L``-th last in-sequence scan before the current one (``L = 1`` with
+        ``max_lag=None``, else ``max_lag``): the previous step of every established row, or the
+        oldest entry of its lag memory. ``-inf`` while fewer than ``L + 1`` scans were processed.
         """
-        if states is None or not states["t"].shape[0]:
-            return -math.inf
-        h = states["lag_t"][:, -1] if "lag_t" in states else states["t_prev"]
-        return float(h.min())
+        lag = 1 if self.cfg.max_lag is None else int(self.cfg.max_lag)
+        return self._clock[-1 - lag] if len(self._clock) > lag else -math.inf
 
-    def scan_too_old(self, states: dict[str, torch.Tensor] | None) -> bool:
-        """Whether the scan of :meth:`set_scan` is older than the OOSM lag of every row.
+    def scan_too_old(self) -> bool:
+        """Whether the scan of :meth:`set_scan` is older than :meth:`lag_limit`.
 
         Same tolerance as the per-row test of :meth:`predict` (``lag_ok``).
         """
-        return self.lag_limit(states) > self.time + 1e-9
+        return self.lag_limit() > self.time + 1e-9
+
+    def _check_scan(self) -> None:
+        """Refuse a scan older than the lag (``ValueError``), else record an in-sequence scan.
+
+        Called first by :meth:`predict` and :meth:`initiate` (once per scan: the MHT calls
+        ``predict`` when it holds tracks and ``initiate`` when the scan has reports), before
+        any state is computed, so that a refused scan changes nothing.
+        """
+        if self._scan_checked:
+            return
+        if self.scan_too_old():
+            limit, last = self.lag_limit(), self._clock[-1]
+            lag = "one step" if self.cfg.max_lag is None else f"max_lag={self.cfg.max_lag} steps"
+            raise ValueError(
+                f"`time`: expected a {self.kind} scan within the OOSM lag of the tracker ({lag}: "
+                f"time >= {limit:g} s), got {self.time:g} s, {last - self.time:g} s older than "
+                "the last scan; no track was changed (PDTrackerConfig(too_old='drop') makes "
+                "run_pd_tracker skip such scans)"
+            )
+        if not self._clock or self.time >= self._clock[-1]:
+            self._clock.append(self.time)
+            keep = 2 if self.cfg.max_lag is None else int(self.cfg.max_lag) + 1
+            del self._clock[:-keep]
+        self._scan_checked = True
 
     # ------------------------------------------------------------------ conversions
     def _vs(self, s: dict[str, torch.Tensor]) -> VSIMMState:
@@ -561,7 +592,12 @@ class VSIMMRoadFilter:
 
     # ------------------------------------------------------------------ protocol
     def initiate(self, z: torch.Tensor, R: torch.Tensor) -> dict[str, torch.Tensor]:
-        """New tracks on reports ``z (K, 3)`` at the scan time (module docstring)."""
+        """New tracks on reports ``z (K, 3)`` at the scan time (module docstring).
+
+        Raises:
+            ValueError: the scan is older than the tracker's OOSM lag (:meth:`scan_too_old`).
+        """
+        self._check_scan()
         K = z.shape[0]
         x0 = torch.zeros(K, 4, dtype=DTYPE)
         x0[:, 0], x0[:, 2] = z[:, 0], z[:, 1]
@@ -635,17 +671,10 @@ class VSIMMRoadFilter:
         """Predict the rows older than the scan time to it; mark the newer ones as OOSM rows.
 
         Raises:
-            ValueError: the scan is older than the OOSM lag of every row
-                (:meth:`scan_too_old`); nothing is changed (module docstring).
+            ValueError: the scan is older than the tracker's OOSM lag (:meth:`scan_too_old`);
+                nothing is changed (module docstring).
         """
-        if self.scan_too_old(states):
-            limit, newest = self.lag_limit(states), float(states["t"].max())
-            raise ValueError(
-                f"`time`: expected a {self.kind} scan within the OOSM lag of the tracks (time >= "
-                f"{limit:g} s, max_lag={self.cfg.max_lag}), got {self.time:g} s, "
-                f"{newest - self.time:g} s older than the newest track; no track was changed "
-                "(PDTrackerConfig(too_old='drop') makes run_pd_tracker skip such scans)"
-            )
+        self._check_scan()
         s = dict(states)
         t = s["t"]
         retro = t > self.time + 1e-9
@@ -1282,8 +1311,8 @@ class TrackerRun:
         oosm_failures: OOSM updates that fell back to the extrapolated estimate.
         junction_switches: updates that moved a row onto another road section at a junction
             (``junction_hypotheses``).
-        too_old_dropped: reports of the scans older than the OOSM lag of every track, skipped
-            with ``PDTrackerConfig(too_old="drop")`` (module docstring).
+        too_old_dropped: reports of the scans older than the tracker's OOSM lag, skipped with
+            ``PDTrackerConfig(too_old="drop")`` (module docstring).
     """
 
     tracks: dict[int, EstimatedTrack]
@@ -1323,8 +1352,8 @@ def run_pd_tracker(
         seed: seed of the tie-breaking of the type decision.
 
     Raises:
-        ValueError: with ``config.too_old="raise"`` (default), a scan older than the OOSM lag
-            of every track (module docstring); ``"drop"`` skips and counts it instead.
+        ValueError: with ``config.too_old="raise"`` (default), a scan older than the tracker's
+            OOSM lag (module docstring); ``"drop"`` skips and counts it instead.
 
     Returns:
         :class:`TrackerRun`. A track's samples are taken after every scan in which it is
@@ -1370,7 +1399,7 @@ def run_pd_tracker(
     for scan in scans:
         t_mht = scan.time if mht_time is None else max(mht_time, scan.time)
         filt.set_scan(scan.kind, scan.time)
-        if cfg.too_old == "drop" and filt.scan_too_old(mht._states):
+        if cfg.too_old == "drop" and filt.scan_too_old():
             filt.too_old_dropped += len(scan.reports)
             continue
         confirmed = mht.step(scan.z, time=t_mht, R=scan.R, bba=scan.bba if type_tracking else None)

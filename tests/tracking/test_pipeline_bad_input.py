@@ -90,6 +90,7 @@ def _snapshot(filt, mht):
         filt.oosm_failures,
         filt.junction_switches,
         filt.too_old_dropped,
+        list(filt._clock),
     )
     return {
         "scan": mht.scan,
@@ -214,29 +215,36 @@ def test_report_older_than_the_lag_raises_and_starts_no_track(scenario, clean):
     # out_of_lag and started one tentative track per report
     def bad(filt, mht, scan):
         stale = _stale_video(scan, mht.time - 100.0)
-        assert filt.lag_limit(mht._states) > stale.time
+        assert filt.lag_limit() == mht.time - 10.0  # one GMTI revisit: the one-step A1
         with pytest.raises(ValueError, match=r"video scan within the OOSM lag .* 100 s older"):
             _step(filt, mht, stale)
 
     _assert_same(clean, _run(scenario, bad))
 
 
-def test_report_within_some_rows_lag_is_processed(scenario):
-    # the rule refuses only what no row can take: a scan one GMTI interval late is processed
-    filt, mht, scans = _tracker(scenario, PDTrackerConfig())
+@pytest.mark.parametrize("max_lag", [None, 2])
+def test_scans_within_the_lag_are_processed_older_ones_refused(scenario, max_lag):
+    # the limit is the L-th last in-sequence scan (L = 1, or max_lag): a scan that late is
+    # processed (OOSM), one older is refused, also when the tracker holds no track (initiate)
+    lag = 1 if max_lag is None else max_lag
+    filt, mht, scans = _tracker(scenario, PDTrackerConfig(max_lag=max_lag))
+    assert filt.lag_limit() == -math.inf  # nothing processed: no limit
     for scan in scans[:N_WARM]:
         _step(filt, mht, scan)
-    late = _stale_video(scans[N_WARM - 1], mht.time - 5.0)
-    assert not filt.scan_too_old(mht._states)
+    assert filt.lag_limit() == scans[N_WARM - 1 - lag].time
+    filt.set_scan("video", filt.lag_limit() - 1.0)
+    assert filt.scan_too_old()
+    late = _stale_video(scans[N_WARM - 1], filt.lag_limit())
+    filt.set_scan(late.kind, late.time)
+    assert not filt.scan_too_old()
     _step(filt, mht, late)
     assert mht.scan == N_WARM + 1
-
-
-def test_lag_limit_of_an_empty_tracker_is_unbounded(scenario):
-    filt, mht, _ = _tracker(scenario, PDTrackerConfig())
-    assert filt.lag_limit(None) == -math.inf
-    filt.set_scan("video", -1e6)
-    assert not filt.scan_too_old(mht._states)
+    # an empty tracker (no leaves: MHT.step calls initiate only) refuses the stale scan too
+    mht._leaves, mht._states, mht._clusters = [], None, []
+    stale = _stale_video(scans[N_WARM], filt.lag_limit() - 1.0)
+    with pytest.raises(ValueError, match=r"OOSM lag of the tracker"):
+        _step(filt, mht, stale)
+    assert mht.n_leaves == 0
 
 
 def _with_stale_report(sc, delay=100.0):
@@ -256,7 +264,7 @@ def test_run_pd_tracker_too_old_raise_or_drop(scenario):
         run_pd_tracker(sc, type_tracking=False)
     dropped = run_pd_tracker(sc, type_tracking=False, config=PDTrackerConfig(too_old="drop"))
     ref = run_pd_tracker(scenario, type_tracking=False)
-    assert dropped.too_old_dropped == 1 and ref.too_old_dropped == 0
+    assert dropped.too_old_dropped == 1 and ref.too_old_dropped == 0  # its one report
     # dropped silently but counted: the run is the clean one (no track from the stale report)
     assert dropped.n_scans == ref.n_scans and dropped.out_of_lag == ref.out_of_lag
     assert dropped.tracks.keys() == ref.tracks.keys()
