@@ -40,6 +40,23 @@ Our readings and choices (the chapter leaves them to its references):
   back to the report time with the larger mode noise (an approximation: gating only; the score
   uses the exact OOSM likelihood). A report older than a row's one-step lag is not associated
   with that row (it can still start a track); :attr:`VSIMMRoadFilter.out_of_lag` counts them.
+- **Scans older than the tracker's OOSM lag (our rule, issue 12 bad input).** The filter keeps
+  the times of the in-sequence scans it processed (scan time >= every earlier one); the lag
+  limit (:meth:`VSIMMRoadFilter.lag_limit`) is the time of the ``L``-th last of them, ``L = 1``
+  with ``max_lag=None`` (the one-step A1: the ``t_prev`` of every row that has seen the last
+  two scans) and ``L = max_lag`` with a lag memory (its oldest entry); ``-inf`` while fewer
+  than ``L + 1`` scans were processed. A scan older than the limit cannot be retrodicted on
+  any established track and is refused before any track is touched (checked by
+  :meth:`VSIMMRoadFilter.predict` and :meth:`VSIMMRoadFilter.initiate`, so also when the MHT
+  is driven by hand): ``PDTrackerConfig.too_old="raise"`` (default) raises ``ValueError``
+  naming the scan time, the limit and the lag; ``too_old="drop"`` makes
+  :func:`run_pd_tracker` skip the scan, counted in :attr:`TrackerRun.too_old_dropped`. Either
+  way such reports never start tracks (before, a video scan 100 s late was counted in
+  ``out_of_lag`` and started one tentative track per report at the stale time). A scan within
+  the limit but older than the lag of a young row (born after the limit) is not associated
+  with that row, as above. Our 24.6 scenario has no such scan: video / UGS reports are at most
+  11 s late with a 10 s GMTI revisit (checked on the scan times of seeds 2400-2449, 1200 s,
+  for lags of 1, 2 and 3 steps: none refused, the closest exactly at the one-step limit).
 - **Road sections.** Each leaf runs one VS-IMM over the whole network (section ``-1``): every
   mode's active segment is the segment nearest to its predicted state (24.4.3), relaxed near
   segment ends (24.9-24.12); past a junction the prediction is carried onto the new segment
@@ -238,6 +255,12 @@ class PDTrackerConfig:
             ``"rts"`` (default; exact per mode from the stored steps, issue 12 review) or
             ``"al1"`` (the equivalent-measurement Al1, the former behaviour; see
             ``vsimm_oosm(lag_method=...)``).
+        too_old: a scan older than the tracker's OOSM lag (the last in-sequence scan but one,
+            or but ``max_lag``; module docstring, our rule): ``"raise"`` (default:
+            ``ValueError``, no track changed; a demanding user wants to know that the feed is
+            late or the clock wrong) or ``"drop"`` (:func:`run_pd_tracker` skips it and counts
+            its reports in :attr:`TrackerRun.too_old_dropped`). Such reports never start
+            tracks.
         junction_hypotheses: road-section hypotheses at junctions (24.38-24.40 inside one leaf,
             our reading; see the module docstring). ``False``: only the segment nearest to the
             prediction (the previous behaviour).
@@ -307,6 +330,7 @@ class PDTrackerConfig:
     coast_penalty: float = 20.0
     max_lag: int | None = None
     lag_method: str = "rts"
+    too_old: str = "raise"
     junction_hypotheses: bool = True
     junction_margin: float = 0.0
     junction_other_kind: float = 0.2
@@ -318,6 +342,7 @@ class PDTrackerConfig:
 
     def __post_init__(self) -> None:
         check_choice("lag_method", self.lag_method, ("rts", "al1"))
+        check_choice("too_old", self.too_old, ("raise", "drop"))
         check_choice("junction_test", self.junction_test, ("one-step", "sprt"))
         sprt_thresholds(self.junction_alpha, self.junction_beta)  # validates both
         if self.max_coast is not None:
@@ -462,6 +487,9 @@ class VSIMMRoadFilter:
         self.sanitized = 0
         self.max_jump = 1000.0
         self.junction_switches = 0
+        self.too_old_dropped = 0
+        self._clock: list[float] = []  # times of the last in-sequence scans (lag_limit)
+        self._scan_checked = False
         deg = int(net.node_degree.max()) if net.node_degree.numel() else 0
         self._n_alt = max(deg - 1, 0) if config.junction_hypotheses else 0
         self._road_class = [p.get("road_class") for p in net.section_properties]
@@ -486,9 +514,60 @@ class VSIMMRoadFilter:
         }
 
     def set_scan(self, kind: str, time: float) -> None:
-        """Sensor kind and measurement time of the next ``MHT.step``."""
+        """Sensor kind and measurement time of the next ``MHT.step``.
+
+        Raises:
+            ValueError: ``kind`` is not one of the configured sensors (``"gmti"``,
+                ``"video"``, ``"ugs"``) or ``time`` is not finite; the filter keeps its
+                previous scan then.
+            TypeError: ``time`` is not a real number.
+        """
+        kind = check_choice("kind", kind, tuple(self.sensors))
+        time = check_number("time", time)
         self.kind = kind
-        self.time = float(time)
+        self.time = time
+        self._scan_checked = False
+
+    def lag_limit(self) -> float:
+        """Oldest scan time (s) the tracker can still take out of sequence (module docstring).
+
+        The time of the ``L``-th last in-sequence scan before the current one (``L = 1`` with
+        ``max_lag=None``, else ``max_lag``): the previous step of every established row, or the
+        oldest entry of its lag memory. ``-inf`` while fewer than ``L + 1`` scans were processed.
+        """
+        lag = 1 if self.cfg.max_lag is None else int(self.cfg.max_lag)
+        return self._clock[-1 - lag] if len(self._clock) > lag else -math.inf
+
+    def scan_too_old(self) -> bool:
+        """Whether the scan of :meth:`set_scan` is older than :meth:`lag_limit`.
+
+        Same tolerance as the per-row test of :meth:`predict` (``lag_ok``).
+        """
+        return self.lag_limit() > self.time + 1e-9
+
+    def _check_scan(self) -> None:
+        """Refuse a scan older than the lag (``ValueError``), else record an in-sequence scan.
+
+        Called first by :meth:`predict` and :meth:`initiate` (once per scan: the MHT calls
+        ``predict`` when it holds tracks and ``initiate`` when the scan has reports), before
+        any state is computed, so that a refused scan changes nothing.
+        """
+        if self._scan_checked:
+            return
+        if self.scan_too_old():
+            limit, last = self.lag_limit(), self._clock[-1]
+            lag = "one step" if self.cfg.max_lag is None else f"max_lag={self.cfg.max_lag} steps"
+            raise ValueError(
+                f"`time`: expected a {self.kind} scan within the OOSM lag of the tracker ({lag}: "
+                f"time >= {limit:g} s), got {self.time:g} s, {last - self.time:g} s older than "
+                "the last scan; no track was changed (PDTrackerConfig(too_old='drop') makes "
+                "run_pd_tracker skip such scans)"
+            )
+        if not self._clock or self.time >= self._clock[-1]:
+            self._clock.append(self.time)
+            keep = 2 if self.cfg.max_lag is None else int(self.cfg.max_lag) + 1
+            del self._clock[:-keep]
+        self._scan_checked = True
 
     # ------------------------------------------------------------------ conversions
     def _vs(self, s: dict[str, torch.Tensor]) -> VSIMMState:
@@ -513,7 +592,12 @@ class VSIMMRoadFilter:
 
     # ------------------------------------------------------------------ protocol
     def initiate(self, z: torch.Tensor, R: torch.Tensor) -> dict[str, torch.Tensor]:
-        """New tracks on reports ``z (K, 3)`` at the scan time (module docstring)."""
+        """New tracks on reports ``z (K, 3)`` at the scan time (module docstring).
+
+        Raises:
+            ValueError: the scan is older than the tracker's OOSM lag (:meth:`scan_too_old`).
+        """
+        self._check_scan()
         K = z.shape[0]
         x0 = torch.zeros(K, 4, dtype=DTYPE)
         x0[:, 0], x0[:, 2] = z[:, 0], z[:, 1]
@@ -584,7 +668,13 @@ class VSIMMRoadFilter:
         return d
 
     def predict(self, states: dict[str, torch.Tensor], dt: float) -> dict[str, torch.Tensor]:
-        """Predict the rows older than the scan time to it; mark the newer ones as OOSM rows."""
+        """Predict the rows older than the scan time to it; mark the newer ones as OOSM rows.
+
+        Raises:
+            ValueError: the scan is older than the tracker's OOSM lag (:meth:`scan_too_old`);
+                nothing is changed (module docstring).
+        """
+        self._check_scan()
         s = dict(states)
         t = s["t"]
         retro = t > self.time + 1e-9
@@ -1221,6 +1311,8 @@ class TrackerRun:
         oosm_failures: OOSM updates that fell back to the extrapolated estimate.
         junction_switches: updates that moved a row onto another road section at a junction
             (``junction_hypotheses``).
+        too_old_dropped: reports of the scans older than the tracker's OOSM lag, skipped with
+            ``PDTrackerConfig(too_old="drop")`` (module docstring).
     """
 
     tracks: dict[int, EstimatedTrack]
@@ -1230,6 +1322,7 @@ class TrackerRun:
     sanitized: int = 0
     oosm_failures: int = 0
     junction_switches: int = 0
+    too_old_dropped: int = 0
 
 
 def _declared_type(bba: torch.Tensor | None, rng: np.random.Generator) -> int:
@@ -1257,6 +1350,10 @@ def run_pd_tracker(
             score, 24.48) and declare a type per sample (24.45-24.47).
         config: :class:`PDTrackerConfig` (default values).
         seed: seed of the tie-breaking of the type decision.
+
+    Raises:
+        ValueError: with ``config.too_old="raise"`` (default), a scan older than the tracker's
+            OOSM lag (module docstring); ``"drop"`` skips and counts it instead.
 
     Returns:
         :class:`TrackerRun`. A track's samples are taken after every scan in which it is
@@ -1298,11 +1395,16 @@ def run_pd_tracker(
     last: dict[int, Any] = {}
     max_leaves = 0
     mht_time = None
+    stepped: list[Scan] = []  # the scans given to the MHT (MHT scan k = stepped[k])
     for scan in scans:
         t_mht = scan.time if mht_time is None else max(mht_time, scan.time)
         filt.set_scan(scan.kind, scan.time)
+        if cfg.too_old == "drop" and filt.scan_too_old():
+            filt.too_old_dropped += len(scan.reports)
+            continue
         confirmed = mht.step(scan.z, time=t_mht, R=scan.R, bba=scan.bba if type_tracking else None)
         mht_time = t_mht
+        stepped.append(scan)
         max_leaves = max(max_leaves, mht.n_leaves)
         for trk in confirmed:
             st = trk.state
@@ -1324,7 +1426,7 @@ def run_pd_tracker(
             i = k - trk.birth
             j = trk.measurements[i] if 0 <= i < len(trk.measurements) else -1
             if j >= 0:
-                tgt = scans[k].reports[j].target_id
+                tgt = stepped[k].reports[j].target_id
                 ids.append(FALSE_ALARM if tgt is None else int(tgt))
             else:
                 ids.append(NO_MEASUREMENT)
@@ -1333,10 +1435,11 @@ def run_pd_tracker(
         tracks[tid] = EstimatedTrack(times, pos, ids, types)
     return TrackerRun(
         tracks,
-        len(scans),
+        len(stepped),
         filt.out_of_lag,
         max_leaves,
         filt.sanitized,
         filt.oosm_failures,
         filt.junction_switches,
+        too_old_dropped=filt.too_old_dropped,
     )

@@ -859,6 +859,7 @@ def vsimm_update(
 
     Raises:
         ValueError: non-finite measurement in a detected row, bad shapes.
+        TypeError: ``sensor`` is not a sensor model (e.g. a name such as ``"sonar"``).
 
     Examples:
         >>> from hocnet.tracking.sensors import GMTISensor
@@ -872,6 +873,7 @@ def vsimm_update(
         >>> new.mu[0, 0] > s.mu[0, 0]  # a GMTI miss favours the stop model (24.31)
         tensor(True)
     """
+    _check_sensor(sensor)
     B, r = pred.cbar.shape
     if detected is None:
         det = torch.ones(B, dtype=torch.bool)
@@ -1048,6 +1050,10 @@ def vsimm_step(
 ) -> tuple[VSIMMState, VSIMMUpdate]:
     """:func:`vsimm_predict` then :func:`vsimm_update` (one scan for all rows).
 
+    Raises:
+        TypeError: ``sensor`` is not a sensor model (checked before the prediction).
+        ValueError: as :func:`vsimm_predict` and :func:`vsimm_update`.
+
     Examples:
         >>> from hocnet.tracking.sensors import VideoSensor
         >>> net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]]])
@@ -1058,6 +1064,7 @@ def vsimm_step(
         >>> s.combined()[0][0, 2].abs().item() < 1e-9  # on the road y = 0
         True
     """
+    _check_sensor(sensor)
     pred = vsimm_predict(state, net, config, t)
     return vsimm_update(state, pred, z, sensor, net, config, detected=detected)
 
@@ -1454,6 +1461,7 @@ def vsimm_oosm(
         ValueError: with ``too_old="raise"``, a measurement older than the one-step lag
             (message names the lag; ``state`` is not modified); non-finite measurements, bad
             shapes.
+        TypeError: ``sensor`` is not a sensor model.
 
     Examples:
         >>> from hocnet.tracking.sensors import VideoSensor
@@ -1468,6 +1476,7 @@ def vsimm_oosm(
         ...
         ValueError: `t`: expected an out-of-sequence measurement within the one-step lag ... 15 s
     """
+    _check_sensor(sensor)
     if lag_memory is not None:
         return _vsimm_oosm_lag(
             state,
@@ -1502,6 +1511,28 @@ def vsimm_oosm(
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
     new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
     return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
+
+
+#: Attributes the VS-IMM uses on a sensor model (``GMTISensor``, ``VideoSensor`` have them).
+_SENSOR_ATTRS = ("dim", "pd", "measure", "linearize")
+
+
+def _check_sensor(sensor: Any) -> Any:
+    """Raise ``TypeError`` naming ``sensor`` unless it is a sensor model (issue 12, bad input).
+
+    A sensor name such as ``"gmti"`` is not a model: make one with
+    :func:`~hocnet.tracking.sensors.make_sensor`.
+    """
+    missing = [a for a in _SENSOR_ATTRS if not hasattr(sensor, a)]
+    if missing:
+        hint = (
+            " (a name: build the model with make_sensor(name))" if isinstance(sensor, str) else ""
+        )
+        raise TypeError(
+            "`sensor`: expected a sensor model such as GMTISensor or VideoSensor (with "
+            f"{', '.join(_SENSOR_ATTRS)}), got {type(sensor).__name__} {sensor!r:.60}{hint}"
+        )
+    return sensor
 
 
 def _detected_mask(detected: Any | None, B: int) -> torch.Tensor:
