@@ -19,6 +19,9 @@ SUBSETS = 2000
 """Random six-scene subsets drawn for the distribution of six-scene means (Table III)."""
 
 SUBSET_SEED = 0
+
+RARE = 0.05
+"""Share of six-scene means below which the paper's value counts as out of their reach."""
 """Seed of the ``random.Random`` that draws the subsets (fixed: the file is reproducible)."""
 
 
@@ -82,6 +85,8 @@ def spread_table(
     body = []
     places: dict[str, list[tuple[float, str, int, int]]] = {c: [] for c in configs}
     shares: dict[str, list[str]] = {c: [] for c in configs}
+    rare: dict[str, list[str]] = {c: [] for c in configs}
+    usual: dict[str, list[str]] = {c: [] for c in configs}
     for d in densities:
         for config in configs:
             sel = select(d, config)
@@ -109,6 +114,7 @@ def spread_table(
                 share = sum(_at_or_above(m, printed) for m in means) / SUBSETS
                 row += [f"{lo:.2f} - {hi:.2f}", f"{100 * share:.1f} %"]
                 shares[config].append(f"{C.pct(d, 1)}: {100 * share:.1f} %")
+                (rare if share < RARE else usual)[config].append(C.pct(d, 1))
             body.append(row)
     findings = []
     for config, rows in places.items():
@@ -126,6 +132,31 @@ def spread_table(
                 + ", ".join(shares[config])
                 + "."
             )
+        reached = [C.pct(d, 1) for d, w, a, n in rows if 0 < a < n]
+        beyond = [C.pct(d, 1) for d, w, a, n in rows if a == n]
+        never = [C.pct(d, 1) for d, w, a, n in rows if a == 0]
+        if group == 1 and reached:
+            text += (
+                " Reading: some of our scenes, each one scene like the paper's, reach its value "
+                "and some do not at "
+                + ", ".join(reached)
+                + ": there the difference between our mean and the printed value is within the "
+                "scatter of a single scene."
+            )
+        if group == 1 and beyond:
+            text += " Every scene of ours is at or above it at " + ", ".join(beyond) + "."
+        if group == 1 and never:
+            text += " No scene of ours reaches it at " + ", ".join(never) + "."
+        if group > 1 and rare[config]:
+            text += (
+                f" Reading: fewer than {100 * RARE:.0f} % of our {group}-scene means reach the "
+                "paper's value at "
+                + ", ".join(rare[config])
+                + f": there the gap is larger than the scatter of a {group}-scene average"
+            )
+            if usual[config]:
+                text += f" (not at {', '.join(usual[config])})"
+            text += "."
         findings.append(text)
     return C.md_table(headers, body), findings
 
