@@ -171,6 +171,11 @@ the rule of that time; the last row is today's default):
   ``70000 + s``) 1 point lost (scene 76, a track end, ``tests/hoc/test_identify.py::
   TestHardCaseScene76``). The cost, 0.2-0.35 points on Table III, is the shared-neighbour
   rule's (``RESCUE_ALONE=False`` gave the same Table III row to the digit);
+- ``movement, 2`` and ``sum, 2`` with today's identification (full runs, ``table3-paper``):
+  Table II 99.96 / 99.87 / 99.59 / 99.08 / 98.19 and 99.67 / 98.84 / 96.68 / 92.73 / 86.96;
+  Table III 98.92 / 98.28 / 96.59 and 98.14 / 94.24 / 85.77; lost 0 (movement is within 0.02
+  points of ``min``: with ``delta = pi/4`` the curvature score is rarely the lower one; the sum
+  is thresholded at 2.5 on a scale up to 7.24);
 - the paper read literally (``combine="min", score_span=1, shared_points=False, dedupe=False,
   track_ends=False``): Table II 99.95 / 99.90 / 99.75 / 99.42 / 98.87; Table III 99.11 /
   98.72 / 97.88, 98.94 / 98.76 / 98.05; lost 0 / 50 / 0 (Table II / ``table3-paper`` /

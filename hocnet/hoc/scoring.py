@@ -181,7 +181,15 @@ def point_score(
     - Table II at 0.8 / 1.4 / 2.0 %: min 99.98 / 99.81 / 98.86 %, mean 99.84 / 97.44 / 90.13 %,
       sum 99.79 / 97.15 / 89.41 %; paper 99.91 / 99.96 / 98.31 %;
     - Table III at 0.8 / 1.4 / 2.0 %: min 98.63 / 98.35 / 97.13 %, mean 96.53 / 92.00 /
-      83.83 %; paper 99.66 / 99.21 / 97.46 %.
+      83.83 %; paper 99.66 / 99.21 / 97.46 %;
+    - full runs with today's identification (``detect`` defaults, moves over ``score_span=2``;
+      ``experiments/hoc_table2.py`` seeds 2000-2019, ``hoc_table3.py`` seeds 3000-3019,
+      ``table3-paper``), no target point lost by any: Table II at 0.8 / 1.1 / 1.4 / 1.7 / 2.0 %
+      min 99.96 / 99.87 / 99.59 / 99.09 / 98.21 %, movement 99.96 / 99.87 / 99.59 / 99.08 /
+      98.19 %, sum 99.67 / 98.84 / 96.68 / 92.73 / 86.96 %; Table III min 98.92 / 98.28 /
+      96.61 %, movement 98.92 / 98.28 / 96.59 %, sum 98.14 / 94.24 / 85.77 %. ``detect`` takes
+      every combination as ``combine=`` (sequences and tracks) and ``track_combine=`` (track
+      scores only); the command line does not expose it.
 
     But ``"min"`` loses targets whose velocity is not an integer in both axes: their integer
     moves alternate, e.g. (-2, 0) / (-3, 1), an L1 change of 2 at every point, which eq. (8)
