@@ -597,7 +597,8 @@ def table3_paper_targets(
     configuration is drawn (or given), built around the image centre, rotated by a uniform random
     angle and translated by up to +-4 pixels; speeds are 2-3 pixels per scan, straight:
 
-    - ``"close"``: three parallel tracks 3 pixels apart (the outer two start 2 scans apart);
+    - ``"close"``: three parallel tracks 3 pixels apart, abreast (the same speed, all from
+      scan 0 at the same along-track position);
     - ``"crossing"``: tracks 1 and 2 cross at the centre at scan 5 at 50-90 degrees; track 3
       runs 3 pixels beside track 1;
     - ``"splitting"``: tracks 1 and 2 leave the same neighbourhood (1 pixel apart at scan 0) and

@@ -162,22 +162,33 @@ the rule of that time; the last row is today's default):
   97.10; lost 0 / 0 / 0, hard case 0 of 120 scenes (98.63 % against 98.84 %) and 0 of 600
   (98.57 % against 98.72 %); but 1 point of 183 review hard-case scenes (``random.Random(seed)``,
   scene 14) and a 7-point track starting mid-window (review ``scene(6, partial=True)``);
-- today's default (the above plus the shared-neighbour rule of step 4 and ``RESCUE_ALONE`` of
-  step 5): Table II 99.96 / 99.87 / 99.59 / 99.09 / 98.21 (full run of ``hoc_table2.py``);
-  Table III 98.98 / 98.35 / 96.69, 99.05 / 98.52 / 96.74 (full run of
-  ``hoc_table3.py``); lost 0 / 0 / 0; review hard-case scenes 0 of 183 lost. The cost, 0.2-0.35
-  points on Table III, is the shared-neighbour rule's (``RESCUE_ALONE=False`` gives the same
-  Table III row to the digit);
+- today's default (the above plus the shared-neighbour rule of step 4, ``RESCUE_ALONE`` of
+  step 5, and ``GUARD_MIXED`` / ``RESCUE_BRANCH``): Table II 99.96 / 99.87 / 99.59 / 99.09 /
+  98.21 (full run of ``hoc_table2.py``); Table III 98.92 / 98.28 / 96.61, 98.98 / 98.42 /
+  96.68 (full run of ``hoc_table3.py``; 98.98 / 98.35 / 96.69, 99.05 / 98.52 / 96.74 before
+  ``GUARD_MIXED`` / ``RESCUE_BRANCH``, step 5); lost 0 / 0 / 0; review hard-case scenes 0 of
+  183 lost; 600 fresh hard-case scenes (``random.Random(20000 + s)``, clutter seed
+  ``70000 + s``) 1 point lost (scene 76, a track end, ``tests/hoc/test_identify.py::
+  TestHardCaseScene76``). The cost, 0.2-0.35 points on Table III, is the shared-neighbour
+  rule's (``RESCUE_ALONE=False`` gave the same Table III row to the digit);
+- ``movement, 2`` and ``sum, 2`` with today's identification (full runs, ``table3-paper``):
+  Table II 99.96 / 99.87 / 99.59 / 99.08 / 98.19 and 99.67 / 98.84 / 96.68 / 92.73 / 86.96;
+  Table III 98.92 / 98.28 / 96.59 and 98.14 / 94.24 / 85.77; lost 0 (movement is within 0.02
+  points of ``min``: with ``delta = pi/4`` the curvature score is rarely the lower one; the sum
+  is thresholded at 2.5 on a scale up to 7.24);
 - the paper read literally (``combine="min", score_span=1, shared_points=False, dedupe=False,
   track_ends=False``): Table II 99.95 / 99.90 / 99.75 / 99.42 / 98.87; Table III 99.11 /
   98.72 / 97.88, 98.94 / 98.76 / 98.05; lost 0 / 50 / 0 (Table II / ``table3-paper`` /
   ``table3-int``: alternating moves, see above). Both full runs measured on a shared CPU.
 
 ``min, 2`` is at least as good as the earlier default ``mean, 1`` on every column of Tables II
-and III (and within 0.6 points of the paper's identification column on both), so it is the
-default; shared points cost 0.02 points on Table II and 0.1-0.25 on Table III (still within
-one point of the paper's identification column at every density of both) and lose no target
-point of the hard case. ``min, 1`` is
+and III, so it is the default. Against the paper's identification column, today's default is
+0.05 points above it at 0.8 % and 0.03 / 0.37 / 0.55 / 0.10 below it at 1.1 / 1.4 / 1.7 /
+2.0 % in Table II, and 0.74 / 0.93 / 0.85 below it at 0.8 / 1.4 / 2.0 % in Table III
+(``table3-paper``): within one point at every density of both, but not at or above it
+(``experiments/results/hoc-table2.md`` and ``hoc-table3.md`` also put the paper's one or six
+scenes into our scene-to-scene spread). Shared points cost 0.02 points on Table II and
+0.1-0.25 on Table III and lose no target point of the 120-scene hard case. ``min, 1`` is
 the paper read literally and stays available: it matches the paper where the tracks have
 integer velocities (``table3-int``), and loses whole tracks whose moves alternate.
 
@@ -1933,7 +1944,14 @@ def detect(
         alpha2: curvature-score scale of eq. (9).
         support: ``"mhoc"`` (the paper: forward OR backward ``Y^(k)``, identification from its
             five-point sequences) or ``"chain"`` (our addition: every point on an accepted
-            ``2k + 1``-point chain, :func:`~hocnet.hoc.functional.chain_support`).
+            ``2k + 1``-point chain, :func:`~hocnet.hoc.functional.chain_support`). The MHOC
+            image covers every scan only when ``T >= 4k`` (forward ``Y^(k)`` marks scans
+            ``0 .. T - 1 - 2k``, backward ``2k .. T - 1``); with ``2k + 1 <= T < 4k`` (e.g.
+            order 3 on 10 scans: scans 5-6 uncovered) ``detect`` warns (``UserWarning``)
+            and names ``support="chain"``, which covers every scan (measured on
+            ``table3-paper`` at order 3: 8 / 17 / 33 target points lost after
+            identification at 0.8 / 1.4 / 2.0 % with the MHOC image, 0 with the chain
+            support; ``experiments/results/hoc-table3.md``).
         identify: track identification ``"paper"``, ``"greedy"`` or ``"assignment"``.
         combine: point-score combination (:func:`~hocnet.hoc.scoring.point_score`).
         max_candidates: cap on candidate tracks per scene.
@@ -1972,6 +1990,7 @@ def detect(
     check_choice("method", method, ("auto", "conv", "sparse"))
     kw = _score_kwargs(A1, alpha1, A2, alpha2, combine)
     n_b = cube.shape[0]
+    _warn_uncovered(cube.shape[1], order, support)
     if n_b == 0:
         empty = restore_batch(cube.clone(), batched)
         nan = restore_batch(torch.zeros(cube.shape, dtype=torch.float64), batched)
@@ -2045,6 +2064,44 @@ def detect(
         cleaned=restore_batch(cleaned, True) if batched else cleaned[0],
         saturated=bool(notes),
         warnings=notes,
+    )
+
+
+def _uncovered_scans(n_scans: int, order: int) -> list[int]:
+    """Scans (0-based) that neither the forward nor the backward ``Y^(order)`` can mark.
+
+    Forward ``Y^(k)(t)`` needs scans ``t .. t + 2k`` (Proposition 1 of [LA98]), so it marks
+    scans ``0 .. T - 1 - 2k``; backward ``Y^(k)`` marks ``2k .. T - 1``. Together they cover
+    every scan iff ``T >= 4k`` (section III-B's example: ``T = 10, k = 2``, scans 1-6 and
+    5-10). With ``2k + 1 <= T < 4k`` the scans ``T - 2k .. 2k - 1`` are uncovered (``T = 10,
+    k = 3``: 0-based scans 4-5, the paper's scans 5-6); with ``T < 2k + 1`` no chain fits and
+    every scan is returned.
+
+    Examples:
+        >>> _uncovered_scans(10, 2), _uncovered_scans(10, 3), _uncovered_scans(4, 2)
+        ([], [4, 5], [0, 1, 2, 3])
+    """
+    if n_scans < 2 * order + 1:
+        return list(range(n_scans))
+    return list(range(n_scans - 2 * order, 2 * order))
+
+
+def _warn_uncovered(n_scans: int, order: int, support: str) -> None:
+    """Warn when the MHOC image of ``n_scans`` scans at ``order`` leaves scans uncovered.
+
+    Only when a chain fits at all (``n_scans >= 2 * order + 1``): then ``support="chain"``
+    covers every scan, while the MHOC image leaves :func:`_uncovered_scans` out.
+    """
+    gap = _uncovered_scans(n_scans, order)
+    if support != "mhoc" or not gap or n_scans < 2 * order + 1:
+        return
+    warnings.warn(
+        f"order {order} on {n_scans} scans: the forward and backward Y^({order}) of the MHOC "
+        f"image cannot cover every scan (T < 4k): target points of scans "
+        f"{gap[0]}-{gap[-1]} (0-based) can only come back through track identification "
+        "([LA98] section III-B); support='chain' covers every scan",
+        UserWarning,
+        stacklevel=3,
     )
 
 
