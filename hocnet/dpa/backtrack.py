@@ -18,6 +18,7 @@ Conventions: positions are ``(x, y)`` = (column, row) pixel indices, flat indice
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,13 +34,40 @@ from hocnet._check import (
     restore_batch,
 )
 from hocnet.dpa.functional import DPAState, accumulate
+from hocnet.dpa.matrices import PAPER_SIGMA
 from hocnet.dpa.metrics import _upper_quantile
 
-__all__ = ["DPADetection", "DPATrack", "backtrack", "cfar_threshold", "detect"]
+__all__ = ["EXCLUSIVE_METHODS", "DPADetection", "DPATrack", "backtrack", "cfar_threshold", "detect"]
+
+#: The ways :func:`detect` separates tracks that share pixels (``exclusive``; ``True`` is the
+#: first, ``False`` none: the plain back-tracking of [NR08]).
+EXCLUSIVE_METHODS = ("joint", "retrack")
 
 MASK_RADIUS = 1
-"""Re-tracking (``detect(exclusive=True)``): pixels within this Chebyshev distance of the other
-track are replaced by the frame median."""
+"""Re-tracking (``detect(exclusive="retrack")``): pixels within this Chebyshev distance of the
+other track are replaced by the frame median."""
+
+ENCOUNTER_RADIUS = 2
+"""Joint back-tracking: two tracks at most this Chebyshev distance (px) apart are in an
+encounter and are continued by their own motion (measured: 2 and 1 give the same separation
+rates on the crossing scenes, 4 fewer)."""
+
+VELOCITY_FRAMES = 10
+"""Joint back-tracking: a track's velocity is the mean of at most this many of its moves before
+the encounter."""
+
+MEET_RADIUS = 1.5
+"""Joint back-tracking: predicted positions at most this Chebyshev distance (px) apart are the
+crossing itself, where the two tracks may share pixels."""
+
+REACH = 1.5
+"""Joint back-tracking: a track's candidate pixels lie at most this Chebyshev distance (px) from
+its predicted position."""
+
+SPREAD = math.sqrt(PAPER_SIGMA**2 + 0.5**2 / 3)
+"""Joint back-tracking: standard deviation (px) of the Gaussian weight around the predicted
+position, that of ``W_basic`` (eq. 5 of [NR08]: the target spread ``PAPER_SIGMA`` and the
+U[-0.5, 0.5] jitter, variance 1/12)."""
 
 
 # ----------------------------------------------------------------------------- results
@@ -440,6 +468,12 @@ def _shared(a: torch.Tensor, b: torch.Tensor, width: int) -> float:
     return float((gap <= 1).double().mean())
 
 
+def _meet(a: torch.Tensor, b: torch.Tensor, width: int) -> bool:
+    """Whether two ``(T,)`` flat paths come within ``ENCOUNTER_RADIUS`` (Chebyshev) in a frame."""
+    gap = (_to_xy(a, width) - _to_xy(b, width)).abs().amax(dim=-1)
+    return bool((gap <= ENCOUNTER_RADIUS).any())
+
+
 def _bend(paths: list[torch.Tensor], width: int) -> float:
     """Sum over the paths of the squared residuals of a straight-line fit ``(x, y)(t)``."""
     total = 0.0
@@ -505,6 +539,150 @@ def _separate(
     return [(i, p, r) for i, p, r in accepted]
 
 
+def _allowed_moves(weights: torch.Tensor) -> torch.Tensor:
+    """``(M, 2)`` int64 offsets ``(i, j)``, ``q = p + (i, j)``, allowed by ``weights``.
+
+    The offsets with a positive weight in some direction of ``weights`` ``(D, k, k)`` (paper
+    index convention, eq. (6)), in row-major order (row ``j``, then column ``i``).
+    """
+    w = torch.as_tensor(weights).detach()
+    h = w.shape[-1] // 2
+    j, i = torch.nonzero((w > 0).any(dim=0), as_tuple=True)
+    return torch.stack([i - h, j - h], dim=1).cpu()
+
+
+def _best_pair(
+    s1: torch.Tensor, s2: torch.Tensor, xy1: torch.Tensor, xy2: torch.Tensor, share: bool
+) -> tuple[int, int]:
+    """Indices ``(a, b)`` maximising ``s1[a] + s2[b]`` over the pairs of candidate pixels.
+
+    The pixels ``xy1[a]`` and ``xy2[b]`` must lie more than 1 px apart (Chebyshev) unless
+    ``share`` (or no pair is that far apart). Ties: the first pair in row-major ``(a, b)`` order.
+    """
+    total = s1.unsqueeze(1) + s2.unsqueeze(0)
+    if not share:
+        apart = (xy1.unsqueeze(1) - xy2.unsqueeze(0)).abs().amax(dim=-1) > 1
+        if bool(apart.any()):
+            total = total.masked_fill(~apart, -math.inf)
+    flat = int(torch.argmax(total.reshape(-1)))  # the first maximum
+    return flat // s2.shape[0], flat % s2.shape[0]
+
+
+def _candidates(
+    p: torch.Tensor, guess: torch.Tensor, moves: torch.Tensor, height: int, width: int
+) -> torch.Tensor:
+    """``(N, 2)`` ``(x, y)`` allowed predecessors of ``p`` within ``REACH`` of ``guess``.
+
+    If none is, the in-frame allowed predecessor nearest ``guess`` (Euclidean; ties: first in
+    row-major order of the moves).
+    """
+    q = p + moves
+    inside = (q[:, 0] >= 0) & (q[:, 0] < width) & (q[:, 1] >= 0) & (q[:, 1] < height)
+    err = q.double() - guess
+    near = inside & (err.abs().amax(dim=1) <= REACH)
+    if bool(near.any()):
+        return q[near]
+    dist = err.square().sum(dim=1).masked_fill(~inside, math.inf)
+    return q[int(torch.argmin(dist))].view(1, 2)
+
+
+def _joint(
+    asf: torch.Tensor,
+    origin: torch.Tensor,
+    moves: torch.Tensor,
+    ends: tuple[int, int],
+    height: int,
+    width: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Joint back-tracking of two tracks ending at the flat pixels ``ends`` (one scene).
+
+    ``asf`` ``(T, H * W)`` and ``origin`` ``(T, H * W)`` of the scene, ``moves`` the allowed
+    offsets ``(M, 2)``. Returns the two ``(T,)`` flat paths. See ``exclusive`` in :func:`detect`.
+    """
+    n_t = asf.shape[0]
+    paths = [[int(ends[0])], [int(ends[1])]]
+    steps: list[list[torch.Tensor]] = [[], []]  # each track's moves outside encounters
+    guess: list[torch.Tensor] | None = None
+    velocity: list[torch.Tensor] = []
+    for n in range(n_t - 1, 0, -1):
+        p = [_to_xy(torch.tensor(path[-1]), width) for path in paths]
+        gap = int((p[0] - p[1]).abs().max())
+        if guess is not None and gap > ENCOUNTER_RADIUS:
+            if float((guess[0] - guess[1]).abs().max()) > ENCOUNTER_RADIUS:
+                guess = None  # the encounter is over
+        if guess is None and gap > ENCOUNTER_RADIUS:
+            for i in range(2):  # apart: follow the tracking matrix, eq. (8)
+                q = int(origin[n, paths[i][-1]])
+                steps[i].append(p[i] - _to_xy(torch.tensor(q), width))
+                paths[i].append(q)
+            continue
+        if guess is None:  # entering an encounter: freeze each track's velocity
+            velocity = [
+                torch.stack(s[-VELOCITY_FRAMES:]).double().mean(dim=0)
+                if s
+                else torch.zeros(2, dtype=torch.float64)
+                for s in steps
+            ]
+            guess = [p[i].double() for i in range(2)]
+        guess = [guess[i] - velocity[i] for i in range(2)]
+        cands, scores = [], []
+        for i in range(2):
+            q = _candidates(p[i], guess[i], moves, height, width)
+            near = torch.exp(-(q.double() - guess[i]).square().sum(dim=1) / (2 * SPREAD**2))
+            cands.append(q)
+            scores.append(near * asf[n - 1, q[:, 1] * width + q[:, 0]].double())
+        share = float((guess[0] - guess[1]).abs().max()) <= MEET_RADIUS
+        a, b = _best_pair(scores[0], scores[1], cands[0], cands[1], share)
+        for i, k in ((0, a), (1, b)):
+            x, y = (int(v) for v in cands[i][k])
+            paths[i].append(y * width + x)
+    out = [torch.tensor(path[::-1], dtype=torch.int64, device=origin.device) for path in paths]
+    return out[0], out[1]
+
+
+def _separate_joint(
+    paths: list[torch.Tensor],
+    joint,
+    width: int,
+    max_shared: float,
+) -> list[tuple[int, torch.Tensor, bool]]:
+    """Resolve tracks of one scene that share pixels by joint back-tracking.
+
+    Candidates are taken by decreasing score. A candidate that shares more than ``max_shared``
+    of its frames with an accepted track ``j`` is back-tracked jointly with ``j`` from the two
+    end pixels (``joint(end_j, end_candidate)``); if the two new tracks still share more than
+    ``max_shared``, the candidate is a duplicate of ``j`` and is dropped (``j`` unchanged).
+    """
+    accepted: list[list] = []  # [candidate index, path, changed]
+    for i, path in enumerate(paths):
+        clash = next(
+            (k for k, (_, other, _) in enumerate(accepted) if _meet(path, other, width)),
+            None,
+        )
+        if clash is None:
+            accepted.append([i, path, False])
+            continue
+        other = accepted[clash][1]
+        new_j, new_i = joint(other[-1], path[-1])
+        if _shared(new_i, new_j, width) > max_shared:
+            continue  # a duplicate of a stronger track
+        accepted[clash][1:] = [new_j, accepted[clash][2] or not torch.equal(new_j, other)]
+        accepted.append([i, new_i, not torch.equal(new_i, path)])
+    return [(i, p, r) for i, p, r in accepted]
+
+
+def _exclusive_method(exclusive: Any) -> str | None:
+    """Validate ``exclusive``: ``None`` (plain back-tracking) or one of ``EXCLUSIVE_METHODS``."""
+    if isinstance(exclusive, bool):
+        return EXCLUSIVE_METHODS[0] if exclusive else None
+    if not isinstance(exclusive, str):
+        raise TypeError(
+            "`exclusive`: expected True, False or one of "
+            f"{', '.join(repr(m) for m in EXCLUSIVE_METHODS)}, got {exclusive!r}"
+        )
+    return check_choice("exclusive", exclusive, EXCLUSIVE_METHODS)
+
+
 def detect(
     frames: torch.Tensor,
     weights: torch.Tensor,
@@ -518,7 +696,7 @@ def detect(
     pfa: float = 1e-3,
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
-    exclusive: bool = True,
+    exclusive: bool | str = True,
     max_shared: float = 0.25,
     **options: Any,
 ) -> DPADetection:
@@ -613,8 +791,7 @@ def detect(
     max_targets = check_int("max_targets", max_targets, minimum=1)
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
-    if not isinstance(exclusive, bool):
-        raise TypeError(f"`exclusive`: expected True or False, got {exclusive!r}")
+    method = _exclusive_method(exclusive)
     max_shared = check_number("max_shared", max_shared, low=0.0, high=1.0, high_inclusive=False)
     if threshold is not None:
         if target_free is not None:
@@ -668,7 +845,25 @@ def detect(
     batch, flat, value = batch[keep], flat[keep], value[keep]
     path = _follow(s.origin.reshape(bsz, n_t, -1), batch, flat)  # (M, T)
     found = [(int(batch[i]), i, path[i], False) for i in range(path.shape[0])]
-    if exclusive and n_t > 2 and path.shape[0] > 1:
+    if method == "joint" and n_t > 2 and path.shape[0] > 1:
+        moves = _allowed_moves(weights)
+        origin = s.origin.reshape(bsz, n_t, -1).cpu()
+        asf_cpu = asf.cpu()
+        found = []
+        for scene in range(bsz):
+            members = torch.nonzero(batch == scene).flatten().tolist()
+            paths = [path[i].cpu() for i in members]
+
+            def joint(end_a: torch.Tensor, end_b: torch.Tensor, scene: int = scene):
+                ends = (int(end_a), int(end_b))
+                return _joint(asf_cpu[scene], origin[scene], moves, ends, height, width)
+
+            kept = _separate_joint(paths, joint, width, max_shared)
+            found += [
+                (scene, members[k], p.to(path.device), r)
+                for k, p, r in sorted(kept, key=lambda x: x[0])
+            ]
+    elif method == "retrack" and n_t > 2 and path.shape[0] > 1:
         whitened = cube if cube.is_floating_point() else cube.to(s.asf.dtype)
 
         def retrack(masked: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
