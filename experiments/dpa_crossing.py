@@ -3,7 +3,8 @@
 Two 18 dB targets on crossing diagonals meet at frame 12 of 25 (48 x 48 frames, clear sky,
 U[-0.5, 0.5] jitter): the scene of ``tests/dpa/test_backtrack.py::_crossing`` with the speed
 given as the magnitude ``s`` px/frame (``s / sqrt(2)`` per axis; ``s = 1.41`` is issue 8's
-scene). The paper's 7 x 7 matrices (``v_max = 2``), b of EMC 0.8 (direction 9),
+scene), plus a near miss and an overtaking (see :func:`targets`). The paper's 7 x 7
+matrices (``v_max = 2``), b of EMC 0.8 (direction 9),
 ``max_targets=2``. A scene is separated when each track is within 1.5 px of one target in >= 80 %
 of the frames and each target has a track. ``single`` counts the scenes where each target,
 simulated alone with the same seed, is back-tracked that well (what the DPA can do at all).
@@ -29,14 +30,24 @@ from hocnet.dpa.backtrack import detect
 from hocnet.dpa.matrices import effective_memory, probability_matrices
 
 W7 = probability_matrices(7, v_max=2.0)
-SPEEDS = (0.5, 0.71, 1.0, 1.41, 1.5)
-METHODS = {"plain": False, "retrack": "retrack", "joint": "joint"}
+SCENES = ("0.5", "0.71", "1", "1.41", "1.5", "near-miss", "overtake")
+METHODS = {"plain": False, "retrack": "retrack", "joint": "joint", "straightest": "straightest"}
 
 
-def targets(speed: float, snr_db: float = 18.0) -> list[IRTarget]:
-    a = speed / math.sqrt(2) if abs(speed - 1.41) > 1e-9 else 1.0
+def targets(scene: str, snr_db: float = 18.0) -> list[IRTarget]:
+    """The two targets of a scene: a crossing at ``scene`` px/frame, or a near miss / overtake.
+
+    ``"near-miss"``: as the 0.71 px/frame crossing with the second path 3 px lower (the targets
+    pass 3 px apart at frame 12); ``"overtake"``: a 1 px/frame target passes a 0.2 px/frame one
+    2 px beside it (both moving +x).
+    """
+    if scene == "overtake":
+        return [IRTarget(10.0, 20.0, 1.0, 0.0, snr_db), IRTarget(20.0, 22.0, 0.2, 0.0, snr_db)]
+    speed = 0.71 if scene == "near-miss" else float(scene)
+    a = 1.0 if scene == "1.41" else speed / math.sqrt(2)  # 1.41: issue 8's scene, 1 per axis
     d = 12.0 * a
-    return [IRTarget(22.0 - d, 10.0, a, a, snr_db), IRTarget(22.0 + d, 10.0, -a, a, snr_db)]
+    low = 3.0 if scene == "near-miss" else 0.0
+    return [IRTarget(22.0 - d, 10.0, a, a, snr_db), IRTarget(22.0 + d, 10.0 + low, -a, a, snr_db)]
 
 
 def followed(positions: list[torch.Tensor], truth: torch.Tensor) -> bool:
@@ -60,9 +71,9 @@ def main(argv: list[str] | None = None) -> None:
     start = time.time()
     lines = [
         f"# one track per target through a crossing, {args.seeds} seeds (0..{args.seeds - 1})",
-        "# speed px/frame | g | direction_step | single | " + " | ".join(METHODS),
+        "# scene (crossing speed px/frame) | g | direction_step | single | " + " | ".join(METHODS),
     ]
-    for speed in SPEEDS:
+    for speed in SCENES:
         for g in (1.0, 0.0):
             b = effective_memory(W7, g)
             for step in ("paper", "source"):
@@ -95,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
                         )
                         alone &= followed([res.tracks[0].positions], one.positions)
                     counts["single"] += alone
-                row = f"{speed:5.2f} | {g:.0f} | {step:6s} | " + " | ".join(
+                row = f"{speed:9s} | {g:.0f} | {step:6s} | " + " | ".join(
                     f"{counts[k]:2d}" for k in counts
                 )
                 print(row, flush=True)

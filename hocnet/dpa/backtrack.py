@@ -7,8 +7,9 @@ optional threshold -- fixed, or a constant-false-alarm-rate (CFAR) threshold est
 target-free sequences by :func:`cfar_threshold` (the "future research" of [NR08]) -- and one
 back-tracked :class:`DPATrack` per kept peak. Without a threshold the tracks are only the
 top-ranked *candidates* (``confirmed=False``): [NR08] takes the highest pixel as the target, which
-finds a "target" in pure noise too. Tracks that meet (two targets crossing) are back-tracked
-jointly so that each keeps its own target (our addition, see :func:`detect`).
+finds a "target" in pure noise too. Tracks that meet (two targets crossing) are separated by
+joint back-tracking or re-tracking so that each keeps its own target (our addition, see
+:func:`detect`).
 
 Conventions: positions are ``(x, y)`` = (column, row) pixel indices, flat indices are
 ``y * W + x``; the pixel containing a float position ``(x, y)`` is
@@ -41,7 +42,7 @@ __all__ = ["EXCLUSIVE_METHODS", "DPADetection", "DPATrack", "backtrack", "cfar_t
 
 #: The ways :func:`detect` separates tracks that share pixels (``exclusive``; ``True`` is the
 #: first, ``False`` none: the plain back-tracking of [NR08]).
-EXCLUSIVE_METHODS = ("joint", "retrack")
+EXCLUSIVE_METHODS = ("straightest", "joint", "retrack")
 
 MASK_RADIUS = 1
 """Re-tracking (``detect(exclusive="retrack")``): pixels within this Chebyshev distance of the
@@ -491,53 +492,64 @@ def _bend(paths: list[torch.Tensor], width: int) -> float:
 
 
 def _separate(
-    frames: torch.Tensor,
     paths: list[torch.Tensor],
+    clash,
+    resolve,
+) -> list[tuple[int, torch.Tensor, bool]]:
+    """Resolve tracks of one scene that clash: ``[(candidate, path, changed)]``.
+
+    Candidates are taken by decreasing score. A candidate whose path ``clash(path, other)``
+    with an accepted track ``j`` is resolved by ``resolve(path_j, path)``, which returns the
+    new pair ``(path_j, path)`` or ``None`` (the candidate is a duplicate of ``j`` and is
+    dropped, ``j`` unchanged).
+    """
+    accepted: list[list] = []  # [candidate index, path, changed]
+    for i, path in enumerate(paths):
+        k = next((k for k, (_, other, _) in enumerate(accepted) if clash(path, other)), None)
+        if k is None:
+            accepted.append([i, path, False])
+            continue
+        other = accepted[k][1]
+        pair = resolve(other, path)
+        if pair is None:
+            continue  # a duplicate of a stronger track
+        new_j, new_i = pair
+        accepted[k][1:] = [new_j, accepted[k][2] or not torch.equal(new_j, other)]
+        accepted.append([i, new_i, not torch.equal(new_i, path)])
+    return [(i, p, r) for i, p, r in accepted]
+
+
+def _retrack_options(
+    frames: torch.Tensor,
+    path_j: torch.Tensor,
+    path_i: torch.Tensor,
     accumulate_one,
     width: int,
     max_shared: float,
-    mask_radius: int,
-) -> list[tuple[int, torch.Tensor, bool]]:
-    """Resolve tracks of one scene that share pixels: ``[(candidate, path, retracked)]``.
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The re-tracked pairs ``(path_j, path_i)`` that no longer share more than ``max_shared``.
 
-    Candidates are taken by decreasing score. A candidate that shares more than ``max_shared``
-    of its frames with an accepted track ``j`` is resolved by re-tracking: either the candidate
-    is back-tracked again from its end pixel on the frames with ``j``'s pixels removed, or
-    ``j`` is, on the frames with the candidate's pixels removed; of the two pairs that no
-    longer share more than ``max_shared``, the straighter one (least squares residual of a
-    straight line per track) is kept. If neither pair separates, the candidate is a duplicate of
-    ``j`` and is dropped.
+    Either ``i`` is back-tracked again from its end pixel on the ``(T, H, W)`` ``frames`` with
+    ``j``'s pixels (and their neighbours within ``MASK_RADIUS``) removed, or ``j`` is, on the
+    frames with ``i``'s pixels removed (``accumulate_one(masked_frames, end)``: the new path).
     """
-    accepted: list[list] = []  # [candidate index, path, retracked]
-    for i, path in enumerate(paths):
-        clash = next(
-            (
-                k
-                for k, (_, other, _) in enumerate(accepted)
-                if _shared(path, other, width) > max_shared
-            ),
-            None,
-        )
-        if clash is None:
-            accepted.append([i, path, False])
-            continue
-        other = accepted[clash][1]
-        options = []
-        new_i = accumulate_one(_median_fill(frames, [other], mask_radius), path[-1])
-        if _shared(new_i, other, width) <= max_shared:
-            options.append((_bend([new_i, other], width), "candidate", new_i))
-        new_j = accumulate_one(_median_fill(frames, [path], mask_radius), other[-1])
-        if _shared(path, new_j, width) <= max_shared:
-            options.append((_bend([path, new_j], width), "accepted", new_j))
-        if not options:
-            continue  # a duplicate of a stronger track
-        _, which, new = min(options, key=lambda o: o[0])
-        if which == "candidate":
-            accepted.append([i, new, True])
-        else:
-            accepted[clash][1:] = [new, True]
-            accepted.append([i, path, False])
-    return [(i, p, r) for i, p, r in accepted]
+    options = []
+    new_i = accumulate_one(_median_fill(frames, [path_j], MASK_RADIUS), path_i[-1])
+    if _shared(new_i, path_j, width) <= max_shared:
+        options.append((path_j, new_i))
+    new_j = accumulate_one(_median_fill(frames, [path_i], MASK_RADIUS), path_j[-1])
+    if _shared(path_i, new_j, width) <= max_shared:
+        options.append((new_j, path_i))
+    return options
+
+
+def _straightest(
+    options: list[tuple[torch.Tensor, torch.Tensor]], width: int
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """The pair with the smallest :func:`_bend` (ties: the first), or ``None`` if no option."""
+    if not options:
+        return None
+    return min(options, key=lambda pair: _bend(list(pair), width))
 
 
 def _allowed_moves(weights: torch.Tensor) -> torch.Tensor:
@@ -641,37 +653,6 @@ def _joint(
     return out[0], out[1]
 
 
-def _separate_joint(
-    paths: list[torch.Tensor],
-    joint,
-    width: int,
-    max_shared: float,
-) -> list[tuple[int, torch.Tensor, bool]]:
-    """Resolve tracks of one scene that share pixels by joint back-tracking.
-
-    Candidates are taken by decreasing score. A candidate that shares more than ``max_shared``
-    of its frames with an accepted track ``j`` is back-tracked jointly with ``j`` from the two
-    end pixels (``joint(end_j, end_candidate)``); if the two new tracks still share more than
-    ``max_shared``, the candidate is a duplicate of ``j`` and is dropped (``j`` unchanged).
-    """
-    accepted: list[list] = []  # [candidate index, path, changed]
-    for i, path in enumerate(paths):
-        clash = next(
-            (k for k, (_, other, _) in enumerate(accepted) if _meet(path, other, width)),
-            None,
-        )
-        if clash is None:
-            accepted.append([i, path, False])
-            continue
-        other = accepted[clash][1]
-        new_j, new_i = joint(other[-1], path[-1])
-        if _shared(new_i, new_j, width) > max_shared:
-            continue  # a duplicate of a stronger track
-        accepted[clash][1:] = [new_j, accepted[clash][2] or not torch.equal(new_j, other)]
-        accepted.append([i, new_i, not torch.equal(new_i, path)])
-    return [(i, p, r) for i, p, r in accepted]
-
-
 def _exclusive_method(exclusive: Any) -> str | None:
     """Validate ``exclusive``: ``None`` (plain back-tracking) or one of ``EXCLUSIVE_METHODS``."""
     if isinstance(exclusive, bool):
@@ -713,7 +694,7 @@ def detect(
        :func:`cfar_threshold` ``(target_free, ..., pfa=pfa)`` when ``target_free`` is given; with
        neither, no threshold), at most ``max_targets`` per scene, highest first;
     4. :func:`backtrack` each kept peak;
-    5. with ``exclusive`` (default ``True``, joint back-tracking), separate tracks that meet,
+    5. with ``exclusive`` (default ``True``: ``"straightest"``), separate tracks that meet,
        so that each target keeps one track: see Notes.
 
     Notes:
@@ -730,7 +711,7 @@ def detect(
         before it (sharing its early pixels with the first track, or "bouncing" into the other
         target's past). ``exclusive`` chooses how tracks are kept apart:
 
-        * ``"joint"`` (``True``, the default): **joint back-tracking**. A track that comes within
+        * ``"joint"``: **joint back-tracking**. A track that comes within
           ``ENCOUNTER_RADIUS`` = 2 px (Chebyshev) of a stronger track in some frame is
           back-tracked again together with it, from both end pixels, frame by frame backwards.
           While the two are more than 2 px apart each follows the tracking matrix (eq. (8), so
@@ -748,13 +729,21 @@ def detect(
           ends when both the tracks and their predictions are more than 2 px apart again. If
           the two new tracks still share more than ``max_shared`` of their frames (within
           1 px), the weaker one is a duplicate of the stronger and is dropped.
-        * ``"retrack"`` (the earlier method, kept as an option): a track that shares more than
-          ``max_shared`` of its frames (within 1 px) with a stronger track is re-tracked: the
-          DPA is run again on the frames with the other track's pixels (and their 8
-          neighbours) replaced by the frame median, and the peak is back-tracked from the same
-          end pixel. Both assignments are tried (re-track the weaker track, or the stronger one
-          on the frames without the weaker one) and the pair with the straighter tracks is kept;
-          if neither pair separates, the weaker track is a duplicate and is dropped.
+        * ``"retrack"`` (the earlier method): a track that shares more than ``max_shared`` of
+          its frames (within 1 px) with a stronger track is re-tracked: the DPA is run again on
+          the frames with the other track's pixels (and their 8 neighbours) replaced by the
+          frame median, and the peak is back-tracked from the same end pixel. Both assignments
+          are tried (re-track the weaker track, or the stronger one on the frames without the
+          weaker one) and the pair with the straighter tracks is kept; if neither pair
+          separates, the weaker track is a duplicate and is dropped.
+        * ``"straightest"`` (``True``, the default): for a track that meets a stronger one
+          (within 2 px), the candidate pairs are the joint pair, and the re-tracked pairs if the
+          two plain tracks share more than ``max_shared`` of their frames (else the plain pair
+          itself); of those whose tracks share at most ``max_shared``, the pair with the
+          straighter tracks (least sum of squared residuals of straight lines ``(x, y)(t)``, one
+          per track: the paper's motion model penalises turns, Figure 2) is kept, the joint pair
+          on ties; with none, the weaker track is a duplicate and is dropped. It costs the two
+          extra DPA runs of re-tracking per sharing pair.
         * ``False``: the plain back-tracking of [NR08], every peak on its own.
 
         Changed tracks have ``retracked=True``; their ``score`` is still the last-frame ASF of
@@ -762,29 +751,38 @@ def detect(
         (``PYTHONPATH=. python experiments/dpa_crossing.py``, results/dpa_crossing.txt): two
         18 dB targets on crossing diagonals meeting at frame 12 of 25, 7 x 7 matrices
         (``v_max = 2``), b of EMC 0.8, 20 seeds; scenes with one track per target (each within
-        1.5 px of one target in >= 80 % of the frames), plain / retrack / joint, and in
-        brackets the scenes where each target *alone* is back-tracked that well:
+        1.5 px of one target in >= 80 % of the frames), plain / retrack / joint / straightest,
+        and in brackets the scenes where each target *alone* is back-tracked that well:
 
-        ==========  ===  ================  ================
-        px/frame    g    paper step        ``"source"`` step
-        ==========  ===  ================  ================
-        0.5         1    0 / 11 / 20 (20)  0 / 1 / 20 (20)
-        0.5         0    0 / 8 / 17 (19)   0 / 11 / 20 (20)
-        0.71        1    0 / 10 / 20 (19)  0 / 5 / 20 (20)
-        0.71        0    0 / 5 / 16 (13)   0 / 6 / 17 (14)
-        1           1    0 / 9 / 18 (18)   0 / 7 / 20 (19)
-        1           0    0 / 2 / 6 (4)     0 / 1 / 7 (3)
-        1.41        1    0 / 0 / 1 (0)     0 / 9 / 16 (14)
-        1.5         1    0 / 0 / 3 (2)     0 / 9 / 17 (16)
-        ==========  ===  ================  ================
+        =========  ===  ======================  ======================
+        px/frame   g    paper step              ``"source"`` step
+        =========  ===  ======================  ======================
+        0.5        1    0 / 11 / 20 / 20 (20)   0 / 1 / 20 / 20 (20)
+        0.5        0    0 / 8 / 17 / 18 (19)    0 / 11 / 20 / 20 (20)
+        0.71       1    0 / 10 / 20 / 20 (19)   0 / 5 / 20 / 20 (20)
+        0.71       0    0 / 5 / 16 / 16 (13)    0 / 6 / 17 / 17 (14)
+        1          1    0 / 9 / 18 / 18 (18)    0 / 7 / 20 / 20 (19)
+        1          0    0 / 2 / 6 / 6 (4)       0 / 1 / 7 / 7 (3)
+        1.41       1    0 / 0 / 1 / 1 (0)       0 / 9 / 16 / 16 (14)
+        1.5        1    0 / 0 / 3 / 3 (2)       0 / 9 / 17 / 17 (16)
+        near miss  1    8 / 20 / 17 / 20 (19)   12 / 20 / 18 / 20 (20)
+        near miss  0    0 / 11 / 4 / 11 (9)     0 / 14 / 8 / 13 (14)
+        overtake   1    17 / 20 / 19 / 20 (20)  11 / 19 / 19 / 19 (19)
+        overtake   0    3 / 15 / 14 / 16 (13)   0 / 9 / 7 / 9 (8)
+        =========  ===  ======================  ======================
 
-        (1.41 px/frame is issue 8's scene; at 1.41 and 1.5 px/frame with g = 0 every method
-        gives 0 of 20, and so does a lone target.) Joint back-tracking comes within 2 scenes of
-        what a lone target allows, and often exceeds it (the predictions carry a track through
-        frames where the DPA lags); where the DPA cannot follow a lone target (the paper step
-        above about 1 px/frame, g = 0 from 1 px/frame) no separation helps. It assumes straight
-        motion through the encounter: a target that turns while it meets another is not
-        followed. :data:`EXCLUSIVE_METHODS` lists the methods.
+        1.41 px/frame is issue 8's scene; at 1.41 and 1.5 px/frame with g = 0 every method
+        gives 0 of 20, and so does a lone target. "Near miss": the 0.71 px/frame crossing with
+        one path 3 px lower (the targets pass 3 px apart); "overtake": a 1 px/frame target
+        passes a 0.2 px/frame one 2 px beside it. On crossings joint back-tracking comes within
+        2 scenes of what a lone target allows, and often exceeds it (the predictions carry a
+        track through frames where the DPA lags); where the DPA cannot follow a lone target
+        (the paper step above about 1 px/frame, g = 0 from 1 px/frame) no separation helps. It
+        assumes straight motion through the encounter (a target that turns while it meets
+        another is not followed) and relies on the tracking matrix before it: where a plain
+        track stalls or is captured by the other target before the tracks are within 2 px (the
+        near miss at g = 0), re-tracking does better, hence the default, which keeps the
+        straighter of the two. :data:`EXCLUSIVE_METHODS` lists the methods.
 
         Our reading of [NR08]: a detection is a peak strictly above the threshold (so the CFAR
         threshold's empirical false-alarm rate is at most ``pfa``); the CFAR threshold is the
@@ -804,9 +802,10 @@ def detect(
         pfa: false-alarm probability of the CFAR threshold, in ``(0, 1)``.
         var_table: optional ``(9, 9)`` direction-similarity table.
         smooth: optional log-sum-exp temperature ``> 0``.
-        exclusive: how to separate tracks that meet: ``"joint"`` or ``True`` (joint
-            back-tracking, the default), ``"retrack"`` (re-tracking on masked frames), or
-            ``False`` (the plain back-tracking of [NR08]); see Notes.
+        exclusive: how to separate tracks that meet: ``"straightest"`` or ``True`` (the
+            default: the straighter of the joint and the re-tracked pairs), ``"joint"`` (joint
+            back-tracking), ``"retrack"`` (re-tracking on masked frames), or ``False`` (the
+            plain back-tracking of [NR08]); see Notes.
         max_shared: largest fraction of frames, in ``[0, 1)``, that two tracks may share
             (within 1 px): above it ``"retrack"`` re-tracks, and a pair still above it after
             the separation is a duplicate (the weaker track is dropped).
@@ -895,26 +894,11 @@ def detect(
     batch, flat, value = batch[keep], flat[keep], value[keep]
     path = _follow(s.origin.reshape(bsz, n_t, -1), batch, flat)  # (M, T)
     found = [(int(batch[i]), i, path[i], False) for i in range(path.shape[0])]
-    if method == "joint" and n_t > 2 and path.shape[0] > 1:
+    if method is not None and n_t > 2 and path.shape[0] > 1:
+        whitened = (cube if cube.is_floating_point() else cube.to(s.asf.dtype)).detach()
         moves = _allowed_moves(weights)
-        origin = s.origin.reshape(bsz, n_t, -1).cpu()
+        origin_cpu = s.origin.reshape(bsz, n_t, -1).cpu()
         asf_cpu = asf.cpu()
-        found = []
-        for scene in range(bsz):
-            members = torch.nonzero(batch == scene).flatten().tolist()
-            paths = [path[i].cpu() for i in members]
-
-            def joint(end_a: torch.Tensor, end_b: torch.Tensor, scene: int = scene):
-                ends = (int(end_a), int(end_b))
-                return _joint(asf_cpu[scene], origin[scene], moves, ends, height, width)
-
-            kept = _separate_joint(paths, joint, width, max_shared)
-            found += [
-                (scene, members[k], p.to(path.device), r)
-                for k, p, r in sorted(kept, key=lambda x: x[0])
-            ]
-    elif method == "retrack" and n_t > 2 and path.shape[0] > 1:
-        whitened = cube if cube.is_floating_point() else cube.to(s.asf.dtype)
 
         def retrack(masked: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
             one = accumulate(
@@ -926,11 +910,31 @@ def detect(
 
         found = []
         for scene in range(bsz):
+
+            def resolve(path_j: torch.Tensor, path_i: torch.Tensor, scene: int = scene):
+                choices = []
+                if method != "retrack":
+                    ends = (int(path_j[-1]), int(path_i[-1]))
+                    pair = _joint(asf_cpu[scene], origin_cpu[scene], moves, ends, height, width)
+                    pair = tuple(q.to(path_i.device) for q in pair)
+                    if _shared(*pair, width) <= max_shared:
+                        choices.append(pair)
+                if method == "joint":
+                    return choices[0] if choices else None
+                if _shared(path_j, path_i, width) > max_shared:
+                    choices += _retrack_options(
+                        whitened[scene], path_j, path_i, retrack, width, max_shared
+                    )
+                else:  # a pair that meets without sharing: the plain tracks are an option
+                    choices.append((path_j, path_i))
+                return _straightest(choices, width)
+
+            if method == "retrack":
+                clash = lambda a, b: _shared(a, b, width) > max_shared  # noqa: E731
+            else:
+                clash = lambda a, b: _meet(a, b, width)  # noqa: E731
             members = torch.nonzero(batch == scene).flatten().tolist()
-            paths = [path[i] for i in members]
-            kept = _separate(
-                whitened[scene].detach(), paths, retrack, width, max_shared, mask_radius=MASK_RADIUS
-            )
+            kept = _separate([path[i] for i in members], clash, resolve)
             found += [(scene, members[k], p, r) for k, p, r in sorted(kept, key=lambda x: x[0])]
     frame = torch.arange(n_t, device=path.device)
     tracks = []

@@ -306,8 +306,8 @@ class TestDetect:
         a, b = (t.positions[-1].double() for t in raw.tracks)
         assert float(torch.linalg.vector_norm(a - b)) <= 1.5  # both on the brightest target
         assert raw.tracks[0].score == suppressed.tracks[0].score
-        # joint back-tracking (the default) keeps one of two tracks of the same target
-        joint = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0)
+        # joint back-tracking keeps one of two tracks of the same target
+        joint = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0, exclusive="joint")
         assert len(joint.tracks) == 1
         assert torch.equal(joint.tracks[0].positions, raw.tracks[0].positions)
 
@@ -464,21 +464,23 @@ class TestCfarThreshold:
 # ----------------------------------------------------------------------------- issue 8 and 9
 
 
-def _crossing_targets(speed, snr_db=18.0):
+def _crossing_targets(speed, snr_db=18.0, low=0.0):
     """The two targets of :func:`_crossing`."""
     d = 12.0 * speed
     return [
         IRTarget(22.0 - d, 10.0, speed, speed, snr_db),
-        IRTarget(22.0 + d, 10.0, -speed, speed, snr_db),
+        IRTarget(22.0 + d, 10.0 + low, -speed, speed, snr_db),
     ]
 
 
-def _crossing(seed, speed=1.0, snr_db=18.0):
+def _crossing(seed, speed=1.0, snr_db=18.0, low=0.0):
     """Two targets on crossing diagonals (``speed`` px/frame per axis) meeting at frame 12 of 25.
 
-    ``speed=1`` is the scene of issue 8.
+    ``speed=1`` is the scene of issue 8. ``low > 0`` moves the second path down by ``low`` px:
+    the targets then pass ``low`` px apart (a near miss).
     """
-    seq = simulate_ir((25, 48, 48), _crossing_targets(speed, snr_db), clouds="clear", seed=seed)
+    targets = _crossing_targets(speed, snr_db, low)
+    seq = simulate_ir((25, 48, 48), targets, clouds="clear", seed=seed)
     return anti_mean(seq.frames), seq.positions
 
 
@@ -586,29 +588,38 @@ class TestCrossingTargets:
     # one target and then the other); re-tracking and joint back-tracking: see detect's Notes.
     # Below: seeds 0..9 (not chosen), the bound is the count measured on them minus one.
     @pytest.mark.parametrize(
-        ("speed", "g", "step", "exclusive", "least"),
+        ("speed", "low", "g", "step", "exclusive", "least"),
         [
-            # measured on seeds 0..9: 10, 7, 10, 7, 10, 9, 9, 9 (joint); 5, 2, 4 (retrack)
-            (0.5 / R2, 1.0, "paper", "joint", 9),
-            (0.5 / R2, 0.0, "paper", "joint", 6),
-            (0.71 / R2, 1.0, "paper", "joint", 9),
-            (0.71 / R2, 0.0, "paper", "joint", 6),
-            (0.71 / R2, 1.0, "source", "joint", 9),
-            (1.0 / R2, 1.0, "paper", "joint", 8),
-            (1.0, 1.0, "source", "joint", 8),
-            (1.5 / R2, 1.0, "source", "joint", 8),
-            (0.71 / R2, 1.0, "paper", "retrack", 4),
-            (0.71 / R2, 0.0, "paper", "retrack", 1),
-            (1.0, 1.0, "source", "retrack", 3),
+            # measured on seeds 0..9: 10, 8, 10, 7, 10, 9, 9, 9
+            (0.5 / R2, 0, 1.0, "paper", "straightest", 9),
+            (0.5 / R2, 0, 0.0, "paper", "straightest", 7),
+            (0.71 / R2, 0, 1.0, "paper", "straightest", 9),
+            (0.71 / R2, 0, 0.0, "paper", "straightest", 6),
+            (0.71 / R2, 0, 1.0, "source", "straightest", 9),
+            (1.0 / R2, 0, 1.0, "paper", "straightest", 8),
+            (1.0, 0, 1.0, "source", "straightest", 8),
+            (1.5 / R2, 0, 1.0, "source", "straightest", 8),
+            # measured: 7, 10, 9
+            (0.5 / R2, 0, 0.0, "paper", "joint", 6),
+            (0.71 / R2, 0, 1.0, "paper", "joint", 9),
+            (1.0, 0, 1.0, "source", "joint", 8),
+            # measured: 5, 2, 4
+            (0.71 / R2, 0, 1.0, "paper", "retrack", 4),
+            (0.71 / R2, 0, 0.0, "paper", "retrack", 1),
+            (1.0, 0, 1.0, "source", "retrack", 3),
+            # a near miss (3 px apart), measured: 10, 5 (joint alone 2, retrack 5, plain 3 and 0)
+            (0.71 / R2, 3, 1.0, "paper", "straightest", 9),
+            (0.71 / R2, 3, 0.0, "paper", "straightest", 4),
         ],
     )
-    def test_one_track_per_target(self, speed, g, step, exclusive, least):
+    def test_one_track_per_target(self, speed, low, g, step, exclusive, least):
         b = effective_memory(W7, g)
         separated = 0
         for seed in range(10):
-            frames, truth = _crossing(seed, speed)
+            frames, truth = _crossing(seed, speed, low=low)
             plain = detect(frames, W7, b, g, max_targets=2, exclusive=False, direction_step=step)
-            assert not _one_track_per_target(plain.tracks, truth), seed  # the failure of issue 8
+            if low == 0:  # the failure of issue 8
+                assert not _one_track_per_target(plain.tracks, truth), seed
             result = detect(
                 frames, W7, b, g, max_targets=2, exclusive=exclusive, direction_step=step
             )
@@ -616,7 +627,7 @@ class TestCrossingTargets:
             assert [t.score for t in result.tracks] == [t.score for t in plain.tracks]
             if _one_track_per_target(result.tracks, truth):
                 separated += 1
-                assert any(t.retracked for t in result.tracks)
+                assert any(t.retracked for t in result.tracks) or low > 0
         assert separated >= least, separated
 
     def test_issue_scene(self):
@@ -660,7 +671,7 @@ class TestCrossingTargets:
         frames = _tiny_crossing(seed)
         g = 0.5 * (seed % 3)
         b = effective_memory(W5, g)
-        result = detect(frames, W5, b, g, max_targets=2, nms_radius=2)
+        result = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive="joint")
         plain = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive=False)
         ends = [t.positions[-1].tolist() for t in plain.tracks]
         expected = _joint_loop(plain.state, W5.double(), *ends)
@@ -680,11 +691,11 @@ class TestCrossingTargets:
         changed = 0
         for seed in range(12):
             g = 0.5 * (seed % 3)
-            result = detect(
-                _tiny_crossing(seed), W5, effective_memory(W5, g), g, max_targets=2, nms_radius=2
-            )
+            b = effective_memory(W5, g)
+            frames = _tiny_crossing(seed)
+            result = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive="joint")
             changed += any(t.retracked for t in result.tracks)
-        assert changed >= 6, changed
+        assert changed >= 6, changed  # measured 9 of 12
 
     @pytest.mark.parametrize("seed", range(20))
     def test_best_pair_equals_brute_force(self, seed):
@@ -711,14 +722,49 @@ class TestCrossingTargets:
         for x, y in zip(a.tracks, b.tracks, strict=True):
             assert torch.equal(x.positions, y.positions) and not x.retracked
 
-    def test_true_means_joint(self):
+    def test_true_means_straightest(self):
         frames, _ = _crossing(0, 0.5)
         b = effective_memory(W7, 1.0)
         a = detect(frames, W7, b, 1.0, max_targets=2)
-        c = detect(frames, W7, b, 1.0, max_targets=2, exclusive="joint")
-        assert EXCLUSIVE_METHODS[0] == "joint"
+        c = detect(frames, W7, b, 1.0, max_targets=2, exclusive="straightest")
+        assert EXCLUSIVE_METHODS[0] == "straightest"
         for x, y in zip(a.tracks, c.tracks, strict=True):
             assert torch.equal(x.positions, y.positions) and x.retracked == y.retracked
+
+    @pytest.mark.parametrize("seed", range(4))
+    @pytest.mark.parametrize("g", [0.0, 1.0])
+    @pytest.mark.parametrize("low", [0.0, 3.0])
+    def test_straightest_picks_the_straighter_pair(self, seed, g, low):
+        # the slow reference: the joint pair, and the re-tracked pair (or the plain one when
+        # the plain tracks meet without sharing more than max_shared), each if its tracks
+        # share at most 25 % of their frames; keep the one with the smaller sum of squared
+        # residuals of straight lines fitted to (x, y)(t), the joint pair on ties
+        frames, _ = _crossing(seed, 0.71 / R2, low=low)  # low = 3: a near miss
+        b = effective_memory(W7, g)
+        run = lambda ex: detect(frames, W7, b, g, max_targets=2, exclusive=ex).tracks  # noqa: E731
+        got, joint, retrack, plain = run(True), run("joint"), run("retrack"), run(False)
+
+        def bend(tracks):
+            t = np.arange(25.0)
+            return sum(
+                float(np.sum((np.polyval(np.polyfit(t, xy, 1), t) - xy) ** 2))
+                for tr in tracks
+                for xy in tr.positions.double().numpy().T
+            )
+
+        def share(tracks):
+            a, c = (tr.positions for tr in tracks)
+            return float(((a - c).abs().amax(dim=1) <= 1).double().mean())
+
+        options = [tracks for tracks in (joint,) if len(tracks) == 2 and share(tracks) <= 0.25]
+        if share(plain) > 0.25:
+            options += [retrack] if len(retrack) == 2 and share(retrack) <= 0.25 else []
+        else:
+            options.append(plain)
+        best = min(options, key=bend)
+        assert len(got) == len(best) == 2
+        for x, y in zip(got, best, strict=True):
+            assert torch.equal(x.positions, y.positions)
 
     def test_exceptions(self):
         frames = torch.randn(4, 10, 10)
@@ -726,7 +772,9 @@ class TestCrossingTargets:
             with pytest.raises(TypeError, match="`exclusive`: expected True, False or one of"):
                 detect(frames, W5, B5, 0.5, exclusive=bad)
         for bad in ("Joint", "masked", ""):
-            with pytest.raises(ValueError, match="`exclusive`: expected one of 'joint', 'retrack'"):
+            with pytest.raises(
+                ValueError, match="`exclusive`: expected one of 'straightest', 'joint', 'retrack'"
+            ):
                 detect(frames, W5, B5, 0.5, exclusive=bad)
         for bad in (-0.1, 1.0):
             with pytest.raises(ValueError, match="`max_shared`"):
