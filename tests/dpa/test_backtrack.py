@@ -8,8 +8,11 @@ import torch
 from hocnet.data.infrared import IRTarget, simulate_ir
 from hocnet.data.whitening import anti_mean
 from hocnet.dpa.backtrack import (
+    EXCLUSIVE_METHODS,
+    SPREAD,
     DPADetection,
     DPATrack,
+    _best_pair,
     _local_maxima,
     backtrack,
     cfar_threshold,
@@ -33,6 +36,7 @@ W7 = probability_matrices(7, v_max=2.0)
 B7 = effective_memory(W7, 0.5)
 W5 = probability_matrices(5, v_max=1.0)
 B5 = effective_memory(W5, 0.5)
+R2 = math.sqrt(2.0)
 
 
 def _random_state(seed, batch=2, t=6, h=9, w=11, directional=True, g=0.3):
@@ -298,10 +302,14 @@ class TestDetect:
         ends = torch.stack([t.positions[-1] for t in suppressed.tracks]).double()
         gaps = torch.cdist(ends, ends) + torch.eye(len(ends)) * 100
         assert float(gaps.min()) > 3.0  # no two peaks within each other's neighbourhood
-        raw = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0)
+        raw = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0, exclusive=False)
         a, b = (t.positions[-1].double() for t in raw.tracks)
         assert float(torch.linalg.vector_norm(a - b)) <= 1.5  # both on the brightest target
         assert raw.tracks[0].score == suppressed.tracks[0].score
+        # joint back-tracking keeps one of two tracks of the same target
+        joint = detect(frames, W7, B7, 0.5, max_targets=2, nms_radius=0, exclusive="joint")
+        assert len(joint.tracks) == 1
+        assert torch.equal(joint.tracks[0].positions, raw.tracks[0].positions)
 
     def test_threshold_keeps_only_strong_peaks(self):
         seq = _two_targets(1)
@@ -456,16 +464,22 @@ class TestCfarThreshold:
 # ----------------------------------------------------------------------------- issue 8 and 9
 
 
-def _crossing(seed, speed=1.0, snr_db=18.0):
+def _crossing_targets(speed, snr_db=18.0, low=0.0):
+    """The two targets of :func:`_crossing`."""
+    d = 12.0 * speed
+    return [
+        IRTarget(22.0 - d, 10.0, speed, speed, snr_db),
+        IRTarget(22.0 + d, 10.0 + low, -speed, speed, snr_db),
+    ]
+
+
+def _crossing(seed, speed=1.0, snr_db=18.0, low=0.0):
     """Two targets on crossing diagonals (``speed`` px/frame per axis) meeting at frame 12 of 25.
 
-    ``speed=1`` is the scene of issue 8.
+    ``speed=1`` is the scene of issue 8. ``low > 0`` moves the second path down by ``low`` px:
+    the targets then pass ``low`` px apart (a near miss).
     """
-    d = 12.0 * speed
-    targets = [
-        IRTarget(22.0 - d, 10.0, speed, speed, snr_db),
-        IRTarget(22.0 + d, 10.0, -speed, speed, snr_db),
-    ]
+    targets = _crossing_targets(speed, snr_db, low)
     seq = simulate_ir((25, 48, 48), targets, clouds="clear", seed=seed)
     return anti_mean(seq.frames), seq.positions
 
@@ -482,50 +496,286 @@ def _one_track_per_target(tracks, truth):
     return sorted(followed) == list(range(truth.shape[0]))
 
 
+def _joint_loop(state, weights, end_a, end_b):
+    """Slow oracle of the joint back-tracking of two tracks (``detect(exclusive="joint")``).
+
+    Written from the Notes of :func:`detect`: follow the tracking matrix while the tracks are
+    more than 2 px apart (Chebyshev); in an encounter, dead-reckon each track with the mean of
+    its last (at most 10) moves and pick, over every pair of candidates, the pair with the
+    largest sum of ``exp(-|q - guess|^2 / (2 s^2)) * ASF_{n-1}(q)``, the two pixels more than
+    1 px apart unless the guesses are within 1.5 px (or no pair is apart).
+    """
+    asf, origin = state.asf.detach().double().numpy(), state.origin.numpy()
+    w = weights.numpy()
+    n_t, n_h, n_w = asf.shape
+    h = w.shape[-1] // 2
+    allowed = [
+        (i, j) for j in range(-h, h + 1) for i in range(-h, h + 1) if (w[:, h + j, h + i] > 0).any()
+    ]
+    cheb = lambda a, b: max(abs(a[0] - b[0]), abs(a[1] - b[1]))  # noqa: E731
+    paths, steps, guess, vel = [[tuple(end_a)], [tuple(end_b)]], [[], []], None, None
+    for n in range(n_t - 1, 0, -1):
+        p = [path[-1] for path in paths]
+        if guess is not None and cheb(*p) > 2 and cheb(*guess) > 2:
+            guess = None
+        if guess is None and cheb(*p) > 2:
+            for i in range(2):
+                src = int(origin[n, p[i][1], p[i][0]])
+                q = (src % n_w, src // n_w)
+                steps[i].append((p[i][0] - q[0], p[i][1] - q[1]))
+                paths[i].append(q)
+            continue
+        if guess is None:
+            vel = []
+            for i in range(2):
+                last = steps[i][-10:]
+                vel.append(
+                    (sum(m[0] for m in last) / len(last), sum(m[1] for m in last) / len(last))
+                    if last
+                    else (0.0, 0.0)
+                )
+            guess = [(float(x), float(y)) for x, y in p]
+        guess = [(guess[i][0] - vel[i][0], guess[i][1] - vel[i][1]) for i in range(2)]
+        cands = []
+        for i in range(2):
+            inside = [
+                (p[i][0] + di, p[i][1] + dj)
+                for di, dj in allowed
+                if 0 <= p[i][0] + di < n_w and 0 <= p[i][1] + dj < n_h
+            ]
+            near = [q for q in inside if cheb(q, guess[i]) <= 1.5]
+            if not near:
+                dist = [(q[0] - guess[i][0]) ** 2 + (q[1] - guess[i][1]) ** 2 for q in inside]
+                near = [inside[dist.index(min(dist))]]
+            score = []
+            for q in near:
+                d2 = (q[0] - guess[i][0]) ** 2 + (q[1] - guess[i][1]) ** 2
+                score.append(math.exp(-d2 / (2 * SPREAD**2)) * asf[n - 1, q[1], q[0]])
+            cands.append(list(zip(near, score, strict=True)))
+        share = cheb(*guess) <= 1.5
+        any_apart = any(cheb(a, b) > 1 for a, _ in cands[0] for b, _ in cands[1])
+        best, pick = -math.inf, None
+        for a, sa in cands[0]:
+            for b, sb in cands[1]:
+                if not share and any_apart and cheb(a, b) <= 1:
+                    continue
+                if sa + sb > best:
+                    best, pick = sa + sb, (a, b)
+        for i in range(2):
+            paths[i].append(pick[i])
+    return [path[::-1] for path in paths]
+
+
+def _tiny_crossing(seed):
+    """Two bright targets crossing on a 16 x 16 grid (10 frames), plus white noise."""
+    gen = torch.Generator().manual_seed(seed)
+    frames = torch.randn(10, 16, 16, generator=gen, dtype=torch.float64)
+    speed = 0.4 + 0.1 * (seed % 6)
+    for t in range(10):
+        for sign, peak in ((1, 6.0), (-1, 5.0 + 0.2 * (seed % 3))):
+            x = 8 + sign * speed * (t - 5)
+            y = 3 + speed * t
+            frames[t, math.floor(y + 0.5), math.floor(x + 0.5)] += peak
+    return frames
+
+
 class TestCrossingTargets:
-    # Measured over seeds 0..19 with the eq. (5) matrices (7 x 7, v_max = 2) at b = EMC 0.8 of
-    # direction 9: plain back-tracking gives one track per target in 0 of 20 scenes in every
-    # setting below (one track follows one target and then the other). Exclusive re-tracking:
-    #   0.5 px/frame per axis, paper direction step: g = 1: 11 / 20, g = 0: 5 / 20
-    #   1 px/frame per axis (issue 8's scene), `direction_step="source"`, g = 1: 9 / 20
-    # (with the paper step at 1.41 px/frame a single such target is on its truth in only 56 %
-    # of the frames at g = 1: eq. (7)-(8) pick the origin with W_basic, which favours short
-    # moves, so issue 8's scene is outside the paper DPA's range and 0 / 20 either way). The
-    # re-tracked track loses its target where the other track's masked pixels cover it around
-    # the crossing. Never did re-tracking break a scene that plain back-tracking got right.
-    # The test uses seeds 0..9 (not chosen) and asserts a rate at most one scene below the
-    # measured one on these seeds (6, 2 and 4 of 10).
+    # Two 18 dB targets on crossing diagonals meeting at frame 12 of 25 (the `speed` below is
+    # per axis: 0.35, 0.5, 0.71 and 1.06 are 0.5, 0.71, 1 and 1.5 px/frame; 1.0 is issue 8's
+    # scene, 1.41 px/frame), paper matrices (7 x 7, v_max = 2), b of EMC 0.8 of direction 9.
+    # Measured over seeds 0..19 (experiments/dpa_crossing.py, results/dpa_crossing.txt): plain
+    # back-tracking gives one track per target in 0 of 20 scenes everywhere (one track follows
+    # one target and then the other); re-tracking and joint back-tracking: see detect's Notes.
+    # Below: seeds 0..9 (not chosen), the bound is the count measured on them minus one.
     @pytest.mark.parametrize(
-        ("speed", "g", "step", "least"),
-        [(0.5, 1.0, "paper", 5), (0.5, 0.0, "paper", 1), (1.0, 1.0, "source", 3)],
+        ("speed", "low", "g", "step", "exclusive", "least"),
+        [
+            # measured on seeds 0..9: 10, 8, 10, 7, 10, 9, 9, 9
+            (0.5 / R2, 0, 1.0, "paper", "straightest", 9),
+            (0.5 / R2, 0, 0.0, "paper", "straightest", 7),
+            (0.71 / R2, 0, 1.0, "paper", "straightest", 9),
+            (0.71 / R2, 0, 0.0, "paper", "straightest", 6),
+            (0.71 / R2, 0, 1.0, "source", "straightest", 9),
+            (1.0 / R2, 0, 1.0, "paper", "straightest", 8),
+            (1.0, 0, 1.0, "source", "straightest", 8),
+            (1.5 / R2, 0, 1.0, "source", "straightest", 8),
+            # measured: 7, 10, 9
+            (0.5 / R2, 0, 0.0, "paper", "joint", 6),
+            (0.71 / R2, 0, 1.0, "paper", "joint", 9),
+            (1.0, 0, 1.0, "source", "joint", 8),
+            # measured: 5, 2, 4
+            (0.71 / R2, 0, 1.0, "paper", "retrack", 4),
+            (0.71 / R2, 0, 0.0, "paper", "retrack", 1),
+            (1.0, 0, 1.0, "source", "retrack", 3),
+            # a near miss (3 px apart), measured: 10, 5 (joint alone 2, retrack 5, plain 3 and 0)
+            (0.71 / R2, 3, 1.0, "paper", "straightest", 9),
+            (0.71 / R2, 3, 0.0, "paper", "straightest", 4),
+        ],
     )
-    def test_one_track_per_target(self, speed, g, step, least):
+    def test_one_track_per_target(self, speed, low, g, step, exclusive, least):
         b = effective_memory(W7, g)
         separated = 0
         for seed in range(10):
-            frames, truth = _crossing(seed, speed)
+            frames, truth = _crossing(seed, speed, low=low)
             plain = detect(frames, W7, b, g, max_targets=2, exclusive=False, direction_step=step)
-            assert not _one_track_per_target(plain.tracks, truth), seed  # the failure of issue 8
-            result = detect(frames, W7, b, g, max_targets=2, direction_step=step)
+            if low == 0:  # the failure of issue 8
+                assert not _one_track_per_target(plain.tracks, truth), seed
+            result = detect(
+                frames, W7, b, g, max_targets=2, exclusive=exclusive, direction_step=step
+            )
             assert len(result.tracks) == 2
             assert [t.score for t in result.tracks] == [t.score for t in plain.tracks]
             if _one_track_per_target(result.tracks, truth):
                 separated += 1
-                assert any(t.retracked for t in result.tracks)
+                assert any(t.retracked for t in result.tracks) or low > 0
         assert separated >= least, separated
 
-    def test_separate_targets_unchanged(self):
+    def test_issue_scene(self):
+        # issue 8's scene (1.41 px/frame, g = 1): in every one of seeds 0..9 where the DPA
+        # back-tracks each target when it is alone in the scene (the same seed), joint
+        # back-tracking returns one track per target; plain back-tracking never does. With the
+        # paper's direction step not even a lone target is tracked at this speed (0 of 20: eq.
+        # (7)-(8) favour short moves, see `accumulate`), so the scene uses the "source" step.
+        b = effective_memory(W7, 1.0)
+        trackable = 0
+        for seed in range(10):
+            frames, truth = _crossing(seed, 1.0)
+            alone = True
+            for n in range(2):
+                seq = simulate_ir(
+                    (25, 48, 48), [_crossing_targets(1.0)[n]], clouds="clear", seed=seed
+                )
+                one = detect(
+                    anti_mean(seq.frames),
+                    W7,
+                    b,
+                    1.0,
+                    max_targets=1,
+                    exclusive=False,
+                    direction_step="source",
+                )
+                alone &= _one_track_per_target(one.tracks, seq.positions)
+            if not alone:
+                continue
+            trackable += 1
+            plain = detect(
+                frames, W7, b, 1.0, max_targets=2, exclusive=False, direction_step="source"
+            )
+            assert not _one_track_per_target(plain.tracks, truth), seed
+            result = detect(frames, W7, b, 1.0, max_targets=2, direction_step="source")
+            assert _one_track_per_target(result.tracks, truth), seed
+        assert trackable >= 7, trackable  # measured 8 (seeds 0 and 9 lose a lone target)
+
+    @pytest.mark.parametrize("seed", range(12))
+    def test_joint_equals_loop(self, seed):
+        frames = _tiny_crossing(seed)
+        g = 0.5 * (seed % 3)
+        b = effective_memory(W5, g)
+        result = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive="joint")
+        plain = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive=False)
+        ends = [t.positions[-1].tolist() for t in plain.tracks]
+        expected = _joint_loop(plain.state, W5.double(), *ends)
+        gap = (plain.tracks[0].positions - plain.tracks[1].positions).abs().amax(dim=1)
+        if int(gap.min()) > 2:  # no encounter: the plain tracks
+            expected = [[tuple(p) for p in t.positions.tolist()] for t in plain.tracks]
+        shared = sum(
+            max(abs(a[0] - b[0]), abs(a[1] - b[1])) <= 1 for a, b in zip(*expected, strict=True)
+        ) / len(expected[0])
+        if shared > 0.25:  # a duplicate: the weaker track is dropped
+            expected = [[tuple(p) for p in plain.tracks[0].positions.tolist()]]
+        got = [t.positions.tolist() for t in result.tracks]
+        assert [[tuple(p) for p in path] for path in got] == expected
+
+    def test_joint_loop_cases_meet(self):
+        # the scenes of test_joint_equals_loop exercise the encounter (not only the plain path)
+        changed = 0
+        for seed in range(12):
+            g = 0.5 * (seed % 3)
+            b = effective_memory(W5, g)
+            frames = _tiny_crossing(seed)
+            result = detect(frames, W5, b, g, max_targets=2, nms_radius=2, exclusive="joint")
+            changed += any(t.retracked for t in result.tracks)
+        assert changed >= 6, changed  # measured 9 of 12
+
+    @pytest.mark.parametrize("seed", range(20))
+    def test_best_pair_equals_brute_force(self, seed):
+        gen = torch.Generator().manual_seed(seed)
+        n1, n2 = 1 + seed % 5, 1 + (seed * 7) % 6
+        s1 = torch.randint(-3, 4, (n1,), generator=gen).double()  # ties on purpose
+        s2 = torch.randint(-3, 4, (n2,), generator=gen).double()
+        xy1 = torch.randint(0, 4, (n1, 2), generator=gen)
+        xy2 = torch.randint(0, 4, (n2, 2), generator=gen)
+        for share in (False, True):
+            apart = lambda a, b: int((xy1[a] - xy2[b]).abs().max()) > 1  # noqa: E731
+            pairs = [(a, b) for a in range(n1) for b in range(n2)]
+            allowed = [ab for ab in pairs if share or apart(*ab)] or pairs
+            best = max(float(s1[a] + s2[b]) for a, b in allowed)
+            first = next(ab for ab in allowed if float(s1[ab[0]] + s2[ab[1]]) == best)
+            assert _best_pair(s1, s2, xy1, xy2, share) == first
+
+    @pytest.mark.parametrize("exclusive", [True, False, "joint", "retrack"])
+    def test_separate_targets_unchanged(self, exclusive):
         seq = _two_targets(0)
         frames = anti_mean(seq.frames)
-        a = detect(frames, W7, B7, 0.5, max_targets=2)
+        a = detect(frames, W7, B7, 0.5, max_targets=2, exclusive=exclusive)
         b = detect(frames, W7, B7, 0.5, max_targets=2, exclusive=False)
         for x, y in zip(a.tracks, b.tracks, strict=True):
             assert torch.equal(x.positions, y.positions) and not x.retracked
 
+    def test_true_means_straightest(self):
+        frames, _ = _crossing(0, 0.5)
+        b = effective_memory(W7, 1.0)
+        a = detect(frames, W7, b, 1.0, max_targets=2)
+        c = detect(frames, W7, b, 1.0, max_targets=2, exclusive="straightest")
+        assert EXCLUSIVE_METHODS[0] == "straightest"
+        for x, y in zip(a.tracks, c.tracks, strict=True):
+            assert torch.equal(x.positions, y.positions) and x.retracked == y.retracked
+
+    @pytest.mark.parametrize("seed", range(4))
+    @pytest.mark.parametrize("g", [0.0, 1.0])
+    @pytest.mark.parametrize("low", [0.0, 3.0])
+    def test_straightest_picks_the_straighter_pair(self, seed, g, low):
+        # the slow reference: the joint pair, and the re-tracked pair (or the plain one when
+        # the plain tracks meet without sharing more than max_shared), each if its tracks
+        # share at most 25 % of their frames; keep the one with the smaller sum of squared
+        # residuals of straight lines fitted to (x, y)(t), the joint pair on ties
+        frames, _ = _crossing(seed, 0.71 / R2, low=low)  # low = 3: a near miss
+        b = effective_memory(W7, g)
+        run = lambda ex: detect(frames, W7, b, g, max_targets=2, exclusive=ex).tracks  # noqa: E731
+        got, joint, retrack, plain = run(True), run("joint"), run("retrack"), run(False)
+
+        def bend(tracks):
+            t = np.arange(25.0)
+            return sum(
+                float(np.sum((np.polyval(np.polyfit(t, xy, 1), t) - xy) ** 2))
+                for tr in tracks
+                for xy in tr.positions.double().numpy().T
+            )
+
+        def share(tracks):
+            a, c = (tr.positions for tr in tracks)
+            return float(((a - c).abs().amax(dim=1) <= 1).double().mean())
+
+        options = [tracks for tracks in (joint,) if len(tracks) == 2 and share(tracks) <= 0.25]
+        if share(plain) > 0.25:
+            options += [retrack] if len(retrack) == 2 and share(retrack) <= 0.25 else []
+        else:
+            options.append(plain)
+        best = min(options, key=bend)
+        assert len(got) == len(best) == 2
+        for x, y in zip(got, best, strict=True):
+            assert torch.equal(x.positions, y.positions)
+
     def test_exceptions(self):
         frames = torch.randn(4, 10, 10)
-        with pytest.raises(TypeError, match="`exclusive`"):
-            detect(frames, W5, B5, 0.5, exclusive=1)
+        for bad in (1, None, 0.5, ["joint"]):
+            with pytest.raises(TypeError, match="`exclusive`: expected True, False or one of"):
+                detect(frames, W5, B5, 0.5, exclusive=bad)
+        for bad in ("Joint", "masked", ""):
+            with pytest.raises(
+                ValueError, match="`exclusive`: expected one of 'straightest', 'joint', 'retrack'"
+            ):
+                detect(frames, W5, B5, 0.5, exclusive=bad)
         for bad in (-0.1, 1.0):
             with pytest.raises(ValueError, match="`max_shared`"):
                 detect(frames, W5, B5, 0.5, max_shared=bad)
