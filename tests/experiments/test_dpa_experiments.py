@@ -439,9 +439,57 @@ class TestPdSnr:
         assert {int(r["frames"]) for r in frames} == set(range(1, 9))
         speed = [r for r in rows if r["table"] == "speed"]
         assert {float(r["speed"]) for r in speed} == set(module.QUICK_SPEEDS)
-        assert len(speed) == len(module.QUICK_SPEEDS) * (len(methods) - 1) * 2
+        assert len(speed) == len(module.QUICK_SPEEDS) * len(module.speed_options()) * 2
+        assert {r["method"] for r in speed} == {label for label, *_ in module.speed_options()}
         assert all(0.0 <= float(r["on_truth"]) <= 1.0 for r in speed)
         assert "n/a: [NR08] reports no Pd" in md.read_text()
+        # --part speed: part 2 alone, the part-1 rows and tables read back unchanged
+        before = md.read_text()
+        merged = module.run(quick=True, out_dir=tmp_path, progress=False, part="speed")
+        again = read_rows(tmp_path / "dpa-pd-snr.csv")
+        assert [r for r in again if r["table"] != "speed"] == [
+            r for r in rows if r["table"] != "speed"
+        ]
+        cut = "## Tracking versus target speed"
+        assert (
+            merged.read_text()
+            .split("## Summary")[1]
+            .split(cut)[0]
+            .replace("rerun alone with `--part speed`", "")
+            == before.split("## Summary")[1].split(cut)[0]
+        )
+        assert "rerun alone with `--part speed`" in merged.read_text()
+
+    def test_part_speed_needs_a_run(self, tmp_path):
+        module = load("dpa-pd-snr")
+        with pytest.raises(FileNotFoundError, match="--part speed"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="speed")
+        with pytest.raises(ValueError, match="`part`"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="pd")
+
+    def test_speed_options_are_the_presets(self):
+        from hocnet.dpa.presets import PAPER, RECOMMENDED
+
+        module = load("dpa-pd-snr")
+        options = {label: (preset, flags) for label, preset, flags in module.speed_options()}
+        # the paper DPA at g = 0 with the 7 x 7 matrices is --preset paper itself
+        assert options["paper DPA, g = 0"] == (PAPER, "--preset paper")
+        assert options["recommended (CLI default)"][0] == RECOMMENDED
+        fast = options["recommended, g = 1, source direction step"][0]
+        assert (fast.g, fast.direction_step, fast.window) == (1.0, "source", 5)
+        for label, (preset, _) in options.items():  # the earlier options keep their settings
+            if label.startswith(("paper DPA", "equal gain", "source direction step")):
+                assert (preset.window, preset.v_max, preset.memory) == (7, 2.0, 0.8), label
+
+    def test_fast_targets_are_sampled_from_a_longer_sequence(self):
+        module = load("dpa-pd-snr")
+        frames, truth = module.speed_data(2.5, [1, 2], (6, 40, 40))
+        assert frames.shape == (2, 6, 40, 40) and truth.shape == (2, 6, 2)
+        steps = truth[:, 1:] - truth[:, :-1]  # 2.5 px/frame at 30 degrees plus two jitters
+        drift = torch.tensor([2.5 * math.cos(math.pi / 6), 2.5 * math.sin(math.pi / 6)])
+        assert torch.all((steps - drift.double()).abs() <= 1.0 + 1e-9)
+        slow, _ = module.speed_data(1.0, [1], (6, 40, 40))
+        assert slow.shape == (1, 6, 40, 40)
 
     def test_frames_snr_discriminates(self):
         module = load("dpa-pd-snr")
