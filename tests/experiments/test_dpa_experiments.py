@@ -339,11 +339,26 @@ class TestSampling:
     def test_quick(self, tmp_path):
         module = load("dpa-sampling")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
-        rows = check_outputs("dpa-sampling", md, tmp_path)
+        every = check_outputs("dpa-sampling", md, tmp_path)
+        rows = [r for r in every if r["table"] == "sampling"]
         # 4 scenes (NA23A, NPA, fluctuating and one-pixel NA23A) x s_n 1, 4 x g 0, 1
         # x b paper / EMC x 2 seeds
         assert len(module.SCENES) == 4
         assert len(rows) == 4 * 2 * 2 * 2 * 2
+        seen = [r for r in every if r["table"] == "visibility"]  # 2 peaks x s_n 1, 4 x 2 seeds
+        assert len(seen) == len(every) - len(rows) == 2 * 2 * 2
+        assert {float(r["peak"]) for r in seen} == set(module.QUICK_VISIBILITY_PEAKS)
+        # the preset's peak: the same scenes as the main table, so the same tracking
+        for r in seen:
+            if float(r["peak"]) == 30.0:
+                (main,) = [
+                    m
+                    for m in rows
+                    if (m["scene"], m["s_n"], m["seed"], m["b_choice"], float(m["g"]))
+                    == ("NPA", r["s_n"], r["seed"], "paper", 0.0)
+                ]
+                assert main["tracked"] == r["tracked_g0"]
+        assert f"## {module.VISIBILITY}" in md.read_text()
         assert {r["s_n"] for r in rows} == {"1", "4"}
         assert {r["b_choice"] for r in rows} == {"paper", "EMC"}
         for r in rows:
@@ -409,10 +424,37 @@ class TestSampling:
         # 3 frames of 0.3 px/frame between kept frames, plus the jitter of two frames (<= 1 px)
         assert torch.all(torch.linalg.vector_norm(steps, dim=-1) <= 0.9 + 2 * 2**0.5 * 0.5)
 
+    def test_part_visibility_keeps_the_rest(self, tmp_path):
+        module = load("dpa-sampling")
+        with pytest.raises(FileNotFoundError, match="--part visibility"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="visibility")
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        before, rows = md.read_text(), read_rows(tmp_path / "dpa-sampling.csv")
+        module.run(quick=True, out_dir=tmp_path, progress=False, part="visibility")
+        after = md.read_text()
+        note = "Computed alone with `--part visibility`"
+        assert note in after and after.count(f"## {module.VISIBILITY}") == 1
+        kept = [line for line in after.splitlines() if not line.startswith(note)]
+        assert "\n".join(kept).replace("\n\n\n", "\n\n") == before.rstrip("\n")
+        assert read_rows(tmp_path / "dpa-sampling.csv") == rows
+
+    def test_single_frame_visibility(self):
+        module = load("dpa-sampling")
+        frames = torch.zeros(1, 2, 40, 20)
+        truth = torch.tensor([[[10.0, 20.0], [10.0, 19.0]]])
+        frames[0, 0, 20, 10] = 6.0  # frame 0: the target is the highest pixel, 2 x the clutter
+        frames[0, 0, 5, 3] = 3.0
+        frames[0, 1, 19, 10] = 2.0  # frame 1: a brighter pixel elsewhere in the target block
+        frames[0, 1, 30, 15] = 4.0
+        seen = module.single_frame_visibility(frames, truth, (40, 20))
+        assert float(seen["on_tb"][0]) == 0.5 and float(seen["on_nine"][0]) == 0.5
+        assert float(seen["ratio"][0]) == pytest.approx(0.5)  # lower median of 2.0, 0.5
+
     @pytest.mark.slow
     def test_full(self, tmp_path):
         module = load("dpa-sampling")
         rows = check_outputs("dpa-sampling", module.run(out_dir=tmp_path), tmp_path)
+        rows = [r for r in rows if r["table"] == "sampling"]
         assert len(rows) == 4 * 5 * 2 * 2 * 20
 
 
