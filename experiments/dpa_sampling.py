@@ -867,8 +867,7 @@ def _merge_visibility_part(out, seeds, frames, quick, sampling, weights, peaks) 
     with C.single_thread(), C.Timer() as timer:
         seen = visibility(seeds, frames, quick, sampling, weights, peaks)
     lines = visibility_section(seen, peaks, sampling)
-    lines.insert(-1, f"Computed alone with `--part visibility` in {timer.seconds:.1f} s.")
-    lines.insert(-1, "")
+    lines += [f"Computed alone with `--part visibility` in {timer.seconds:.1f} s.", ""]
     text = merge_visibility(md_path, lines)
     with open(csv_path, newline="") as fh:
         kept = [r for r in csv.DictReader(fh) if r.get("table") != "visibility"]
