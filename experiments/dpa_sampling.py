@@ -22,9 +22,13 @@ along y; our reading: the paper does not say which blocks it used for NPA) since
 them (``fast``: the target may leave a 30 x 30 block, NA23A s_n >= 2, NPA s_n >= 3; the paper
 names s_n = 4), in frames that hold the nine blocks in full (NA23A 90 x 240, NPA 240 x 120 with
 the studied target started at mid-height). A noise-free footprint table (``footprints``) shows
-how many pixels the target lights in the last ASF.
+how many pixels the target lights in the last ASF. The section "NPA s_n lower end"
+(:func:`visibility`) measures why NPA-like tracks at s_n = 1-2 where the paper does not: how often
+the target is the highest whitened pixel of single frames, the target-to-clutter peak ratio, the
+cloud drift per kept frame, and tracking per s_n for dimmer targets in the same scenes;
+``--part visibility`` computes that section alone and puts it into the last run's results.
 
-Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR]`` or
+Run: ``python experiments/dpa_sampling.py [--quick] [--seeds N] [--out DIR] [--part ...]`` or
 ``hocnet reproduce dpa-sampling``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on
 Ray Tune through ``hocnet.sweep.run_sweep``, one trial per (scene, s_n), with the same rows;
 ``--ray-dir DIR`` keeps Ray's experiment folder there (default: a new temporary folder) and
