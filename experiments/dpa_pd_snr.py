@@ -22,12 +22,17 @@ detected when ``hocnet.dpa.detect`` (CFAR threshold, NMS radius 3, at most 10 pe
 track ending within 1.5 px of it; Pd versus frames uses the per-pixel rule of
 ``detection_probability`` with the per-frame thresholds of ``frame_thresholds``.
 
-Part 2, target speed 0 .. 2 px/frame (plus the 0.5 px jitter: up to 2.5 px/frame between frames,
-the paper's 7 x 7 range), one clear-sky target at 17 dB, 7 x 7 matrices for 0-2 px/frame: the
-fraction of frames where the track back-tracked from the highest last-frame ASF lies within 1.5 px
-of the truth, and where each option holds (>= 0.8 of the frames).
+Part 2, target speed 0 .. 2.5 px/frame (plus the 0.5 px jitter; 2.5 is issue 8's range end), one
+clear-sky target at 17 dB: the fraction of frames where the track back-tracked from the highest
+last-frame ASF lies within 1.5 px of the truth, and where each option holds (>= 0.8 of the
+frames). Every option is a :class:`hocnet.dpa.presets.DPAPreset` run on the raw frames
+(:func:`speed_options`): the options above with 7 x 7 matrices for 0-2 px/frame, equal gain with
+the source direction step, and the command line's default ``RECOMMENDED`` pipeline with the flags
+a user changes for faster targets. ``--part speed`` reruns part 2 alone (about 5 min with
+``OMP_NUM_THREADS=1``) and merges it into the results of the last run, whose part-1 rows it reads
+back unchanged (``load_part1``).
 
-Run: ``python experiments/dpa_pd_snr.py [--quick] [--seeds N] [--out DIR]`` or
+Run: ``python experiments/dpa_pd_snr.py [--quick] [--seeds N] [--out DIR] [--part {all,speed}]`` or
 ``hocnet reproduce dpa-pd-snr``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on Ray
 Tune through ``hocnet.sweep.run_sweep``, one trial per (scene kind, detector) and per (option,
 speed), with the same rows; ``--ray-dir DIR`` keeps Ray's experiment folder there (default: a new
@@ -51,7 +56,7 @@ import _nr08 as P
 import matplotlib.pyplot as plt
 import torch
 
-from hocnet.data.infrared import NPA_CLOUDS, IRTarget, npa_like, simulate_ir
+from hocnet.data.infrared import MAX_SPEED, NPA_CLOUDS, IRTarget, npa_like, simulate_ir
 from hocnet.dpa import (
     accumulate,
     backtrack,
@@ -65,8 +70,9 @@ NAME = "dpa-pd-snr"
 DESCRIPTION = (
     "Beyond [NR08]: probability of detection at a CFAR per-pixel Pfa of 1e-3 versus peak SNR and "
     "versus frames (NPA-like scenes and a clear-sky control), and tracking versus target speed "
-    "0-2 px/frame (+ 0.5 px jitter), for every DPA option: paper DPA g = 0 / 1, equal gain, "
-    "the source direction step (our earlier reading), single frame."
+    "0-2.5 px/frame (+ 0.5 px jitter), for every DPA option: paper DPA g = 0 / 1, equal gain, "
+    "the source direction step (our earlier reading), single frame, and the command line's "
+    "presets (recommended, paper)."
 )
 
 SCENE = "NPA-like"
@@ -97,7 +103,9 @@ MAX_TARGETS = 10
 LEVEL = 0.9
 EMC = 0.8
 SINGLE = "single frame"
-SPEEDS = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0)
+SPEEDS = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5)
+"""Target speeds (px/frame) of part 2; 2.5 is the end of issue 8's range (the 7 x 7 matrices'
+2 px/frame plus the 0.5 px jitter)."""
 QUICK_SPEEDS = (0.0, 2.0)
 SPEED_SNR = 17.0
 SPEED_SHAPE = (25, 64, 64)
@@ -105,9 +113,12 @@ QUICK_SPEED_SHAPE = (8, 32, 32)
 SPEED_MATRIX = (7, 2.0)
 """7 x 7 matrices for 0-2 px/frame; the 0.5 px jitter is the matrices' own (default) term."""
 HOLDS = 0.8
+"""An option *holds* at a speed when its track is on the truth in >= 80 % of the frames."""
 SOURCE_STEP = "source direction step"
 """Label of ``direction_step="source"`` (our earlier reading of eq. (6)-(8))."""
-"""An option *holds* at a speed when its track is on the truth in >= 80 % of the frames."""
+PARTS = ("all", "speed")
+"""``--part``: ``all`` (both parts) or ``speed`` (part 2 alone, merged into the results file
+of the last full run: the part-1 rows are read back from its CSV, unchanged)."""
 
 
 def options() -> list[tuple[str, float, bool, dict]]:
@@ -121,6 +132,59 @@ def options() -> list[tuple[str, float, bool, dict]]:
     out += [
         (f"{SOURCE_STEP}, g = 0", 0.0, False, source),
         (f"{SOURCE_STEP}, g = 1", 1.0, False, source),
+    ]
+    return out
+
+
+def speed_options() -> list[tuple[str, Any, str]]:
+    """Part 2's options: ``(label, preset, hocnet detect flags)``.
+
+    Every option is a :class:`hocnet.dpa.presets.DPAPreset` run by
+    :func:`hocnet.dpa.presets.run_preset` on the raw frames, as ``hocnet detect --method dpa``
+    with those flags runs it (the flags are what a user adds to the command line). The first
+    five are :func:`options` with 7 x 7 matrices for 0-2 px/frame and the paper's pipeline
+    (anti-mean whitening only, b of the effective memory 0.8 of direction 9):
+    ``paper DPA, g = 0`` *is* ``--preset paper``. Then equal gain with the source direction step,
+    and the command line's default pipeline :data:`~hocnet.dpa.presets.RECOMMENDED`
+    (registration + median background + anti-mean, 5 x 5, g = 0, equal gain, effective memory
+    0.4) with the options a user would change for faster targets.
+    """
+    from hocnet.dpa.presets import PAPER, RECOMMENDED
+
+    window, v_max = SPEED_MATRIX
+    seven = PAPER.replace(window=window, v_max=v_max)
+    out = []
+    for label, g, equal, opts in options():
+        flags = "--preset paper" + " --g 1" * (g == 1.0) + " --equal-gain" * equal
+        flags += " --direction-step source" * (opts.get("direction_step") == "source")
+        out.append((label, seven.replace(g=g, equal_gain=equal, **opts), flags))
+    source = {"direction_step": "source"}
+    fast = {"window": window, "v_max": v_max}
+    seven_flags = f"--window {window} --v-max {v_max:g}"
+    out += [
+        (
+            f"{P.EQUAL} + {SOURCE_STEP}, g = 0",
+            seven.replace(equal_gain=True, **source),
+            "--preset paper --equal-gain --direction-step source",
+        ),
+        ("recommended (CLI default)", RECOMMENDED, "(none)"),
+        (
+            "recommended without registration / background",
+            RECOMMENDED.replace(register=False, background="none"),
+            "--no-register --background none",
+        ),
+        ("recommended, g = 1", RECOMMENDED.replace(g=1.0), "--g 1"),
+        (
+            f"recommended, g = 1, {SOURCE_STEP}",
+            RECOMMENDED.replace(g=1.0, **source),
+            "--g 1 --direction-step source",
+        ),
+        ("recommended, 7 x 7", RECOMMENDED.replace(**fast), seven_flags),
+        (
+            f"recommended, 7 x 7, g = 1, {SOURCE_STEP}",
+            RECOMMENDED.replace(g=1.0, **source, **fast),
+            f"{seven_flags} --g 1 --direction-step source",
+        ),
     ]
     return out
 
@@ -224,31 +288,49 @@ class Detector:
 
 
 def speed_data(v: float, seeds, shape) -> tuple:
-    """Whitened frames ``(B, T, H, W)`` and truth ``(B, T, 2)`` of the speed-``v`` scenes."""
+    """Raw frames ``(B, T, H, W)`` and truth ``(B, T, 2)`` of the speed-``v`` scenes.
+
+    ``simulate_ir`` takes targets up to ``MAX_SPEED`` (2 px/frame); a faster target is simulated
+    at ``v / k`` px/frame over ``k (T - 1) + 1`` frames and every ``k``-th frame is kept. The
+    target is sampled at pixel centres (no motion blur) and the jitter and noise are drawn
+    independently per frame, so the kept frames are a speed-``v`` sequence of the same model.
+    """
     t_len, h, w = shape
+    step = max(1, math.ceil(v / MAX_SPEED - 1e-12))
     # diagonal course through the centre, 30 degrees below the x axis
     vx, vy = v * math.cos(math.radians(30.0)), v * math.sin(math.radians(30.0))
     half = 0.5 * (t_len - 1)
-    target = IRTarget(0.5 * w - half * vx, 0.5 * h - half * vy, vx, vy, snr_db=SPEED_SNR)
-    seqs = [simulate_ir(shape, [target], clouds="clear", seed=int(s)) for s in seeds]
+    target = IRTarget(
+        0.5 * w - half * vx, 0.5 * h - half * vy, vx / step, vy / step, snr_db=SPEED_SNR
+    )
+    full = (step * (t_len - 1) + 1, h, w)
+    seqs = [simulate_ir(full, [target], clouds="clear", seed=int(s)) for s in seeds]
     seq = C.stack_sequences(seqs)
-    return C.whiten(seq.frames, "anti_mean"), seq.positions[:, 0]
+    return seq.frames[:, ::step].float(), seq.positions[:, 0, ::step]
 
 
 def _speed_rows(option, v: float, data: tuple, seeds) -> list[dict]:
-    """The rows of one (option, speed) job: one per seed."""
-    label, g, equal, opts = option
-    weights = P.weights(*SPEED_MATRIX, equal_g=g if equal else None)
+    """The rows of one (option, speed) job: one per seed.
+
+    ``option``: an entry of :func:`speed_options`; the preset's pipeline runs on the raw frames
+    (:func:`~hocnet.dpa.presets.run_preset`) and the track is back-tracked from the highest
+    last-frame ASF.
+    """
+    from hocnet.dpa.presets import run_preset, weights_and_b
+
+    label, preset, flags = option
     frames, truth = data
-    b = _b(weights, g)
-    path = backtrack(accumulate(frames, weights, b, g, **opts))
+    b = weights_and_b(preset)[1]
+    path = backtrack(run_preset(frames, preset))
     frac = P.on_truth(path, truth)
     return [
         {
             "table": "speed",
             "method": label,
-            "g": g,
+            "g": preset.g,
             "b": round(b, 4),
+            "window": preset.window,
+            "flags": flags,
             "speed": v,
             "snr_db": SPEED_SNR,
             "seed": seed,
@@ -262,7 +344,7 @@ def _speed_rows(option, v: float, data: tuple, seeds) -> list[dict]:
 def speed_sweep(speeds, seeds, shape, progress) -> list[dict]:
     """On-truth fraction of the back-tracked track per (option, speed, seed)."""
     rows = []
-    jobs = [(o, v) for o in options() for v in speeds]
+    jobs = [(o, v) for o in speed_options() for v in speeds]
     data = {v: speed_data(v, seeds, shape) for v in speeds}
     for option, v in C.progress(jobs, enabled=progress, desc=f"{NAME} speed"):
         rows += _speed_rows(option, v, data[v], seeds)
@@ -301,12 +383,12 @@ def ray_job(job, settings, seeds, calib_seeds, shape, snrs, speed_seeds, speed_s
 
     ``("pd", kind, i)``: detector ``settings[i]`` calibrated on ``kind``'s calibration scenes
     and run at every SNR (its label, b, g, threshold and per-SNR Pd and per-pixel Pd curve);
-    ``("speed", i, v)``: the speed rows of ``options()[i]`` at speed ``v``.
+    ``("speed", i, v)``: the speed rows of ``speed_options()[i]`` at speed ``v``.
     """
     if job[0] == "speed":
         _, index, v = job
         data = _speed_data(v, tuple(speed_seeds), tuple(speed_shape))
-        return {"rows": _speed_rows(options()[index], v, data, speed_seeds)}
+        return {"rows": _speed_rows(speed_options()[index], v, data, speed_seeds)}
     _, kind, index = job
     label, b, g, w, opts = settings[index]
     det = Detector(label, b, g, w, _calib(kind, tuple(calib_seeds), tuple(shape)), opts)
@@ -331,7 +413,7 @@ def _evaluate_ray(
     import types
 
     jobs = [("pd", kind, i) for kind in KINDS for i in range(len(settings))]
-    jobs += [("speed", i, v) for i in range(len(options())) for v in speeds]
+    jobs += [("speed", i, v) for i in range(len(speed_options())) for v in speeds]
     shared = {
         "settings": settings,
         "seeds": list(seeds),
@@ -456,17 +538,21 @@ def _curve_table(results, methods, snr, n_frames) -> str:
 
 def _speed_tables(rows, speeds) -> tuple[str, str]:
     labels = list(dict.fromkeys(r["method"] for r in rows))
-    headers = ["method", "b", *(f"{v:g} px/frame" for v in speeds)]
+    flags_header = "`hocnet detect --method dpa` flags"
+    headers = ["method", flags_header, "window", "b", *(f"{v:g} px/frame" for v in speeds)]
     body, holds = [], []
     for label in labels:
         sel = [r for r in rows if r["method"] == label]
         fr = [C.mean(r["on_truth"] for r in sel if r["speed"] == v) for v in speeds]
-        body.append([label, f"{sel[0]['b']:.3g}", *(f"{f:.2f}" for f in fr)])
+        flags = f"`{sel[0]['flags']}`"
+        window = f"{sel[0]['window']} x {sel[0]['window']}"
+        body.append([label, flags, window, f"{sel[0]['b']:.3g}", *(f"{f:.2f}" for f in fr)])
         where = C.b_ranges(list(speeds), fr, HOLDS)
-        holds.append([label, where if where != "none" else "nowhere on this grid"])
+        holds.append([label, flags, where if where != "none" else "nowhere on this grid"])
     return C.md_table(headers, body), C.md_table(
         [
             "method",
+            flags_header,
             f"speeds (px/frame) where the track is on the truth in >= {HOLDS:.0%} of frames",
         ],
         holds,
@@ -474,7 +560,7 @@ def _speed_tables(rows, speeds) -> tuple[str, str]:
 
 
 def _plot(results, methods, snrs, speed_rows, speeds, path: pathlib.Path) -> None:
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4), layout="constrained")
+    fig, axes = plt.subplots(1, 3, figsize=(18, 4.4), layout="constrained")
     for ax, kind in zip(axes[:2], KINDS):
         for m in methods:
             ax.plot(snrs, [results[kind, m, s]["pd"] for s in snrs], "-o", ms=3, label=m)
@@ -485,23 +571,87 @@ def _plot(results, methods, snrs, speed_rows, speeds, path: pathlib.Path) -> Non
         ax.set_ylim(-0.03, 1.03)
         ax.grid(alpha=0.3)
     ax = axes[2]
-    for label in dict.fromkeys(r["method"] for r in speed_rows):
+    colours = plt.get_cmap("tab20").colors
+    for i, label in enumerate(dict.fromkeys(r["method"] for r in speed_rows)):
         fr = [
             C.mean(r["on_truth"] for r in speed_rows if r["method"] == label and r["speed"] == v)
             for v in speeds
         ]
-        ax.plot(speeds, fr, "-o", ms=3, label=label)
+        style = "--s" if label.startswith("recommended") else "-o"  # the CLI preset: dashed
+        ax.plot(speeds, fr, style, ms=3, color=colours[i % len(colours)], label=label)
     ax.axhline(HOLDS, color="0.5", ls=":", lw=1)
     ax.set_xlabel("target speed (px/frame; + 0.5 px jitter)")
     ax.set_ylabel("fraction of frames on the truth")
-    ax.set_title(f"clear sky, {SPEED_SNR:g} dB, 7 x 7 matrices")
+    ax.set_title(f"clear sky, {SPEED_SNR:g} dB (dashed: recommended preset)")
     ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.suptitle("DPA options side by side (beyond [NR08], which reports no Pd)")
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def load_part1(out: pathlib.Path) -> tuple[dict, dict, int, int, str]:
+    """Part 1 of the results file in ``out`` (for ``--part speed``), as :func:`run` built it.
+
+    Returns:
+        ``(detectors, results, targets per SNR, frames, runtime)``: detectors per scene kind as
+        namespaces of ``label``, ``b``, ``g``, ``threshold`` (CSV order), results keyed
+        ``(kind, label, snr)`` with ``pd`` and the per-pixel Pd ``curve`` (float64), and the
+        runtime of part 1 as the markdown file states it.
+
+    Raises:
+        FileNotFoundError: no results file of a run in ``out``.
+    """
+    import csv
+    import re
+    import types
+
+    csv_path, md_path = out / f"{NAME}.csv", out / f"{NAME}.md"
+    if not (csv_path.is_file() and md_path.is_file()):
+        raise FileNotFoundError(
+            f"--part speed: expected the results of a run in {out} ({csv_path.name} and "
+            f"{md_path.name}) to merge the speed part into; run the whole experiment first"
+        )
+    with open(csv_path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    detectors: dict = {kind: [] for kind in KINDS}
+    results: dict = {}
+    n_targets = 0
+    for r in rows:
+        if r["table"] != "pd":
+            continue
+        kind, label = r["scene"], r["method"]
+        if label not in [d.label for d in detectors[kind]]:
+            detectors[kind].append(
+                types.SimpleNamespace(
+                    label=label, b=float(r["b"]), g=float(r["g"]), threshold=float(r["threshold"])
+                )
+            )
+        results[kind, label, float(r["snr_db"])] = {"pd": float(r["pd"])}
+        n_targets = int(r["targets"])
+    curves: dict = {}
+    for r in rows:
+        if r["table"] == "frames":
+            key = (r["scene"], r["method"], float(r["snr_db"]))
+            curves.setdefault(key, []).append((int(r["frames"]), float(r["pd_pixel"])))
+    for key, points in curves.items():
+        results[key]["curve"] = torch.tensor([p for _, p in sorted(points)], dtype=torch.float64)
+    n_frames = max(len(p) for p in curves.values())
+    text = md_path.read_text()
+    part1 = re.search(r"part 1 \(Pd versus SNR and frames\):? ([^;]*?);", text)
+    if part1:
+        runtime = part1.group(1)
+    else:
+        whole = re.search(r"- Runtime: ([0-9.]+) s", text)
+        runtime = (
+            f"{whole.group(1)} s in the full run it comes from (both parts, with the earlier "
+            "part 2)"
+            if whole
+            else "not recorded"
+        )
+    return detectors, results, n_targets, n_frames, runtime
 
 
 def run(
@@ -512,6 +662,7 @@ def run(
     progress: bool = True,
     engine: str = "loop",
     ray: dict | None = None,
+    part: str = "all",
 ) -> pathlib.Path:
     """Run the experiment; write ``<NAME>.md``, ``.csv`` and ``.png``; return the md path.
 
@@ -526,10 +677,21 @@ def run(
             at every SNR, and one per (option, speed); the same rows).
         ray: keyword arguments of the Ray engine (``path``, ``resume``, ``address``,
             ``num_cpus``).
+        part: ``"all"`` or ``"speed"``: part 2 alone (loop engine), merged into the results
+            of the last run in ``out_dir`` (its part-1 rows are read back unchanged by
+            :func:`load_part1`; run it with the same ``quick`` as that run).
 
     Returns:
         Path of the markdown file.
+
+    Raises:
+        ValueError: an unknown ``part``, or ``part="speed"`` with the Ray engine.
+        FileNotFoundError: ``part="speed"`` without earlier results in ``out_dir``.
     """
+    if part not in PARTS:
+        raise ValueError(f"`part`: expected one of {PARTS}, got {part!r}")
+    if part == "speed" and C.check_engine(engine) != "loop":
+        raise ValueError("`part`: 'speed' runs with the loop engine only")
     n = C.n_seeds(quick, seeds) if (quick or seeds is not None) else PD_SEEDS
     n_calib = C.QUICK_SEEDS if quick else CALIB_SEEDS
     out = C.out_dir_of(out_dir)
@@ -545,42 +707,63 @@ def run(
     all_snrs = sorted({*snrs, *frame_snrs})
     settings = detector_settings(weights)
     methods = [label for label, *_ in settings]
-    with C.single_thread(), C.Timer() as timer:
-        if C.check_engine(engine) == "ray":
-            detectors, results, per_scene, speed_rows = _evaluate_ray(
-                settings,
-                seed_values,
-                calib_seeds,
-                shape,
-                all_snrs,
-                speeds,
-                speed_seeds,
-                speed_shape,
-                progress,
-                **(ray or {}),
+    n_targets = None
+    with C.single_thread():
+        if part == "speed":
+            detectors, results, n_targets, n_frames, part1_time = load_part1(out)
+            all_snrs = sorted({snr for _, _, snr in results})
+            with C.Timer() as timer2:
+                speed_rows = speed_sweep(speeds, speed_seeds, speed_shape, progress)
+            runtime = (
+                f"part 1 (Pd versus SNR and frames): {part1_time}; part 2 (speed), rerun "
+                f"alone with `--part speed`: {timer2.seconds:.1f} s"
             )
+        elif C.check_engine(engine) == "ray":
+            with C.Timer() as timer:
+                detectors, results, per_scene, speed_rows = _evaluate_ray(
+                    settings,
+                    seed_values,
+                    calib_seeds,
+                    shape,
+                    all_snrs,
+                    speeds,
+                    speed_seeds,
+                    speed_shape,
+                    progress,
+                    **(ray or {}),
+                )
+            runtime = f"both parts on Ray: {timer.seconds:.1f} s"
         else:
-            calib = {
-                kind: C.whiten(simulate(kind, calib_seeds, shape).target_free, "anti_mean")
-                for kind in KINDS
-            }
-            detectors = {
-                kind: [Detector(lab, b, g, w, calib[kind], o) for lab, b, g, w, o in settings]
-                for kind in KINDS
-            }
-            results: dict = {}
-            positions = {}
-            for kind in KINDS:
-                evaluation = Scenes(seed_values, shape, kind)
-                positions[kind] = evaluation.positions
-                jobs = [(d, snr) for snr in all_snrs for d in detectors[kind]]
-                for det, snr in C.progress(jobs, enabled=progress, desc=f"{NAME} {kind}"):
-                    pd, curve = det.run(evaluation.frames(snr), evaluation.positions)
-                    results[kind, det.label, snr] = {"pd": pd, "curve": curve}
-            per_scene = positions[SCENE].shape[1]
-            speed_rows = speed_sweep(speeds, speed_seeds, speed_shape, progress)
-    n_frames = shape[0]
-    n_targets = n * per_scene
+            with C.Timer() as timer1:
+                calib = {
+                    kind: C.whiten(simulate(kind, calib_seeds, shape).target_free, "anti_mean")
+                    for kind in KINDS
+                }
+                detectors = {
+                    kind: [Detector(lab, b, g, w, calib[kind], o) for lab, b, g, w, o in settings]
+                    for kind in KINDS
+                }
+                results: dict = {}
+                positions = {}
+                for kind in KINDS:
+                    evaluation = Scenes(seed_values, shape, kind)
+                    positions[kind] = evaluation.positions
+                    jobs = [(d, snr) for snr in all_snrs for d in detectors[kind]]
+                    for det, snr in C.progress(jobs, enabled=progress, desc=f"{NAME} {kind}"):
+                        pd, curve = det.run(evaluation.frames(snr), evaluation.positions)
+                        results[kind, det.label, snr] = {"pd": pd, "curve": curve}
+                per_scene = positions[SCENE].shape[1]
+            with C.Timer() as timer2:
+                speed_rows = speed_sweep(speeds, speed_seeds, speed_shape, progress)
+            runtime = (
+                f"part 1 (Pd versus SNR and frames): {timer1.seconds:.1f} s; part 2 (speed): "
+                f"{timer2.seconds:.1f} s"
+            )
+    if n_targets is None:
+        n_frames = shape[0]
+        n_targets = n * per_scene
+    else:  # merged: the part-1 scenes of the run read back
+        methods = [d.label for d in detectors[SCENE]]
     steps = torch.arange(1, n_frames + 1)
     rows = []
     for kind in KINDS:
@@ -626,8 +809,8 @@ def run(
             DESCRIPTION,
             quick=quick,
             n=n,
-            seconds=timer.seconds,
         ),
+        f"- Runtime: {runtime} (wall clock, shared 2-core CPU).",
         f"- Part 1 scenes: `npa_like` ({' x '.join(map(str, shape))}: two targets bottom to top "
         "at 0.2 px/frame, the studied one under a cloud; cloud plateau "
         f"{NPA_CLOUDS.amplitude:g} x the noise), "
@@ -646,8 +829,16 @@ def run(
         "frame's threshold.",
         f"- Part 2 (speed): one target at {SPEED_SNR:g} dB in clear sky, "
         f"{' x '.join(map(str, speed_shape))}, course at 30 degrees through the centre, jitter "
-        f"0.5 px, {n} scenes per speed (seeds {speed_seeds[0]} ..), "
-        f"`probability_matrices({SPEED_MATRIX[0]}, v_max={SPEED_MATRIX[1]:g})`.",
+        f"0.5 px, {n} scenes per speed (seeds {speed_seeds[0]} ..). Every option is a preset "
+        "(`hocnet.dpa.presets`) run by `run_preset` on the raw frames, as `hocnet detect "
+        "--method dpa` runs it with the flags shown; the track is back-tracked from the highest "
+        "last-frame ASF. The [NR08] options use "
+        f"`probability_matrices({SPEED_MATRIX[0]}, v_max={SPEED_MATRIX[1]:g})` and the paper's "
+        "pipeline (anti-mean only, b of the effective memory 0.8 of direction 9): *paper DPA, "
+        "g = 0* is `--preset paper` itself. The *recommended* rows are the command line's default "
+        "pipeline (`RECOMMENDED`: registration + median background of 10 past frames + "
+        "anti-mean, 5 x 5 matrices for 0-1 px/frame, g = 0, equal gain, effective memory 0.4) "
+        "and the flags that change it.",
         "- Detectors:",
         *method_lines,
         "",
@@ -699,8 +890,18 @@ def run(
 
 
 def main(argv: Sequence[str] | None = None) -> pathlib.Path:
-    """Command line entry point (``_expkit``'s options plus the engine options)."""
-    return C.engine_main(NAME, DESCRIPTION, run, argv)
+    """Command line entry point (``_expkit``'s options, the engine options and ``--part``)."""
+    import argparse
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--part", choices=PARTS, default="all")
+    args, rest = pre.parse_known_args(argv)
+    part_help = (
+        " --part {all,speed}: both parts (default) or the speed part alone, merged into the "
+        "results of the last run in --out."
+    )
+    runner = functools.partial(run, part=args.part)
+    return C.engine_main(NAME, DESCRIPTION + part_help, runner, rest)
 
 
 if __name__ == "__main__":

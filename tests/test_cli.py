@@ -1810,3 +1810,37 @@ class TestFreshClone:
         argv = ["detect", str(path), "--method", "dpa", "--target-free", str(free)]
         code = main([*argv, "--out", str(tmp_path / "o2")])
         assert_one_line_error(capsys, code, r"--target-free: expected intensity frames whose")
+
+
+def test_detect_direction_step_reaches_the_dpa(tmp_path, capsys, monkeypatch):
+    import importlib
+
+    backtrack_module = importlib.import_module("hocnet.dpa.backtrack")  # not the function
+    frames = tmp_path / "frames.npy"
+    np.save(frames, np.random.default_rng(3).normal(size=(6, 20, 20)).astype(np.float32))
+    real, seen = backtrack_module.detect, []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["direction_step"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(backtrack_module, "detect", spy)
+    asf = {}
+    for step in (None, "source", "paper"):
+        out = tmp_path / f"out_{step}"
+        flags = [] if step is None else ["--direction-step", step]
+        argv = ["detect", str(frames), "--method", "dpa", "--g", "1", *flags]
+        assert main([*argv, "--out", str(out), "--no-plot", "-q"]) == 0
+        _, meta = load_tracks_json(out / "tracks.json", return_meta=True)
+        assert meta["direction_step"] == (step or "paper")  # the presets' default: paper
+        asf[step] = np.load(out / "asf.npy")
+    capsys.readouterr()
+    assert seen == ["paper", "source", "paper"]
+    assert np.array_equal(asf[None], asf["paper"]) and not np.array_equal(asf[None], asf["source"])
+    # a DPA option: refused with --method hoc, and a choice
+    cube = tmp_path / "c.npy"
+    np.save(cube, np.zeros((6, 16, 16), dtype=bool))
+    code = main(["detect", str(cube), "--direction-step", "source", "--out", str(tmp_path / "h")])
+    assert_one_line_error(capsys, code, r"--direction-step: applies to --method dpa, not hoc")
+    code = main(["detect", str(frames), "--method", "dpa", "--direction-step", "x", "-q"])
+    assert code == 2 and "--direction-step" in capsys.readouterr().err

@@ -676,6 +676,32 @@ def _threshold_text(threshold: float | None, pfa: float | None) -> str:
     return f"{threshold:.4g} (ASF, input intensity units; {origin})"
 
 
+#: ``--direction-step``: the direction step of ``hocnet.dpa.accumulate`` (``hocnet detect`` only).
+_DIRECTION_STEP_HELP = (
+    "direction step of the DPA (hocnet.dpa.accumulate): 'paper' = eq. (7)-(8) of [NR08] (the "
+    "current pixel's direction first, from W_basic), 'source' = each source pixel's own previous "
+    "direction picks its matrix (our earlier reading) (default: paper in both presets). For "
+    "targets faster than about 0.5 px/frame use --g 1 --direction-step source (see 'target "
+    "speed' below)"
+)
+
+
+def _add_dpa_options(group: argparse._ArgumentGroup) -> None:
+    """The DPA options of :func:`add_dpa_options` plus ``--direction-step``."""
+    add_dpa_options(group)
+    group.add_argument(
+        "--direction-step", choices=("paper", "source"), default=None, help=_DIRECTION_STEP_HELP
+    )
+
+
+def _prepare_dpa(args: argparse.Namespace) -> dict[str, Any]:
+    """:func:`prepare_dpa`, with ``--direction-step`` replacing the preset's direction step."""
+    params = prepare_dpa(args)
+    if getattr(args, "direction_step", None) is not None:
+        params["direction_step"] = args.direction_step
+    return params
+
+
 _METHODS: dict[str, _Method] = {
     "hoc": _Method(
         name="hoc",
@@ -690,9 +716,9 @@ _METHODS: dict[str, _Method] = {
     "dpa": _Method(
         name="dpa",
         help="dynamic-programming track-before-detect of [NR08] (float frames)",
-        add_options=add_dpa_options,
-        option_dests=DPA_DESTS,
-        prepare=prepare_dpa,
+        add_options=_add_dpa_options,
+        option_dests=(*DPA_DESTS, "direction_step"),
+        prepare=_prepare_dpa,
         run=_run_dpa,
         binary=False,
         output_names=("tracks.json", "asf.npy"),
@@ -703,7 +729,7 @@ _METHODS: dict[str, _Method] = {
 
 #: Options that --weights replaces with the checkpoint's learned values.
 _WEIGHTS_REPLACE = {
-    "dpa": ("g", "b", "window", "v_max", "equal_gain"),
+    "dpa": ("g", "b", "window", "v_max", "equal_gain", "direction_step"),
     "hoc": ("order", "v", "delta"),
 }
 
@@ -1000,6 +1026,20 @@ defaults (--method dpa):
   frame, against 0.465 for a single-frame detector and 0.046 for --preset paper
   (experiments/results/real-ir.md). The memory 0.4 and the background window 10 were tuned on
   those six clips.
+
+target speed (--method dpa; experiments/results/dpa-pd-snr.md: one 17 dB target in clear sky,
+20 scenes per speed; an option holds where the track is on the target in >= 80 % of the frames;
+the speed is relative to the background the pre-processing removes):
+  default (recommended)                  holds 0.25-0.5 px/frame (0.78 at 1, 0.19 at 1.5); a
+                                         target standing still (0.11) is removed by the median
+                                         background: add --no-register --background none
+                                         (holds 0-1 px/frame, 0.87 at 1)
+  --g 1 --direction-step source          holds 0.25-1 px/frame (0.95 at 1, 0.79 at 1.5)
+  --preset paper                         holds 0-0.5 px/frame (0.40 at 1)
+  --preset paper --g 1 --direction-step source
+                                         holds 0-1.5 px/frame (0.93 at 1, 0.84 at 1.5)
+  No option holds at 2 px/frame (best 0.44, --preset paper --g 1 --direction-step source) or
+  at 2.5 px/frame (best 0.25).
 
 references:
   [LA98] R.-J. Liou, M. R. Azimi-Sadjadi, Multiple target detection using modified high order

@@ -464,6 +464,12 @@ def probability_matrices(
     ``v_max = 1`` gives Figure 3's 5 x 5 valid search area (pass ``window=5`` to drop the zero
     border). The defaults give eq. (15)'s constants (see :func:`memory_line`).
 
+    W_frame multiplies the penalty only, as eq. (5) is printed, so with ``v_max`` smaller than
+    the window allows (e.g. ``window=7, v_max=1``, Figure 3) W_basic's tail stays on the border
+    outside the valid search area, where the paper's Figure 3 says its border is zeroed; the
+    difference and what it changes (b at g = 1 by <= 1.3 %, tracking by <= 0.01) are measured in
+    :func:`figure3_matrices`. ``window=5, v_max=1`` has no such border.
+
     Args:
         window: odd window size ``k``.
         v_max: largest target speed in pixels per frame, without the jitter, ``>= 0``
@@ -503,6 +509,28 @@ def figure3_matrices(
     """The three panels of Figure 3 of [NR08]: W_basic, the framed penalties and W(direction).
 
     Figure 3 shows 7 x 7 matrices for 0-1 px/frame (a 5 x 5 ``W_frame``) and ``p = 0.5``.
+
+    Notes:
+        Our reading differs from Figure 3 on the border. The paper says of Figure 3 that "the
+        border pixels are zeroes accordingly using W_frame", but eq. (5) as printed multiplies
+        only the penalty by W_frame, and that is what we build: ``basic`` (= W(9)) and the
+        ``p * W_basic`` part of W(1..8) keep W_basic's tail on the 7 x 7 border ring, outside the
+        5 x 5 valid search area (1.23 % of W(9)'s mass, 0.62 % of W(1..8)'s; the largest border
+        entry is 0.75 % / 0.52 % of its matrix's maximum). Measured by ``docs/dpa_figure3.py
+        --border`` (EMC 0.8): zeroing the border changes no b at g = 0 (the maxima are inside:
+        6.448 for directions 1-8, 4.673 for direction 9), raises b at g = 1 from 0.800 to 0.805
+        (directions 1-8) / 0.810 (direction 9) because the sums fall below 1, and lowers eq.
+        (15)'s slopes from 1.095 / 1.036 to 1.087 / 1.021 (intercepts 0.155 / 0.214 unchanged).
+        Zeroing and renormalising each matrix to sum 1 gives 1/b = 1.094 g + 0.156 / 1.033 g +
+        0.217 (b at g = 0: 6.409 / 4.615); direction 9 is then exactly
+        ``probability_matrices(5, v_max=1)``'s, directions 1-8 within 3.2e-4 (that function
+        renormalises W_basic on the 5 x 5 window before mixing). In tracking it makes no
+        difference that matters: on the 17 dB clear-sky speed scenes of ``dpa-pd-snr`` (20
+        scenes, paper direction step) the fraction of frames on the truth at 0 / 0.5 / 1 / 1.5
+        px/frame is 1.00 / 0.94 / 0.62 / 0.12 (g = 0) and 1.00 / 0.98 / 0.89 / 0.30 (g = 1) with
+        our matrices and within 0.01 of that zeroed, zeroed and renormalised, or 5 x 5. For the
+        paper's zeroed border use ``probability_matrices(5, v_max=1)`` (the section-3 matrices
+        the experiments and ``RECOMMENDED`` use).
 
     Args:
         v_max: largest target speed in pixels per frame (Figure 3: 1).

@@ -339,11 +339,26 @@ class TestSampling:
     def test_quick(self, tmp_path):
         module = load("dpa-sampling")
         md = module.run(quick=True, out_dir=tmp_path, progress=False)
-        rows = check_outputs("dpa-sampling", md, tmp_path)
+        every = check_outputs("dpa-sampling", md, tmp_path)
+        rows = [r for r in every if r["table"] == "sampling"]
         # 4 scenes (NA23A, NPA, fluctuating and one-pixel NA23A) x s_n 1, 4 x g 0, 1
         # x b paper / EMC x 2 seeds
         assert len(module.SCENES) == 4
         assert len(rows) == 4 * 2 * 2 * 2 * 2
+        seen = [r for r in every if r["table"] == "visibility"]  # 2 peaks x s_n 1, 4 x 2 seeds
+        assert len(seen) == len(every) - len(rows) == 2 * 2 * 2
+        assert {float(r["peak"]) for r in seen} == set(module.QUICK_VISIBILITY_PEAKS)
+        # the preset's peak: the same scenes as the main table, so the same tracking
+        for r in seen:
+            if float(r["peak"]) == 30.0:
+                (main,) = [
+                    m
+                    for m in rows
+                    if (m["scene"], m["s_n"], m["seed"], m["b_choice"], float(m["g"]))
+                    == ("NPA", r["s_n"], r["seed"], "paper", 0.0)
+                ]
+                assert main["tracked"] == r["tracked_g0"]
+        assert f"## {module.VISIBILITY}" in md.read_text()
         assert {r["s_n"] for r in rows} == {"1", "4"}
         assert {r["b_choice"] for r in rows} == {"paper", "EMC"}
         for r in rows:
@@ -409,10 +424,37 @@ class TestSampling:
         # 3 frames of 0.3 px/frame between kept frames, plus the jitter of two frames (<= 1 px)
         assert torch.all(torch.linalg.vector_norm(steps, dim=-1) <= 0.9 + 2 * 2**0.5 * 0.5)
 
+    def test_part_visibility_keeps_the_rest(self, tmp_path):
+        module = load("dpa-sampling")
+        with pytest.raises(FileNotFoundError, match="--part visibility"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="visibility")
+        md = module.run(quick=True, out_dir=tmp_path, progress=False)
+        before, rows = md.read_text(), read_rows(tmp_path / "dpa-sampling.csv")
+        module.run(quick=True, out_dir=tmp_path, progress=False, part="visibility")
+        after = md.read_text()
+        note = "Computed alone with `--part visibility`"
+        assert note in after and after.count(f"## {module.VISIBILITY}") == 1
+        kept = [line for line in after.splitlines() if not line.startswith(note)]
+        assert "\n".join(kept).replace("\n\n\n", "\n\n") == before.rstrip("\n")
+        assert read_rows(tmp_path / "dpa-sampling.csv") == rows
+
+    def test_single_frame_visibility(self):
+        module = load("dpa-sampling")
+        frames = torch.zeros(1, 2, 40, 20)
+        truth = torch.tensor([[[10.0, 20.0], [10.0, 19.0]]])
+        frames[0, 0, 20, 10] = 6.0  # frame 0: the target is the highest pixel, 2 x the clutter
+        frames[0, 0, 5, 3] = 3.0
+        frames[0, 1, 19, 10] = 2.0  # frame 1: a brighter pixel elsewhere in the target block
+        frames[0, 1, 30, 15] = 4.0
+        seen = module.single_frame_visibility(frames, truth, (40, 20))
+        assert float(seen["on_tb"][0]) == 0.5 and float(seen["on_nine"][0]) == 0.5
+        assert float(seen["ratio"][0]) == pytest.approx(0.5)  # lower median of 2.0, 0.5
+
     @pytest.mark.slow
     def test_full(self, tmp_path):
         module = load("dpa-sampling")
         rows = check_outputs("dpa-sampling", module.run(out_dir=tmp_path), tmp_path)
+        rows = [r for r in rows if r["table"] == "sampling"]
         assert len(rows) == 4 * 5 * 2 * 2 * 20
 
 
@@ -439,9 +481,57 @@ class TestPdSnr:
         assert {int(r["frames"]) for r in frames} == set(range(1, 9))
         speed = [r for r in rows if r["table"] == "speed"]
         assert {float(r["speed"]) for r in speed} == set(module.QUICK_SPEEDS)
-        assert len(speed) == len(module.QUICK_SPEEDS) * (len(methods) - 1) * 2
+        assert len(speed) == len(module.QUICK_SPEEDS) * len(module.speed_options()) * 2
+        assert {r["method"] for r in speed} == {label for label, *_ in module.speed_options()}
         assert all(0.0 <= float(r["on_truth"]) <= 1.0 for r in speed)
         assert "n/a: [NR08] reports no Pd" in md.read_text()
+        # --part speed: part 2 alone, the part-1 rows and tables read back unchanged
+        before = md.read_text()
+        merged = module.run(quick=True, out_dir=tmp_path, progress=False, part="speed")
+        again = read_rows(tmp_path / "dpa-pd-snr.csv")
+        assert [r for r in again if r["table"] != "speed"] == [
+            r for r in rows if r["table"] != "speed"
+        ]
+        cut = "## Tracking versus target speed"
+        assert (
+            merged.read_text()
+            .split("## Summary")[1]
+            .split(cut)[0]
+            .replace("rerun alone with `--part speed`", "")
+            == before.split("## Summary")[1].split(cut)[0]
+        )
+        assert "rerun alone with `--part speed`" in merged.read_text()
+
+    def test_part_speed_needs_a_run(self, tmp_path):
+        module = load("dpa-pd-snr")
+        with pytest.raises(FileNotFoundError, match="--part speed"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="speed")
+        with pytest.raises(ValueError, match="`part`"):
+            module.run(quick=True, out_dir=tmp_path, progress=False, part="pd")
+
+    def test_speed_options_are_the_presets(self):
+        from hocnet.dpa.presets import PAPER, RECOMMENDED
+
+        module = load("dpa-pd-snr")
+        options = {label: (preset, flags) for label, preset, flags in module.speed_options()}
+        # the paper DPA at g = 0 with the 7 x 7 matrices is --preset paper itself
+        assert options["paper DPA, g = 0"] == (PAPER, "--preset paper")
+        assert options["recommended (CLI default)"][0] == RECOMMENDED
+        fast = options["recommended, g = 1, source direction step"][0]
+        assert (fast.g, fast.direction_step, fast.window) == (1.0, "source", 5)
+        for label, (preset, _) in options.items():  # the earlier options keep their settings
+            if label.startswith(("paper DPA", "equal gain", "source direction step")):
+                assert (preset.window, preset.v_max, preset.memory) == (7, 2.0, 0.8), label
+
+    def test_fast_targets_are_sampled_from_a_longer_sequence(self):
+        module = load("dpa-pd-snr")
+        frames, truth = module.speed_data(2.5, [1, 2], (6, 40, 40))
+        assert frames.shape == (2, 6, 40, 40) and truth.shape == (2, 6, 2)
+        steps = truth[:, 1:] - truth[:, :-1]  # 2.5 px/frame at 30 degrees plus two jitters
+        drift = torch.tensor([2.5 * math.cos(math.pi / 6), 2.5 * math.sin(math.pi / 6)])
+        assert torch.all((steps - drift.double()).abs() <= 1.0 + 1e-9)
+        slow, _ = module.speed_data(1.0, [1], (6, 40, 40))
+        assert slow.shape == (1, 6, 40, 40)
 
     def test_frames_snr_discriminates(self):
         module = load("dpa-pd-snr")
