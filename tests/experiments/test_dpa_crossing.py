@@ -37,7 +37,7 @@ def test_interface(crossing):
     assert list(crossing.METHODS.values()) == [False, "retrack", "joint", "straightest"]
 
 
-def test_targets_meet_at_frame_12(crossing):
+def test_targets_meet_around_frame_12(crossing):
     for scene in ("0.5", "0.71", "1", "1.41", "1.5"):
         a, b = (t.trajectory(25) for t in crossing.targets(scene))
         gap = torch.linalg.vector_norm(a - b, dim=-1)
@@ -46,7 +46,8 @@ def test_targets_meet_at_frame_12(crossing):
     a, b = (t.trajectory(25) for t in crossing.targets("near-miss"))
     assert float(torch.linalg.vector_norm(a - b, dim=-1).min()) == pytest.approx(3.0)
     a, b = (t.trajectory(25) for t in crossing.targets("overtake"))
-    assert float(torch.linalg.vector_norm(a - b, dim=-1).min()) == pytest.approx(2.0)
+    gap = torch.linalg.vector_norm(a - b, dim=-1)  # level at t = 12.5: 2 px apart
+    assert int(gap.argmin()) in (12, 13) and 2.0 < float(gap.min()) < 2.05
 
 
 def _followed_loop(positions, truth):
