@@ -751,7 +751,7 @@ def detect(
 
         Changed tracks have ``retracked=True``; their ``score`` is still the last-frame ASF of
         the original run, their ``scores`` the ASF along the new path. Measured
-        (``PYTHONPATH=. python experiments/dpa_crossing.py``, results/dpa_crossing.txt): two
+        (``hocnet reproduce dpa-crossing``, ``experiments/results/dpa-crossing.md``): two
         18 dB targets on crossing diagonals meeting at frame 12 of 25, 7 x 7 matrices
         (``v_max = 2``), b of EMC 0.8, 20 seeds; scenes with one track per target (each within
         1.5 px of one target in >= 80 % of the frames), plain / retrack / joint / straightest,

@@ -583,7 +583,7 @@ class TestCrossingTargets:
     # Two 18 dB targets on crossing diagonals meeting at frame 12 of 25 (the `speed` below is
     # per axis: 0.35, 0.5, 0.71 and 1.06 are 0.5, 0.71, 1 and 1.5 px/frame; 1.0 is issue 8's
     # scene, 1.41 px/frame), paper matrices (7 x 7, v_max = 2), b of EMC 0.8 of direction 9.
-    # Measured over seeds 0..19 (experiments/dpa_crossing.py, results/dpa_crossing.txt): plain
+    # Measured over seeds 0..19 (experiments/dpa_crossing.py, results/dpa-crossing.md): plain
     # back-tracking gives one track per target in 0 of 20 scenes everywhere (one track follows
     # one target and then the other); re-tracking and joint back-tracking: see detect's Notes.
     # Below: seeds 0..9 (not chosen), the bound is the count measured on them minus one.
