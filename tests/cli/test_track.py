@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 
 import numpy as np
@@ -447,8 +448,8 @@ class TestNewUser:
         import torch
 
         from hocnet.cli.detect import hoc_kwargs
-        from hocnet.cli.track import _hoc_plots, _windows
-        from hocnet.hoc import detect
+        from hocnet.cli.track import _hoc_plots, _window_starts
+        from hocnet.hoc import density_bound, detect
 
         specs = [
             TargetSpec(start=(5, 5), velocity=(1.2, 1.2), p_miss=0.05),
@@ -459,11 +460,13 @@ class TestNewUser:
         cube[12:20] |= torch.rand(8, 48, 48, generator=gen) < 0.12  # dense in the middle
         p = {"order": 2, "v": 4, "delta": 45.0, "threshold": 2.5, "min_points": 5}
         p.update(min_speed=0.0, window=10, stride=stride)
-        starts, dense, _, _ = _windows(cube, p)
+        starts = _window_starts(33, 10, stride)
+        bound = density_bound("modified", 4, math.radians(45.0))
+        dense = [s for s in starts if cube[s : s + 10].float().mean() > bound]
         assert dense and len(dense) < len(starts)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            plots = _hoc_plots(cube, p)
+            plots = [z for _, z in _hoc_plots(cube, p)]
             kept = torch.zeros_like(cube)
             for s in starts:
                 kept[s : s + 10] |= detect(cube[s : s + 10], **hoc_kwargs(p)).cleaned
