@@ -16,22 +16,54 @@ tracks with identities:
 
 The input (a ``.npy`` / ``.npz`` sequence or image frames), the detector options and their
 validation are those of ``hocnet detect`` (:mod:`hocnet.cli._inputs`), and so is the detection
-code (:mod:`hocnet.cli.detect`).
+(:mod:`hocnet.cli.detect`; here frame by frame, with the same plots: tested).
 
-The MHT's false-alarm density defaults to the mean number of plots per frame divided by the
-frame area (an upper bound: targets are counted too; our choice), the new-target density to a
-tenth of it.
+What is online (frame ``n`` processed when it is read, in order; the MHT steps frame by frame
+as the detector's plots become final, ``mht.step(z, time=t)``):
+
+* HOC (:func:`_hoc_plots`): a window's density and identification run when its last frame
+  arrives; the plots of frame ``t`` are final, and fed to the MHT, after frame
+  ``s + window - 1``, ``s`` the last window start ``<= t``: a delay of at most ``window - 1``
+  frames (9 with the defaults: frame ``s`` waits ``window - 1`` frames, frame
+  ``s + stride - 1`` waits ``window - stride``).
+  With ``--threshold-pfa`` each frame is pre-processed and binarised when it is read.
+* DPA (:func:`_dpa_plots`): each frame's pre-processing, its ASF (one step of the recursion
+  from the previous frame's, :func:`hocnet.dpa.accumulate` with ``initial``) and its plots, at
+  that frame: no delay.
+* Pre-processing (:func:`_white_frames`): registration of frames ``n - 1`` and ``n``, the
+  temporal background of frame ``n`` from its ``--background-window`` previous frames,
+  whitening of frame ``n``: causal, a history of ``--background-window`` frames.
+* The MHT's false-alarm density (a constructor constant) defaults to the mean number of plots
+  per frame over the first ``K = --lambda-fa-frames`` frames (5; at least 0.1 per frame)
+  divided by the frame area (an upper bound: targets are counted too; our choice), fixed
+  after them; the new-target density to a tenth of it. The MHT is built once those ``K``
+  frames' plots are known (they are buffered until then); with ``--lambda-fa`` at once.
+
+What is not online:
+
+* The input is a file: it is read whole, and checked whole before any work (finite values,
+  float32 range, flat frames for the DPA, the binary check of the HOC). Its number of frames
+  ``T`` is known up front; the HOC uses it for its extra last window (``T - window .. T - 1``,
+  when the strides do not reach the last frame).
+* ``--target-free`` (the DPA's CFAR threshold) is a separate calibration sequence,
+  pre-processed and accumulated as a whole before the first frame of SEQ.
+* The warnings (dense windows, locally saturated patches, binarisation) are said once, after
+  the last frame; the outputs are written at the end.
+* Pre-processing costs more per frame than in batch: the background removal runs on the
+  ``--background-window + 1`` frames of the history at every frame (about
+  ``--background-window / 2`` times the batch work of that step).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import time
 import warnings
-from pathlib import Path
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 from hocnet.cli import _inputs
@@ -164,9 +196,18 @@ def _check_order_fits(args: argparse.Namespace, n_frames: int, order: int) -> No
     )
 
 
-def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
-    """The binary cube of the HOC (``--threshold-pfa``: binarised), notes and shifts."""
-    from hocnet.cli.detect import _bound_hoc, _shifts_summary, binarize_frames
+def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Iterable[Any], dict[str, Any]]:
+    """The binary frames of the HOC, in order, and ``info`` (``notes``, ``shifts``).
+
+    A binary ``cube`` is its own frames. With ``--threshold-pfa`` the intensity frames are
+    binarised frame by frame as ``hocnet detect`` does (:func:`hocnet.cli.detect.binarize_frames`):
+    the pre-processing of :func:`_white_frames` (causal, frames ``n - background_window .. n``),
+    then the ``floor(pfa H W)`` highest whitened pixels of the frame
+    (:func:`hocnet.data.binarize.cfar_binarize`); ``info`` gets the registration shifts and the
+    notes (shifts, points kept) once the last frame is out, and the warnings of
+    ``binarize_frames`` are said then.
+    """
+    from hocnet.cli.detect import _bound_hoc, _check_float32_range
 
     n_frames = cube.shape[0]
     order = params["order"]
@@ -175,16 +216,51 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
             f"SEQ: expected at least 2 * order + 1 = {2 * order + 1} frames for --order "
             f"{order}, got {n_frames}"
         )
-    notes: list[str] = []
-    shifts = None
-    if params.get("threshold_pfa") is not None:
-        cube, shifts, note = binarize_frames(cube, params)
-        if shifts is not None:
-            notes.append(_shifts_summary(shifts, _SHIFTS_AT, params.get("unregistered_pairs")))
-        notes.append(note)
+    info: dict[str, Any] = {"notes": [], "shifts": None}
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
-    return cube, notes, shifts
+    if params.get("threshold_pfa") is None:
+        return cube, info
+    _check_float32_range(cube, "`frames`")
+    return _binarised(cube, params, info), info
+
+
+def _binarised(cube: Any, params: dict[str, Any], info: dict[str, Any]) -> Iterator[Any]:
+    """``--threshold-pfa``: each frame pre-processed and binarised as soon as it is read."""
+    from hocnet.cli.detect import _shifts_summary
+    from hocnet.data.binarize import cfar_binarize
+
+    pfa = params["threshold_pfa"]
+    _, height, width = cube.shape
+    per_frame = math.floor(pfa * height * width)
+    points = 0
+    for white in _white_frames(cube.float(), params, info):
+        binary = cfar_binarize(white[None], pfa)[0]
+        points += int(binary.sum())
+        yield binary
+    if info["shifts"] is not None:
+        params["unregistered_pairs"] = info["unregistered_pairs"]
+        info["notes"].append(
+            _shifts_summary(info["shifts"], _SHIFTS_AT, params["unregistered_pairs"])
+        )
+    info["notes"].append(
+        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
+    )
+    if per_frame < 1:  # as binarize_frames (said by the command as `hocnet: warning: ...`)
+        warnings.warn(
+            f"--threshold-pfa: {pfa:g} x {height} x {width} pixels = {pfa * height * width:.3g} "
+            "expected false points per frame (< 1): every frame keeps 0 points and the HOC gets "
+            f"an empty cube; give at least 1 / (H W) = {1 / (height * width):.3g}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    elif points == 0:
+        warnings.warn(
+            f"--threshold-pfa: no point is left after the binarisation at pfa {pfa:g} (every "
+            "frame is flat after the pre-processing); the HOC gets an empty cube",
+            RuntimeWarning,
+            stacklevel=2,
+        )
 
 
 def _window_starts(n_t: int, window: int, stride: int) -> list[int]:
@@ -214,10 +290,23 @@ def _window_density(count: int, window: int, h: int, w: int) -> float:
     return float(torch.tensor(float(count)) / (window * h * w))
 
 
-def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
+@contextlib.contextmanager
+def _no_window_notes() -> Iterator[None]:
+    """Drop a window's own local-saturation note (:func:`_hoc_plots` says them once, at the end).
+
+    Entered around each push, never across a ``yield`` (the filter is process-wide).
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*windows of scans", category=RuntimeWarning)
+        yield
+
+
+def _hoc_plots(
+    cube: Iterable[Any], p: dict[str, Any], shape: tuple[int, int, int] | None = None
+) -> Iterator[tuple[int, Any]]:
     """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC, yielded as frames become final.
 
-    Frames are read one at a time (``cube[n]`` at step ``n``) and kept only while a window
+    Frames are read one at a time (iterating over ``cube``) and kept only while a window
     still needs them (the last ``window``). When frame ``n`` arrives, the window ending at
     ``n`` (if any) is complete: its density (on-points over ``window H W``) is computed then,
     and if it is above the modified HOC's discrimination bound
@@ -240,9 +329,10 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
     (:func:`warnings.warn`, said by the command as ``hocnet: warning: ...``).
 
     Args:
-        cube: ``(T, H, W)`` bool scans.
+        cube: ``(T, H, W)`` bool scans, or any iterable of ``(H, W)`` bool scans (a stream).
         p: the HOC options (:func:`hocnet.cli.detect.hoc_kwargs`), ``window``, ``stride``,
             ``min_speed``.
+        shape: ``(T, H, W)``; default ``cube.shape``.
 
     Yields:
         ``(t, plots)``: frame ``t`` in order ``0 .. T - 1``, ``plots`` ``(M_t, 2)`` float64
@@ -257,7 +347,7 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
 
     kw = hoc_kwargs(p)
     window, stride = p["window"], p["stride"]
-    n_t, h, w = cube.shape
+    n_t, h, w = tuple(cube.shape) if shape is None else shape  # type: ignore[attr-defined]
     starts = _window_starts(n_t, window, stride)
     extra = starts[-1] if starts[-1] % stride else None
     bound = density_bound("modified", p["v"], math.radians(p["delta"]))
@@ -266,11 +356,6 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
         if p["min_speed"] > 0:
             result = reject_slow_tracks(result, p["min_speed"])
         return result.cleaned
-
-    def quiet(call: Any) -> Any:  # the windows' own notes: said once, at the end
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=".*windows of scans", category=RuntimeWarning)
-            return call()
 
     frames: dict[int, Any] = {}  # the frames a window still needs
     counts: dict[int, int] = {}
@@ -283,8 +368,8 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
     run0 = pushed = 0  # the detector's first frame, the next frame to push to it
     done = 0  # windows done (index into `starts`)
     emitted = 0
-    for n in range(n_t):
-        frames[n] = cube[n]
+    for n, scan in enumerate(cube):
+        frames[n] = scan
         counts[n] = int(frames[n].sum())
         kept[n] = torch.zeros(h, w, dtype=torch.bool)
         if bool(_local_saturation(frames[n].reshape(1, 1, h, w).bool(), kw["v"]).any()):
@@ -301,20 +386,24 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> Iterator[tuple[int, Any]]:
             identified.append(s)
             if s == extra:  # the last frames: one final window ending at the last frame
                 last = torch.stack([frames[t] for t in range(s, n + 1)])
-                out = cleaned(quiet(lambda last=last: detect(last, **kw)))
+                with _no_window_notes():
+                    out = cleaned(detect(last, **kw))
             else:
                 if det is None:
                     det = StreamingDetector(window=window, stride=stride, **kw)
                     run0 = pushed = s
                 result = None
-                for t in range(pushed, n + 1):
-                    result = quiet(lambda t=t: det.push(frames[t]))
+                with _no_window_notes():
+                    for t in range(pushed, n + 1):
+                        result = det.push(frames[t])
                 pushed = n + 1
                 assert result is not None and run0 + result.start == s
                 out = cleaned(result.result)
             for i, t in enumerate(range(s, n + 1)):
                 kept[t] |= out[i]
-        for t in [t for t in frames if t <= n - window]:  # no window needs them any more
+        # no window needs them any more (nor the running detector: stride > window pushes the
+        # frames between windows too)
+        for t in [t for t in frames if t <= n + 1 - window and (det is None or t < pushed)]:
             del frames[t], counts[t]
         final = starts[done] if done < len(starts) else n_t  # frames before it are final
         while emitted <= n and emitted < final:
@@ -774,22 +863,21 @@ def _cmd_track(args: argparse.Namespace) -> int:
     n_t, h, w = cube.shape
     if det == "hoc":
         _check_order_fits(args, n_t, det_params["order"])
-    notes: list[str] = []
     messages: list[str] = []
-    shifts = None
     start = time.perf_counter()
     with _torch_threads(PIPELINE_THREADS), _reported_warnings(messages):
-        info: dict[str, Any] = {}
         if det == "hoc":
-            scans, notes, shifts = _hoc_input(cube, det_params)
-            stream = _hoc_plots(scans, det_params)
+            scans, info = _hoc_input(cube, det_params)
+            stream = _hoc_plots(scans, det_params, shape=(n_t, h, w))
         else:
             names = {"frame_names": [file.name for file in files]}  # said about flat frames
             stream, info = _dpa_plots(cube, {**det_params, **names})
         bar = _progress(stream, desc="track", total=n_t, enabled=_show_progress(args))
         tracks, plots, params = _run_mht(bar, args, n_t, float(h * w))
+        notes: list[str] = list(info.get("notes", []))
+        shifts = info["shifts"]
         if det == "dpa":
-            det_params, shifts = info["meta"], info["shifts"]
+            det_params = info["meta"]
             if shifts is not None:
                 weak = det_params.get("unregistered_pairs")
                 notes.append(_shifts_summary(shifts, _SHIFTS_AT, weak))
@@ -864,6 +952,20 @@ detectors (their options, defaults and messages are those of 'hocnet detect'):
   dpa  the DPA of [NR08] with the pre-processing of 'hocnet detect --method dpa' (--preset),
        on INTENSITY frames; plots = local maxima of each frame's causal ASF
 
+online (streaming; see the module hocnet.cli.track):
+  frames are processed in order as they are read, and the tracker steps frame by frame as
+  the plots of a frame become final:
+    hoc  a window is identified when its last frame arrives; frame t's plots are final after
+         frame s + window - 1 (s: the last window start <= t): at most window - 1 frames late
+    dpa  pre-processing, ASF step and plots of frame t at frame t (no delay)
+    pre-processing (dpa, hoc --threshold-pfa): causal, registration on frames n - 1 and n,
+         background of frame n from its --background-window previous frames, whitening of n
+    --lambda-fa (default): from the plots of the first --lambda-fa-frames frames only, fixed
+         after them; the tracker starts once they are known (at once with --lambda-fa)
+  not online: SEQ is a file, read and checked whole before any work (its number of frames
+  fixes the HOC's extra last window); --target-free is calibration data, processed whole
+  first; warnings are said, and outputs written, at the end
+
 tracker:
   the track-oriented structured-branching MHT of [PD] (hocnet.tracking.mht.MHT): chi-square
   gating, LLR track score with Wald's SPRT (confirm at ln((1 - beta) / alpha), delete at
@@ -900,7 +1002,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "track",
         help="detect and track: a detector's plots into the MHT of [PD] (confirmed tracks)",
         description="Run a detector over a sequence (a .npy/.npz cube or image frames) and\n"
-        "feed its per-frame plots (pixel coordinates) to the track-oriented MHT of [PD];\n"
+        "feed its per-frame plots (pixel coordinates) to the track-oriented MHT of [PD]\n"
+        "online, frame by frame (see 'online' below);\n"
         "print the confirmed tracks and write them as JSON and a picture.",
         epilog=_EPILOG,
         formatter_class=_Formatter,
@@ -916,7 +1019,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--force", action="store_true", help="replace files in --out that hocnet did not write"
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bar (shown on stderr only when it is a terminal, after 2 s)",
+    )
     hoc = p.add_argument_group("hoc options (--detector hoc; as in 'hocnet detect')")
     _inputs.add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
     hoc.add_argument(
