@@ -938,3 +938,53 @@ class TestOnline:
         assert main(["track", "--help"]) == 0
         text = " ".join(capsys.readouterr().out.split())
         assert "--lambda-fa-frames K" in text and "online" in text
+
+    def test_threshold_pfa_binarised_frame_by_frame_equals_batch(self, ir_scene):
+        import warnings
+
+        import torch
+
+        from hocnet.cli import build_parser
+        from hocnet.cli.detect import binarize_frames
+        from hocnet.cli.track import _hoc_input, _prepare
+
+        args = build_parser().parse_args(["track", "x.npy", "--threshold-pfa", "0.003"])
+        params = _prepare(args)
+        params.pop("binary", None)
+        frames = ir_scene.frames.double()[:16]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            want, shifts, note = binarize_frames(frames, dict(params))
+            stream, info = _hoc_input(frames, dict(params))
+            got = torch.stack(list(stream))
+        assert want.sum() > 16 and torch.equal(got, want)
+        assert shifts is not None and torch.equal(info["shifts"], shifts)
+        assert info["notes"][-1] == note
+
+    def test_mht_built_once_the_first_k_frames_are_known(self, monkeypatch):
+        import torch
+
+        from hocnet.cli import build_parser
+        from hocnet.cli import track as track_module
+
+        pulled: list[int] = []
+        built: list[int] = []
+        real = track_module._build_mht
+
+        def build(p):
+            built.append(len(pulled))
+            return real(p)
+
+        monkeypatch.setattr(track_module, "_build_mht", build)
+
+        def stream():
+            for t in range(8):
+                pulled.append(t)
+                yield t, torch.zeros(0, 2, dtype=torch.float64)
+
+        for argv, frames in (([], 5), (["--lambda-fa-frames", "3"], 3), (["--lambda-fa", "1"], 1)):
+            pulled.clear()
+            built.clear()
+            args = build_parser().parse_args(["track", "x.npy", *argv])
+            track_module._run_mht(stream(), args, 8, 100.0)
+            assert built == [frames]
