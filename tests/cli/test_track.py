@@ -834,29 +834,57 @@ class TestOnline:
         assert len(reference) >= 2
         assert data["tracks"] == json.loads(json.dumps(reference))
 
-    @pytest.mark.parametrize("extra", [[], ["--no-register", "--background", "mean"]])
-    def test_dpa_streaming_equals_batch(self, tmp_path, ir_scene, capsys, extra):
+    @pytest.mark.parametrize(
+        ("scene", "extra"),
+        [
+            ("clear", []),
+            ("clear", ["--no-register", "--background", "mean"]),
+            ("bright", ["--background", "lowrank", "--background-window", "6"]),
+        ],
+    )
+    def test_dpa_streaming_equals_batch(
+        self, tmp_path, ir_scene, capsys, monkeypatch, scene, extra
+    ):
         import torch
 
+        import hocnet.data.background as background
         from hocnet.cli.track import _dpa_plots, _track_dicts
 
         frames = ir_scene.frames
+        if scene == "bright":  # clouds and a shaking camera: registration with non-zero shifts
+            targets = [IRTarget(8, 8, 1.2, 1.2, snr_db=16.0), IRTarget(8, 56, 1.2, -1.2, snr_db=16)]
+            frames = simulate_ir((24, 64, 64), targets, clouds="bright", jitter=1.0, seed=1).frames
         argv = ["--detector", "dpa", "--lambda-fa", "2e-4", *extra]
         data, params = self._run(tmp_path, frames.numpy(), argv)
         capsys.readouterr()
-        want, shifts = _batch_dpa_plots(frames.double(), dict(params))
         stream, info = _dpa_plots(frames.double(), dict(params))
         got = list(stream)
+        _, batch_shifts = _batch_dpa_plots(frames.double(), dict(params))
+        if batch_shifts is not None:
+            # the pairs registered one at a time: the FFTs of a pair and of the whole sequence
+            # round differently in float32 (measured: 1 of 23 pairs moved by one 0.01 px step
+            # of the sub-pixel search); the rest of the batch path is then run with the
+            # stream's shifts, so the comparison below is exact
+            ours = info["shifts"]
+            assert (ours - batch_shifts).abs().max() <= 0.0101
+            assert int(((ours - batch_shifts).abs().sum(1) > 0).sum()) <= 2
+            assert int((batch_shifts.abs().sum(1) > 0).sum()) >= (10 if scene == "bright" else 0)
+            pairs = torch.zeros_like(ours[:, 0], dtype=torch.bool)
+
+            def estimate(x, **kw):  # the stream's shifts, no peak rejected
+                return (ours.to(x.dtype), pairs) if kw.get("return_rejected") else ours
+
+            monkeypatch.setattr(background, "estimate_shifts", estimate)
+        want, shifts = _batch_dpa_plots(frames.double(), dict(params))
         for (_, z), ref in zip(got, want, strict=True):
             assert torch.equal(z, ref)
         assert sum(len(z) for z in want) > 100
         if shifts is None:
             assert info["shifts"] is None and "shifts" not in data["meta"]
         else:
-            assert torch.equal(info["shifts"], shifts)
-            assert data["meta"]["shifts"] == shifts.tolist()
+            assert data["meta"]["shifts"] == info["shifts"].tolist()
         reference = _track_dicts(_batch_mht(want, data["meta"]["mht_params"]), want)
-        assert len(reference) >= 2
+        assert len(reference) >= (2 if scene == "clear" else 1)
         assert data["tracks"] == json.loads(json.dumps(reference))
 
     def test_dpa_plots_are_causal(self, ir_scene):
