@@ -1016,3 +1016,30 @@ class TestOnline:
             args = build_parser().parse_args(["track", "x.npy", *argv])
             track_module._run_mht(stream(), args, 8, 100.0)
             assert built == [frames]
+
+    @pytest.mark.parametrize(
+        ("tty", "quiet", "shown"), [(True, False, True), (True, True, False), (False, False, False)]
+    )
+    def test_progress_bar_on_a_terminal_only(
+        self, tmp_path, capsys, monkeypatch, tty, quiet, shown
+    ):
+        # the shared tqdm bar of the CLI (`_common._progress`), over the frames as they are done
+        import sys
+
+        from hocnet.cli import track as track_module
+
+        calls = []
+        real = track_module._progress
+
+        def progress(items, *, desc, total, enabled):
+            calls.append((desc, total, enabled))
+            return real(items, desc=desc, total=total, enabled=False)
+
+        monkeypatch.setattr(track_module, "_progress", progress)
+        monkeypatch.setattr(sys.stderr, "isatty", lambda: tty, raising=False)
+        seq = tmp_path / "s.npy"
+        np.save(seq, np.zeros((7, 12, 12), dtype=bool))
+        argv = ["track", str(seq), "--out", str(tmp_path / "o"), "--no-plot", *["-q"] * quiet]
+        assert main(argv) == 0
+        capsys.readouterr()
+        assert calls == [("track", 7, shown)]
