@@ -16,20 +16,54 @@ tracks with identities:
 
 The input (a ``.npy`` / ``.npz`` sequence or image frames), the detector options and their
 validation are those of ``hocnet detect`` (:mod:`hocnet.cli._inputs`), and so is the detection
-code (:mod:`hocnet.cli.detect`).
+(:mod:`hocnet.cli.detect`; here frame by frame, with the same plots as the batch path:
+tested; with ``--register`` a shift can differ by 0.01 px, see :func:`_white_frames`).
 
-The MHT's false-alarm density defaults to the mean number of plots per frame divided by the
-frame area (an upper bound: targets are counted too; our choice), the new-target density to a
-tenth of it.
+What is online (frame ``n`` processed when it is read, in order; the MHT steps frame by frame
+as the detector's plots become final, ``mht.step(z, time=t)``):
+
+* HOC (:func:`_hoc_plots`): a window's density and identification run when its last frame
+  arrives; the plots of frame ``t`` are final, and fed to the MHT, after frame
+  ``s + window - 1``, ``s`` the last window start ``<= t``: a delay of at most ``window - 1``
+  frames (9 with the defaults: frame ``s`` waits ``window - 1`` frames, frame
+  ``s + stride - 1`` waits ``window - stride``).
+  With ``--threshold-pfa`` each frame is pre-processed and binarised when it is read.
+* DPA (:func:`_dpa_plots`): each frame's pre-processing, its ASF (one step of the recursion
+  from the previous frame's, :func:`hocnet.dpa.accumulate` with ``initial``) and its plots, at
+  that frame: no delay.
+* Pre-processing (:func:`_white_frames`): registration of frames ``n - 1`` and ``n``, the
+  temporal background of frame ``n`` from its ``--background-window`` previous frames,
+  whitening of frame ``n``: causal, a history of ``--background-window`` frames.
+* The MHT's false-alarm density (a constructor constant) defaults to the mean number of plots
+  per frame over the first ``K = --lambda-fa-frames`` frames (5; at least 0.1 per frame)
+  divided by the frame area (an upper bound: targets are counted too; our choice), fixed
+  after them; the new-target density to a tenth of it. The MHT is built once those ``K``
+  frames' plots are known (they are buffered until then); with ``--lambda-fa`` at once.
+
+What is not online:
+
+* The input is a file: it is read whole, and checked whole before any work (finite values,
+  float32 range, flat frames for the DPA, the binary check of the HOC). Its number of frames
+  ``T`` is known up front; the HOC uses it for its extra last window (``T - window .. T - 1``,
+  when the strides do not reach the last frame).
+* ``--target-free`` (the DPA's CFAR threshold) is a separate calibration sequence,
+  pre-processed and accumulated as a whole before the first frame of SEQ.
+* The warnings (dense windows, locally saturated patches, binarisation) are said once, after
+  the last frame; the outputs are written at the end.
+* Pre-processing costs more per frame than in batch: the background removal runs on the
+  ``--background-window + 1`` frames of the history at every frame (about
+  ``--background-window / 2`` times the batch work of that step).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import time
 import warnings
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +79,9 @@ from hocnet.cli._common import (
     _Formatter,
     _png_writer,
     _Problems,
+    _progress,
     _reported_warnings,
+    _show_progress,
     _table,
     _torch_threads,
     _write_outputs,
@@ -161,9 +197,18 @@ def _check_order_fits(args: argparse.Namespace, n_frames: int, order: int) -> No
     )
 
 
-def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
-    """The binary cube of the HOC (``--threshold-pfa``: binarised), notes and shifts."""
-    from hocnet.cli.detect import _bound_hoc, _shifts_summary, binarize_frames
+def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Iterable[Any], dict[str, Any]]:
+    """The binary frames of the HOC, in order, and ``info`` (``notes``, ``shifts``).
+
+    A binary ``cube`` is its own frames. With ``--threshold-pfa`` the intensity frames are
+    binarised frame by frame as ``hocnet detect`` does (:func:`hocnet.cli.detect.binarize_frames`):
+    the pre-processing of :func:`_white_frames` (causal, frames ``n - background_window .. n``),
+    then the ``floor(pfa H W)`` highest whitened pixels of the frame
+    (:func:`hocnet.data.binarize.cfar_binarize`); ``info`` gets the registration shifts and the
+    notes (shifts, points kept) once the last frame is out, and the warnings of
+    ``binarize_frames`` are said then.
+    """
+    from hocnet.cli.detect import _bound_hoc, _check_float32_range
 
     n_frames = cube.shape[0]
     order = params["order"]
@@ -172,81 +217,199 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Any, list[str], Any]:
             f"SEQ: expected at least 2 * order + 1 = {2 * order + 1} frames for --order "
             f"{order}, got {n_frames}"
         )
-    notes: list[str] = []
-    shifts = None
-    if params.get("threshold_pfa") is not None:
-        cube, shifts, note = binarize_frames(cube, params)
-        if shifts is not None:
-            notes.append(_shifts_summary(shifts, _SHIFTS_AT, params.get("unregistered_pairs")))
-        notes.append(note)
+    info: dict[str, Any] = {"notes": [], "shifts": None}
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
-    return cube, notes, shifts
+    if params.get("threshold_pfa") is None:
+        return cube, info
+    _check_float32_range(cube, "`frames`")
+    return _binarised(cube, params, info), info
 
 
-def _windows(cube: Any, p: dict[str, Any]) -> tuple[list[int], list[int], list[float], float]:
-    """The windows of the streaming HOC: starts, the dense ones, densities and the bound.
+def _binarised(cube: Any, params: dict[str, Any], info: dict[str, Any]) -> Iterator[Any]:
+    """``--threshold-pfa``: each frame pre-processed and binarised as soon as it is read."""
+    from hocnet.cli.detect import _shifts_summary
+    from hocnet.data.binarize import cfar_binarize
+
+    pfa = params["threshold_pfa"]
+    _, height, width = cube.shape
+    per_frame = math.floor(pfa * height * width)
+    points = 0
+    for white in _white_frames(cube.float(), params, info):
+        binary = cfar_binarize(white[None], pfa)[0]
+        points += int(binary.sum())
+        yield binary
+    if info["shifts"] is not None:
+        params["unregistered_pairs"] = info["unregistered_pairs"]
+        info["notes"].append(
+            _shifts_summary(info["shifts"], _SHIFTS_AT, params["unregistered_pairs"])
+        )
+    info["notes"].append(
+        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
+    )
+    if per_frame < 1:  # as binarize_frames (said by the command as `hocnet: warning: ...`)
+        warnings.warn(
+            f"--threshold-pfa: {pfa:g} x {height} x {width} pixels = {pfa * height * width:.3g} "
+            "expected false points per frame (< 1): every frame keeps 0 points and the HOC gets "
+            f"an empty cube; give at least 1 / (H W) = {1 / (height * width):.3g}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    elif points == 0:
+        warnings.warn(
+            f"--threshold-pfa: no point is left after the binarisation at pfa {pfa:g} (every "
+            "frame is flat after the pre-processing); the HOC gets an empty cube",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+
+
+def _window_starts(n_t: int, window: int, stride: int) -> list[int]:
+    """First frames of the HOC's windows: ``0, stride, 2 stride, ...`` and the extra last one.
 
     The streaming detector reports the windows starting at ``0, stride, 2 stride, ...`` (the
-    last one ending at most at the last frame), and :func:`_hoc_plots` adds one final window
-    ending at the last frame when the strides do not reach it. A window is dense when its
-    clutter density (its on-points over ``window H W``, computed as
-    :class:`~hocnet.hoc.stream.StreamingDetector` and :func:`~hocnet.hoc.detect` do) is above
-    the modified HOC's discrimination bound
-    (:func:`~hocnet.hoc.functional.density_bound`, [LA98] section IV-B): both skip its track
-    identification, so it has no plots, and :func:`_hoc_plots` does not compute it at all.
+    last one ending at most at the last frame); when the strides do not reach the last frame,
+    one more window ends there (start ``T - window``, not a multiple of ``stride``).
+
+    Examples:
+        >>> _window_starts(12, 5, 3)
+        [0, 3, 6, 7]
     """
-    import torch
-
-    from hocnet.hoc import density_bound
-
-    n_t, h, w = cube.shape
-    window, stride = p["window"], p["stride"]
     starts = list(range(0, n_t - window + 1, stride))
     if (n_t - window) % stride:
         starts.append(n_t - window)
-    counts = [0, *cube.reshape(n_t, -1).sum(dim=1).cumsum(0).tolist()]
-    bound = density_bound("modified", p["v"], math.radians(p["delta"]))
-    densities = [
-        float(torch.tensor(float(counts[s + window] - counts[s])) / (window * h * w))
-        for s in starts
-    ]
-    dense = [s for s, d in zip(starts, densities, strict=True) if d > bound]
-    return starts, dense, densities, bound
+    return starts
 
 
-def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
-    """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC.
+def _window_density(count: int, window: int, h: int, w: int) -> float:
+    """A window's clutter density as :class:`~hocnet.hoc.stream.StreamingDetector` computes it.
 
-    Windows denser than the HOC's bound (:func:`_windows`) are skipped, with one warning
-    (:func:`warnings.warn`, said by the command as ``hocnet: warning: ...``): their result
-    would be empty, and streaming through them costs without bound (a 20 x 32 x 32 cube of
-    ones took 45 s, one of 40 x 64 x 64 more than 500 s). Each run of consecutive sparse
-    windows is streamed by its own :class:`~hocnet.hoc.stream.StreamingDetector`, whose
-    windows are those of one detector over the whole sequence (every window's result equals
-    :func:`~hocnet.hoc.detect` on its scans). Locally saturated patches (``LOCAL_SATURATION``
-    of :mod:`hocnet.hoc.identify`: left out of identification by every window) are said once,
-    with the frame numbers of the sequence, instead of once per window with the window's own
-    scan numbers.
+    The float32 quotient of its on-points over ``window H W`` (as :func:`~hocnet.hoc.detect`).
+    """
+    import torch
+
+    return float(torch.tensor(float(count)) / (window * h * w))
+
+
+@contextlib.contextmanager
+def _no_window_notes() -> Iterator[None]:
+    """Drop a window's own local-saturation note (:func:`_hoc_plots` says them once, at the end).
+
+    Entered around each push, never across a ``yield`` (the filter is process-wide).
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*windows of scans", category=RuntimeWarning)
+        yield
+
+
+def _hoc_plots(
+    cube: Iterable[Any], p: dict[str, Any], shape: tuple[int, int, int] | None = None
+) -> Iterator[tuple[int, Any]]:
+    """Per-frame plots ``(M_t, 2)`` (x, y) of the streaming HOC, yielded as frames become final.
+
+    Frames are read one at a time (iterating over ``cube``) and kept only while a window
+    still needs them (the last ``window``). When frame ``n`` arrives, the window ending at
+    ``n`` (if any) is complete: its density (on-points over ``window H W``) is computed then,
+    and if it is above the modified HOC's discrimination bound
+    (:func:`~hocnet.hoc.functional.density_bound`, [LA98] section IV-B) it is skipped (no
+    plots, not pushed: streaming through a saturated cube costs without bound, a 20 x 32 x 32
+    cube of ones took 45 s). Otherwise its frames not yet pushed are pushed to the
+    :class:`~hocnet.hoc.stream.StreamingDetector` of the current run of consecutive sparse
+    windows (a new detector after a dense window), whose windows are those of one detector
+    over the whole sequence (each equals :func:`~hocnet.hoc.detect` on its scans); the extra
+    last window (:func:`_window_starts`) is one :func:`~hocnet.hoc.detect` call. The plots of
+    frame ``t`` are the points kept on identified tracks (``cleaned``) in every window holding
+    ``t``; ``(t, plots_t)`` is yielded as soon as every window that can hold ``t`` is done,
+    that is after frame ``s + window - 1`` with ``s`` the last window start ``<= t`` (at most
+    ``window - 1`` frames of delay; the number of frames ``T`` is known from the input, which
+    fixes the extra last window).
+
+    The warnings (dense windows, with their count; locally saturated patches,
+    ``LOCAL_SATURATION`` of :mod:`hocnet.hoc.identify`, with the sequence's frame numbers rather
+    than once per window with the window's scan numbers) are said once, after the last frame
+    (:func:`warnings.warn`, said by the command as ``hocnet: warning: ...``).
+
+    Args:
+        cube: ``(T, H, W)`` bool scans, or any iterable of ``(H, W)`` bool scans (a stream).
+        p: the HOC options (:func:`hocnet.cli.detect.hoc_kwargs`), ``window``, ``stride``,
+            ``min_speed``.
+        shape: ``(T, H, W)``; default ``cube.shape``.
+
+    Yields:
+        ``(t, plots)``: frame ``t`` in order ``0 .. T - 1``, ``plots`` ``(M_t, 2)`` float64
+        ``(x, y)`` pixel positions in row-major order.
     """
     import torch
 
     from hocnet.cli.detect import hoc_kwargs
-    from hocnet.hoc import detect, reject_slow_tracks
+    from hocnet.hoc import density_bound, detect, reject_slow_tracks
     from hocnet.hoc.identify import LOCAL_SATURATION, _local_saturation
     from hocnet.hoc.stream import StreamingDetector
 
     kw = hoc_kwargs(p)
     window, stride = p["window"], p["stride"]
+    n_t, h, w = tuple(cube.shape) if shape is None else shape  # type: ignore[attr-defined]
+    starts = _window_starts(n_t, window, stride)
+    extra = starts[-1] if starts[-1] % stride else None
+    bound = density_bound("modified", p["v"], math.radians(p["delta"]))
 
     def cleaned(result: Any) -> Any:
         if p["min_speed"] > 0:
             result = reject_slow_tracks(result, p["min_speed"])
         return result.cleaned
 
-    n_t, h, w = cube.shape
-    kept = torch.zeros(n_t, h, w, dtype=torch.bool)
-    starts, dense, densities, bound = _windows(cube, p)
+    frames: dict[int, Any] = {}  # the frames a window still needs
+    counts: dict[int, int] = {}
+    kept: dict[int, Any] = {}  # frames not yet yielded: (H, W) bool, kept points
+    saturated: list[int] = []  # frames with a locally saturated patch
+    dense: list[int] = []
+    densities: list[float] = []
+    identified: list[int] = []
+    det: Any = None
+    run0 = pushed = 0  # the detector's first frame, the next frame to push to it
+    done = 0  # windows done (index into `starts`)
+    emitted = 0
+    for n, scan in enumerate(cube):
+        frames[n] = scan
+        counts[n] = int(frames[n].sum())
+        kept[n] = torch.zeros(h, w, dtype=torch.bool)
+        if bool(_local_saturation(frames[n].reshape(1, 1, h, w).bool(), kw["v"]).any()):
+            saturated.append(n)
+        while done < len(starts) and starts[done] + window - 1 == n:
+            s = starts[done]
+            done += 1
+            density = _window_density(sum(counts[t] for t in range(s, n + 1)), window, h, w)
+            densities.append(density)
+            if density > bound:  # not identified, not pushed; the run of windows ends
+                dense.append(s)
+                det = None
+                continue
+            identified.append(s)
+            if s == extra:  # the last frames: one final window ending at the last frame
+                last = torch.stack([frames[t] for t in range(s, n + 1)])
+                with _no_window_notes():
+                    out = cleaned(detect(last, **kw))
+            else:
+                if det is None:
+                    det = StreamingDetector(window=window, stride=stride, **kw)
+                    run0 = pushed = s
+                result = None
+                with _no_window_notes():
+                    for t in range(pushed, n + 1):
+                        result = det.push(frames[t])
+                pushed = n + 1
+                assert result is not None and run0 + result.start == s
+                out = cleaned(result.result)
+            for i, t in enumerate(range(s, n + 1)):
+                kept[t] |= out[i]
+        # no window needs them any more (nor the running detector: stride > window pushes the
+        # frames between windows too)
+        for t in [t for t in frames if t <= n + 1 - window and (det is None or t < pushed)]:
+            del frames[t], counts[t]
+        final = starts[done] if done < len(starts) else n_t  # frames before it are final
+        while emitted <= n and emitted < final:
+            yield emitted, kept.pop(emitted).nonzero().double()[:, [1, 0]]
+            emitted += 1
     if dense:
         warnings.warn(
             f"clutter density above the modified HOC's discrimination bound {100 * bound:.2f} % "
@@ -256,56 +419,46 @@ def _hoc_plots(cube: Any, p: dict[str, Any]) -> list[Any]:
             RuntimeWarning,
             stacklevel=2,
         )
-    aligned = [s for s in starts if s % stride == 0 and s not in dense]
-    # frames of the windows that are identified (the dense ones are said above)
-    covered = {t for s0 in aligned for t in range(s0, s0 + window)}
-    if starts[-1] % stride and starts[-1] not in dense:
-        covered |= set(range(starts[-1], n_t))
-    local = _local_saturation(cube[None].bool(), kw["v"])[0]
-    frames = [t for t in local.flatten(1).any(dim=1).nonzero().squeeze(1).tolist() if t in covered]
-    if frames:
+    covered = {t for s in identified for t in range(s, s + window)}  # identified frames only
+    shown = [t for t in saturated if t in covered]
+    if shown:
         side = 2 * kw["v"] + 1
         warnings.warn(
             f"clutter density above {100 * LOCAL_SATURATION:.0f} % in {side} x {side} windows "
-            f"of frames {frames}: the points there are left out of track identification",
+            f"of frames {shown}: the points there are left out of track identification",
             RuntimeWarning,
             stacklevel=2,
         )
-    runs: list[list[int]] = []
-    for s in aligned:  # consecutive sparse windows share one streaming detector
-        if runs and s == runs[-1][-1] + stride:
-            runs[-1].append(s)
-        else:
-            runs.append([s])
-    with warnings.catch_warnings():  # said once above, with the sequence's frame numbers
-        warnings.filterwarnings("ignore", message=".*windows of scans", category=RuntimeWarning)
-        for run in runs:
-            det = StreamingDetector(window=window, stride=stride, **kw)
-            for t in range(run[0], run[-1] + window):
-                out = det.push(cube[t])
-                if out is not None:
-                    kept[run[0] + out.start : run[0] + out.stop] |= cleaned(out.result)
-        last = starts[-1]
-        if last % stride and last not in dense:  # the last frames: one final window at the end
-            kept[last:] |= cleaned(detect(cube[last:], **kw))
-    plots = []
-    for t in range(n_t):
-        yx = kept[t].nonzero().double()
-        plots.append(yx[:, [1, 0]])
-    return plots
 
 
-def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, Any], Any]:
-    """Per-frame plots of the DPA (local maxima of the causal ASF), its parameters and shifts."""
-    import torch
+def _dpa_setup(cube: Any, params: dict[str, Any]) -> dict[str, Any]:
+    """What the DPA needs before the first frame: checks, matrices, ``b`` and the threshold.
 
-    from hocnet.cli.detect import DETECTION_NMS_RADIUS, _run_dpa
-    from hocnet.detection_metrics import detect_peaks
+    As ``hocnet detect --method dpa`` (:func:`hocnet.cli.detect._run_dpa`) before its
+    accumulation: the input checks (over the whole loaded sequence: finite values, float32
+    range, flat frames), the probability matrices (``--preset``), ``b`` and the detection
+    threshold, fixed (``--asf-threshold``) or CFAR from ``--target-free`` (a separate
+    calibration sequence, pre-processed and accumulated as a whole: not the input).
 
-    per_frame = params["max_per_frame"]
+    Returns:
+        ``{"weights", "b", "threshold", "params"}``; ``params``: the options with the values
+        used (``b``, ``threshold_used``, ``cfar``).
+    """
+    from hocnet.cli.detect import (
+        DETECTION_NMS_RADIUS,
+        MIN_DPA_FRAMES,
+        _check_flat_frames,
+        _check_float32_range,
+        _preprocess,
+    )
+    from hocnet.dpa import effective_memory, equalize_gain, probability_matrices
+    from hocnet.dpa.backtrack import cfar_threshold
+
+    params = dict(params)
+    frame_names = params.pop("frame_names", None)
     size, (n_t, height, width) = params["window"], cube.shape
     background = params["background"] != "none"
-    if n_t < 2 + background:  # a tracker needs plots in two frames to confirm a track
+    if n_t < max(2 + background, MIN_DPA_FRAMES):  # the tracker needs plots in two frames
         because = (
             f"; frame 0 has no plots with --background {params['background']} (no past frames)"
             * background
@@ -319,54 +472,233 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[list[Any], dict[str, 
             f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
             f"matrices of --preset {params['preset']}, got {height} x {width}"
         )
-    detection = _run_dpa(cube, {**params, "label": _LABEL})
-    asf = detection.result.state.asf.double()
-    threshold = detection.params.get("threshold_used")
-    found = detect_peaks(
-        asf, radius=DETECTION_NMS_RADIUS, max_per_frame=per_frame, threshold=threshold
+    _check_flat_frames(cube, _LABEL, frame_names)
+    _check_float32_range(cube, "`frames`")
+    target_free = params["target_free"]
+    if target_free is not None:
+        _inputs.check_target_free(target_free, (height, width), _LABEL)
+        _check_float32_range(target_free, "`target_free`")
+    weights = probability_matrices(
+        window=size,
+        v_max=params["v_max"],
+        jitter=params["jitter"],
+        p=params["p"],
+        penalty_step=params["penalty_step"],
     )
-    plots = []
-    for t in range(cube.shape[0]):
-        rows = found[found[:, 0] == t]
-        flat = asf[t].flatten()
-        if flat.numel() and bool(flat.max() == flat.min()):
-            rows = rows[:0]  # a constant frame (e.g. frame 0 after background removal)
-        plots.append(rows[:, 1:3].to(torch.float64))
-    used = detection.params
-    meta = {
-        "preset": used["preset"],
-        "max_per_frame": per_frame,
-        "asf_threshold": threshold,
-        "cfar": used["cfar"],
-        "nms_radius": DETECTION_NMS_RADIUS,
-        **{
-            k: used[k]
-            for k in (
-                "g",
-                "b",
-                "window",
-                "v_max",
-                "equal_gain",
-                "pfa",
-                *_inputs.PRE_DESTS,
-                "unregistered_pairs",
+    if params["equal_gain"]:
+        weights = equalize_gain(weights, params["g"])
+    b = params["b"]
+    if b is None:
+        b = float(
+            effective_memory(
+                weights, params["g"], params["memory"], direction=params["memory_direction"]
             )
-            if k in used
-        },
-    }
-    return plots, meta, detection.result.shifts
+        )
+    threshold = params["asf_threshold"]
+    if target_free is not None:
+        white_free, _ = _preprocess(target_free, params, "`target_free`")
+        threshold = cfar_threshold(
+            white_free,
+            weights,
+            b,
+            params["g"],
+            pfa=params["pfa"],
+            nms_radius=params["nms_radius"],
+            direction_step=params["direction_step"],
+        )
+    params = {k: v for k, v in params.items() if k != "target_free"}
+    params.update(
+        b=b,
+        threshold_used=threshold,
+        cfar=target_free is not None,
+        detections_nms_radius=DETECTION_NMS_RADIUS,
+    )
+    return {"weights": weights, "b": b, "threshold": threshold, "params": params}
+
+
+def _white_frames(frames: Any, params: dict[str, Any], info: dict[str, Any]) -> Iterator[Any]:
+    """The pre-processing of ``hocnet detect`` (:func:`~hocnet.cli.detect._preprocess`), per frame.
+
+    Frame ``n`` (float32 ``(H, W)``) is yielded from frames ``n - background_window .. n``
+    only: registration by phase correlation of frames ``n - 1`` and ``n``
+    (:func:`~hocnet.data.background.estimate_shifts`; the offsets are the running sums of the
+    shifts), the causal temporal background of frame ``n`` from its ``background_window``
+    previous frames (:func:`~hocnet.data.background.remove_background` on those frames and
+    frame ``n``, moved by the offsets), the spatial whitening of frame ``n``. Every step is
+    causal, so this is the batch pre-processing of the whole sequence, frame by frame; the
+    results are equal (tested) except for float32 rounding in the registration: the FFTs of
+    one pair and of the whole sequence at once round differently, which moved one shift of
+    23 by one 0.01 px step of the sub-pixel search on a test scene (given the same shifts, the
+    frames are equal).
+    Cost: the background removal runs on the ``background_window + 1`` frames of the history
+    at every frame (it returns every frame's background; only the last one is kept), about
+    ``background_window / 2`` times the batch work of that step (measured, 40 x 256 x 256,
+    ``--preset recommended``, one thread: 4.2-4.8 s frame by frame, 1.3-1.7 s in batch).
+
+    ``info`` receives ``shifts`` (``(T, 2)`` or ``None``) and ``unregistered_pairs`` (the pairs
+    the peak test left at shift 0) once the last frame is yielded.
+    """
+    import torch
+
+    from hocnet.data.background import estimate_shifts, remove_background
+    from hocnet.data.whitening import anti_mean, anti_median
+
+    n_t, height, width = frames.shape
+    register, method, span = params["register"], params["background"], params["background_window"]
+    whiten = {"mean": anti_mean, "median": anti_median}.get(params["whiten"])
+    outer = min(7, *(n if n % 2 else n - 1 for n in (height, width)))
+    if whiten is not None and outer < 3:
+        raise CLIError(f"--whiten: frames of {height} x {width} are too small for a ring")
+    inner = 3 if outer >= 5 else 1
+
+    def overflow(step: str) -> CLIError:
+        return CLIError(
+            f"`frames`: values too large for float32 in the {step} (largest |value| "
+            f"{float(frames.abs().max()):.3g}); rescale the frames"
+        )
+
+    shifts: list[Any] = []
+    rejected = 0
+    for n in range(n_t):
+        x = frames[n]
+        offsets = None
+        if register:
+            shift = torch.zeros(2, dtype=frames.dtype)
+            if n:
+                pair, weak = estimate_shifts(frames[n - 1 : n + 1], return_rejected=True)
+                shift, rejected = pair[1], rejected + int(weak[1])
+                if not bool(torch.isfinite(shift).all()):
+                    raise overflow("registration (--register)")
+            shifts.append(shift)
+            offsets = torch.stack(shifts).cumsum(dim=0)  # the batch's cumsum, on its prefix
+        if method != "none":
+            first = max(0, n - span)
+            x = remove_background(
+                frames[first : n + 1],
+                method,
+                span,
+                offsets=None if offsets is None else offsets[first:],
+            )[-1]
+            if not bool(torch.isfinite(x).all()):
+                raise overflow("background removal (--background)")
+        if whiten is not None:
+            x = whiten(x[None], outer, inner)[0]
+        if n == n_t - 1 and register:
+            info["shifts"] = torch.stack(shifts)
+            info["unregistered_pairs"] = rejected
+        yield x
+
+
+def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[Iterator[tuple[int, Any]], dict]:
+    """Per-frame plots of the DPA (local maxima of the causal ASF), frame by frame.
+
+    The setup (:func:`_dpa_setup`) runs at once (its errors before any frame); then each
+    frame is pre-processed (:func:`_white_frames`), its ASF is one step of the recursion
+    from the previous frame's (:func:`hocnet.dpa.accumulate` with ``initial``: the same ASF
+    as the batch call on the whole sequence), and its plots are the local maxima of that ASF
+    (:func:`hocnet.detection_metrics.detect_peaks`, radius ``DETECTION_NMS_RADIUS``) above the
+    threshold when one is set, at most ``max_per_frame``, none on a constant ASF (e.g. frame 0
+    after background removal). ``(t, plots_t)`` is yielded at frame ``t``: no delay.
+
+    Returns:
+        ``(stream, info)``: the generator of ``(t, (M_t, 2) float64 (x, y))`` and a dict whose
+        ``meta`` (the parameters used) and ``shifts`` (registration, or ``None``) are complete
+        once the stream is exhausted.
+    """
+    import torch
+
+    from hocnet.cli.detect import DETECTION_NMS_RADIUS
+    from hocnet.detection_metrics import detect_peaks
+    from hocnet.dpa import accumulate
+
+    setup = _dpa_setup(cube, params)
+    used = setup["params"]
+    per_frame = params["max_per_frame"]
+    threshold = setup["threshold"]
+    info: dict[str, Any] = {"shifts": None}
+
+    def stream() -> Iterator[tuple[int, Any]]:
+        state = None
+        white = _white_frames(cube.float(), used, info)
+        for t, frame in enumerate(white):
+            state = accumulate(
+                frame[None],
+                setup["weights"],
+                setup["b"],
+                used["g"],
+                direction_step=used["direction_step"],
+                initial=state,
+            )
+            asf = state.asf.detach().double()  # (1, H, W)
+            found = detect_peaks(
+                asf, radius=DETECTION_NMS_RADIUS, max_per_frame=per_frame, threshold=threshold
+            )
+            flat = asf.flatten()
+            if flat.numel() and bool(flat.max() == flat.min()):
+                found = found[:0]  # a constant frame (e.g. frame 0 after background removal)
+            yield t, found[:, 1:3].to(torch.float64)
+        if "unregistered_pairs" in info:
+            used["unregistered_pairs"] = info["unregistered_pairs"]
+        info["meta"] = {
+            "preset": used["preset"],
+            "max_per_frame": per_frame,
+            "asf_threshold": threshold,
+            "cfar": used["cfar"],
+            "nms_radius": DETECTION_NMS_RADIUS,
+            **{
+                k: used[k]
+                for k in (
+                    "g",
+                    "b",
+                    "window",
+                    "v_max",
+                    "equal_gain",
+                    "pfa",
+                    *_inputs.PRE_DESTS,
+                    "unregistered_pairs",
+                )
+                if k in used
+            },
+        }
+
+    return stream(), info
+
+
+#: Frames whose plots give the default ``--lambda-fa`` (``--lambda-fa-frames``).
+LAMBDA_FA_FRAMES = 5
 
 
 def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict[str, Any]:
+    """The tracker's parameters; the default densities from ``plots``, the first K frames' plots.
+
+    ``--lambda-fa`` defaults to the mean number of plots per frame over ``plots`` (at least 0.1
+    per frame) divided by the frame ``area``; ``--lambda-nt`` to a tenth of ``--lambda-fa``.
+    ``lambda_fa_source`` / ``lambda_nt_source`` say where each value came from.
+    """
     pd = _check_number(
         "--pd", args.pd, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False
     )
     meas = _check_number("--meas-std", args.meas_std, low=0.0, low_inclusive=False)
+    frames = getattr(args, "lambda_fa_frames", None)
+    if frames is not None:
+        frames = _check_int("--lambda-fa-frames", frames, minimum=1)
+        if args.lambda_fa is not None:
+            raise CLIError(
+                "--lambda-fa-frames: expected no --lambda-fa-frames with --lambda-fa (it sets "
+                "the frames that give the default --lambda-fa), got both"
+            )
     n_plots = sum(int(p.shape[0]) for p in plots)
     if args.lambda_fa is None:
         lam = max(n_plots / max(len(plots), 1), 0.1) / area
+        source = (
+            f"default: mean plots per frame over the first {len(plots)} frame"
+            f"{'s' * (len(plots) != 1)} ({n_plots} plots; at least 0.1 per frame) / frame area "
+            f"{area:g} px, fixed from frame {len(plots) - 1} on (--lambda-fa-frames "
+            f"{LAMBDA_FA_FRAMES if frames is None else frames})"
+        )
     else:
         lam = _check_number("--lambda-fa", args.lambda_fa, low=0.0, low_inclusive=False)
+        source = "--lambda-fa"
     lam_nt = (
         lam / 10
         if args.lambda_nt is None
@@ -381,7 +713,9 @@ def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict
             "--velocity-std", args.velocity_std, low=0.0, low_inclusive=False
         ),
         "lambda_fa": lam,
+        "lambda_fa_source": source,
         "lambda_nt": lam_nt,
+        "lambda_nt_source": "--lambda-nt" if args.lambda_nt is not None else "lambda_fa / 10",
         "n_hypotheses": _check_int("--n-hypotheses", args.n_hypotheses, minimum=1),
         "n_scan": _check_int("--n-scan", args.n_scan, minimum=0),
         "alpha": _check_number(
@@ -393,7 +727,8 @@ def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict
     }
 
 
-def _run_mht(plots: list[Any], p: dict[str, Any]) -> list[Any]:
+def _build_mht(p: dict[str, Any]) -> Any:
+    """The MHT of the parameters ``p`` (:func:`_mht_params`)."""
     from functools import partial
 
     import torch
@@ -414,7 +749,7 @@ def _run_mht(plots: list[Any], p: dict[str, Any]) -> list[Any]:
     else:
         filt = CVKalmanFilter(p["sigma_a"], p["velocity_std"])
     try:
-        mht = MHT(
+        return MHT(
             filt,
             R=(p["meas_std"] ** 2) * torch.eye(2, dtype=torch.float64),
             pd=p["pd"],
@@ -427,9 +762,33 @@ def _run_mht(plots: list[Any], p: dict[str, Any]) -> list[Any]:
         )
     except ValueError as err:  # e.g. alpha + beta >= 1
         raise CLIError(str(err).replace("`alpha`", "--alpha").replace("`beta`", "--beta")) from None
-    for t, z in enumerate(plots):
-        mht.step(z, time=float(t))
-    return mht.all_tracks()
+
+
+def _run_mht(
+    stream: Iterable[tuple[int, Any]], args: argparse.Namespace, n_frames: int, area: float
+) -> tuple[list[Any], list[Any], dict[str, Any]]:
+    """Feed the plots to the MHT as they arrive: ``(tracks, plots, mht_params)``.
+
+    With ``--lambda-fa`` the MHT is built before the first frame; else once the plots of the
+    first ``K = --lambda-fa-frames`` frames (all of them if fewer) are known, which fixes its
+    false-alarm density (a constructor constant), and those frames are stepped then.
+    """
+    frames = LAMBDA_FA_FRAMES if args.lambda_fa_frames is None else args.lambda_fa_frames
+    wait = 0 if args.lambda_fa is not None else min(frames, n_frames)
+    plots: list[Any] = []
+    mht: Any = None
+    params: dict[str, Any] = {}
+    for t, z in stream:
+        assert t == len(plots)
+        plots.append(z)
+        if mht is None and len(plots) >= wait:
+            params = _mht_params(args, plots[:wait], area)
+            mht = _build_mht(params)
+            for i, zi in enumerate(plots):  # the buffered frames
+                mht.step(zi, time=float(i))
+        elif mht is not None:
+            mht.step(z, time=float(t))
+    return mht.all_tracks(), plots, params
 
 
 def _track_dicts(tracks: list[Any], plots: list[Any]) -> list[dict[str, Any]]:
@@ -510,22 +869,24 @@ def _cmd_track(args: argparse.Namespace) -> int:
     n_t, h, w = cube.shape
     if det == "hoc":
         _check_order_fits(args, n_t, det_params["order"])
-    notes: list[str] = []
     messages: list[str] = []
-    shifts = None
     start = time.perf_counter()
     with _torch_threads(PIPELINE_THREADS), _reported_warnings(messages):
         if det == "hoc":
-            scans, notes, shifts = _hoc_input(cube, det_params)
-            plots = _hoc_plots(scans, det_params)
+            scans, info = _hoc_input(cube, det_params)
+            stream = _hoc_plots(scans, det_params, shape=(n_t, h, w))
         else:
             names = {"frame_names": [file.name for file in files]}  # said about flat frames
-            plots, det_params, shifts = _dpa_plots(cube, {**det_params, **names})
+            stream, info = _dpa_plots(cube, {**det_params, **names})
+        bar = _progress(stream, desc="track", total=n_t, enabled=_show_progress(args))
+        tracks, plots, params = _run_mht(bar, args, n_t, float(h * w))
+        notes: list[str] = list(info.get("notes", []))
+        shifts = info["shifts"]
+        if det == "dpa":
+            det_params = info["meta"]
             if shifts is not None:
                 weak = det_params.get("unregistered_pairs")
                 notes.append(_shifts_summary(shifts, _SHIFTS_AT, weak))
-        params = _mht_params(args, plots, float(h * w))
-        tracks = _run_mht(plots, params)
     runtime = time.perf_counter() - start
     rows = _track_dicts(tracks, plots)
     meta = {
@@ -597,6 +958,23 @@ detectors (their options, defaults and messages are those of 'hocnet detect'):
   dpa  the DPA of [NR08] with the pre-processing of 'hocnet detect --method dpa' (--preset),
        on INTENSITY frames; plots = local maxima of each frame's causal ASF
 
+online (streaming; see the module hocnet.cli.track):
+  frames are processed in order as they are read, and the tracker steps frame by frame as
+  the plots of a frame become final:
+    hoc  a window is identified when its last frame arrives; frame t's plots are final after
+         frame s + window - 1 (s: the last window start <= t): at most window - 1 frames late
+    dpa  pre-processing, ASF step and plots of frame t at frame t (no delay)
+    pre-processing (dpa, hoc --threshold-pfa): causal, registration on frames n - 1 and n,
+         background of frame n from its --background-window previous frames, whitening of n
+    --lambda-fa (default): from the plots of the first --lambda-fa-frames frames only, fixed
+         after them; the tracker starts once they are known (at once with --lambda-fa)
+  not online: SEQ is a file, read and checked whole before any work (its number of frames
+  fixes the HOC's extra last window); --target-free is calibration data, processed whole
+  first; warnings are said, and outputs written, at the end.
+  The plots are those of the batch computation ('hocnet detect'), except that a registration
+  shift can differ by 0.01 px (float32 FFT rounding of one pair vs the whole sequence).
+  Progress: a bar on stderr (frames done) when it is a terminal, unless -q.
+
 tracker:
   the track-oriented structured-branching MHT of [PD] (hocnet.tracking.mht.MHT): chi-square
   gating, LLR track score with Wald's SPRT (confirm at ln((1 - beta) / alpha), delete at
@@ -633,7 +1011,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "track",
         help="detect and track: a detector's plots into the MHT of [PD] (confirmed tracks)",
         description="Run a detector over a sequence (a .npy/.npz cube or image frames) and\n"
-        "feed its per-frame plots (pixel coordinates) to the track-oriented MHT of [PD];\n"
+        "feed its per-frame plots (pixel coordinates) to the track-oriented MHT of [PD]\n"
+        "online, frame by frame (see 'online' below);\n"
         "print the confirmed tracks and write them as JSON and a picture.",
         epilog=_EPILOG,
         formatter_class=_Formatter,
@@ -649,7 +1028,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--force", action="store_true", help="replace files in --out that hocnet did not write"
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bar (shown on stderr only when it is a terminal, after 2 s)",
+    )
     hoc = p.add_argument_group("hoc options (--detector hoc; as in 'hocnet detect')")
     _inputs.add_hoc_options(hoc, label=_LABEL, selector=_SELECTOR)
     hoc.add_argument(
@@ -716,7 +1100,16 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=float,
         default=None,
         metavar="D",
-        help="false-alarm density per pixel (default: plots per frame / frame area)",
+        help="false-alarm density per pixel (default: mean plots per frame over the first "
+        "--lambda-fa-frames frames, at least 0.1, / frame area; fixed after them)",
+    )
+    mht.add_argument(
+        "--lambda-fa-frames",
+        type=int,
+        default=None,
+        metavar="K",
+        help=f"frames whose plots give the default --lambda-fa (default: {LAMBDA_FA_FRAMES}; "
+        "the tracker starts once their plots are known)",
     )
     mht.add_argument(
         "--lambda-nt",

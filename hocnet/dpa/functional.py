@@ -572,6 +572,38 @@ def _check_overflow(asf: torch.Tensor, n: int, b_t: torch.Tensor, g_t: torch.Ten
         )
 
 
+def _check_initial(initial: Any, cube: torch.Tensor, d: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(ASF, direction)`` ``(B, H, W)`` of the last frame of ``initial``, checked on ``cube``."""
+    if not isinstance(initial, DPAState):
+        raise TypeError(
+            "`initial`: expected a DPAState (from accumulate) or None, got "
+            f"{type(initial).__name__}"
+        )
+    s = initial.as_batched()
+    bsz, _, height, width = cube.shape
+    want = (bsz, height, width)
+    if s.asf.dim() != 4 or s.asf.shape[1] == 0 or (s.asf.shape[0], *s.asf.shape[2:]) != want:
+        raise ValueError(
+            f"`initial`: expected a state of at least one frame of {bsz} scene(s) of "
+            f"{height} x {width} (the batch and frame size of `frames`), got asf of shape "
+            f"{tuple(initial.asf.shape)}"
+        )
+    if tuple(s.direction.shape) != tuple(s.asf.shape):
+        raise ValueError(
+            f"`initial`: expected direction of the shape of its asf {tuple(initial.asf.shape)}, "
+            f"got {tuple(initial.direction.shape)}"
+        )
+    direction = s.direction[:, -1].to(device=cube.device, dtype=torch.int64)
+    if direction.numel() and (int(direction.min()) < 0 or int(direction.max()) >= d):
+        raise ValueError(
+            f"`initial`: expected directions in 0 .. {d - 1} (weights with D = {d}), got "
+            f"{int(direction.min())} .. {int(direction.max())}"
+        )
+    asf = s.asf[:, -1].to(device=cube.device, dtype=cube.dtype)
+    check_finite("initial", asf)
+    return asf, direction
+
+
 def accumulate(
     frames: torch.Tensor,
     weights: torch.Tensor,
@@ -581,6 +613,7 @@ def accumulate(
     var_table: torch.Tensor | None = None,
     smooth: float | None = None,
     direction_step: str = "paper",
+    initial: DPAState | None = None,
 ) -> DPAState:
     r"""Accumulate the score function of the DPA over the frames, eq. (2)-(11) of [NR08].
 
@@ -660,16 +693,27 @@ def accumulate(
             entries with ``direction_step="paper"``).
         smooth: temperature ``tau > 0`` of a log-sum-exp max, or ``None`` for the hard max.
         direction_step: ``"paper"`` (eq. (6)-(8)) or ``"source"``.
+        initial: the state of the frames before ``frames`` (a :class:`DPAState` returned by an
+            earlier call on the same scenes, ``(B, T', H, W)`` or ``(T', H, W)``, ``T' >= 1``),
+            or ``None`` (``frames[0]`` is frame 0: ``ASF_0 = WF_0``). Given, the recursion
+            continues from its last frame: ``frames[0]`` is the frame after it, with
+            ``ASF_{n-1}`` and ``d_{n-1}`` read from ``initial``, so calling
+            ``accumulate(frames[:n])`` and then ``accumulate(frames[n:], initial=...)`` with
+            the first result gives, frame by frame, the ``asf``, ``direction`` and ``origin`` of
+            ``accumulate(frames)`` (streaming, one frame at a time; our addition). Only its
+            last frame is read; gradients flow into its ``asf``.
 
     Returns:
         :class:`DPAState` with ``asf``, ``direction`` and ``origin`` shaped like ``frames``
-        (``(B, T, H, W)``, or ``(T, H, W)`` for unbatched input). ``asf`` is differentiable
-        w.r.t. ``frames``, ``weights``, ``b`` and ``g``.
+        (``(B, T, H, W)``, or ``(T, H, W)`` for unbatched input; with ``initial``, the frames of
+        this call only). ``asf`` is differentiable w.r.t. ``frames``, ``weights``, ``b`` and
+        ``g`` (and ``initial.asf``).
 
     Raises:
         TypeError: if an argument has the wrong type.
         ValueError: on wrong shapes, out-of-range values (``b`` above the memory range),
-            non-finite input, or an overflow of the recursion (naming ``b``).
+            non-finite input, an overflow of the recursion (naming ``b``), or an ``initial``
+            state of another batch size, frame size or number of directions.
 
     Examples:
         >>> frames = torch.zeros(4, 9, 9)
@@ -678,6 +722,10 @@ def accumulate(
         >>> state = accumulate(frames, weights, b=1.0, g=0.0)
         >>> state.asf.shape, state.origin[3, 4, 5].item() == 4 * 9 + 4
         (torch.Size([4, 9, 9]), True)
+        >>> step = accumulate(frames[:3], weights, b=1.0, g=0.0)  # frame by frame
+        >>> step = accumulate(frames[3:], weights, b=1.0, g=0.0, initial=step)
+        >>> torch.equal(step.asf[0], state.asf[3]), step.origin[0, 4, 5].item() == 4 * 9 + 4
+        (True, True)
     """
     cube, batched = as_cube("frames", frames)
     if not cube.is_floating_point():
@@ -702,6 +750,7 @@ def accumulate(
     if mode == "paper" and d == N_DIRECTIONS:
         v_paper = _check_var_positive(default_var_table() if var_table is None else var_table)
     _check_memory(b_t, g_t, weights)
+    start = None if initial is None else _check_initial(initial, cube, d)
     if bsz == 0:
         empty = cube.new_zeros(cube.shape)
         index = torch.zeros(cube.shape, dtype=torch.int64, device=device)
@@ -717,10 +766,15 @@ def accumulate(
     need_sum = g_t.requires_grad or float(g_t) != 0.0
     one_minus_g = 1 - g_t
 
-    asf = [cube[:, 0]]
-    direction = [torch.full((bsz, height, width), window.in_place, device=device)]
-    origin = [torch.full((bsz, height, width), -1, device=device, dtype=torch.int64)]
-    for n in range(1, n_frames):
+    if start is None:
+        asf = [cube[:, 0]]
+        direction = [torch.full((bsz, height, width), window.in_place, device=device)]
+        origin = [torch.full((bsz, height, width), -1, device=device, dtype=torch.int64)]
+    else:  # continue from the last frame of `initial` (not part of the result)
+        asf, direction = [start[0]], [start[1]]
+        origin = [start[1]]  # a placeholder: skipped below
+    first = 0 if start is not None else 1
+    for n in range(first, n_frames):
         prev, d_prev = asf[-1], direction[-1]
         if dest is not None:
             chan = eq7.argmax(eq7.candidates(prev, d_prev))  # eq. (7)-(8)
@@ -744,8 +798,12 @@ def accumulate(
             d_src = d_prev.reshape(bsz, -1).gather(1, src.reshape(bsz, -1)).view_as(src)
             move = combo[move * N_DIRECTIONS + d_src]
         direction.append(move)
+    skip = 1 - first  # with `initial`, its last frame is not returned
     state = DPAState(
-        torch.stack(asf, dim=1), torch.stack(direction, dim=1), torch.stack(origin, dim=1), True
+        torch.stack(asf[skip:], dim=1),
+        torch.stack(direction[skip:], dim=1),
+        torch.stack(origin[skip:], dim=1),
+        True,
     )
     if batched:
         return state

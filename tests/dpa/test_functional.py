@@ -455,3 +455,74 @@ class TestReferenceProperty:
         state = accumulate(frames, weights, b, g, var_table=table, direction_step=step)
         expected = accumulate_reference(frames, weights, b, g, table, direction_step=step)
         _assert_equal_to_reference(state, expected)
+
+
+class TestInitial:
+    """``accumulate(..., initial=state)`` continues the recursion (streaming, frame by frame)."""
+
+    @pytest.mark.parametrize(
+        ("d", "g", "step", "dtype", "table", "batched"),
+        [
+            (9, 0.5, "paper", torch.float32, False, False),
+            (9, 0.0, "source", F64, True, True),
+            (9, 1.0, "paper", F64, True, True),
+            (1, 0.3, "paper", torch.float32, False, True),
+        ],
+    )
+    def test_frame_by_frame_equals_batch(self, d, g, step, dtype, table, batched):
+        gen = torch.Generator().manual_seed(3 + d)
+        weights = _weights("probability", d, 5, dtype, gen)
+        shape = (2, 7, 9, 8) if batched else (7, 9, 8)
+        frames = torch.randn(*shape, generator=gen, dtype=dtype)
+        frames[..., 3, 1:8] += 3 * torch.eye(7, dtype=dtype)[:, :7]  # some structure
+        vt = _random_var_table(gen) if table else None
+        kw = {"var_table": vt, "direction_step": step}
+        batch = accumulate(frames, weights, 0.8, g, **kw)
+        # the reference: a loop of one-frame calls, each continuing from the previous state
+        state = accumulate(frames[..., :1, :, :], weights, 0.8, g, **kw)
+        parts = [state]
+        for n in range(1, 7):
+            state = accumulate(frames[..., n : n + 1, :, :], weights, 0.8, g, initial=state, **kw)
+            parts.append(state)
+        for name in ("asf", "direction", "origin"):
+            got = torch.cat([getattr(p, name) for p in parts], dim=-3)
+            assert torch.equal(got, getattr(batch, name)), name
+        assert all(p.batched == batched for p in parts)
+        # and in two chunks
+        first = accumulate(frames[..., :3, :, :], weights, 0.8, g, **kw)
+        rest = accumulate(frames[..., 3:, :, :], weights, 0.8, g, initial=first, **kw)
+        assert torch.equal(rest.asf, batch.asf[..., 3:, :, :])
+        assert torch.equal(rest.origin, batch.origin[..., 3:, :, :])
+
+    def test_gradient_flows_through_initial(self):
+        gen = torch.Generator().manual_seed(0)
+        weights = probability_matrices(3, v_max=1.0, dtype=F64)
+        frames = torch.randn(4, 6, 6, generator=gen, dtype=F64, requires_grad=True)
+        whole = accumulate(frames, weights, 0.9, 0.5).asf[-1].sum()
+        (g_whole,) = torch.autograd.grad(whole, frames)
+        first = accumulate(frames[:2], weights, 0.9, 0.5)
+        split = accumulate(frames[2:], weights, 0.9, 0.5, initial=first).asf[-1].sum()
+        (g_split,) = torch.autograd.grad(split, frames)
+        torch.testing.assert_close(g_split, g_whole)
+
+    @pytest.mark.parametrize(
+        ("initial", "error", "match"),
+        [
+            ("not a state", TypeError, r"`initial`: expected a DPAState"),
+            ("other_size", ValueError, r"`initial`: expected a state .* of 6 x 6"),
+            ("other_batch", ValueError, r"`initial`: expected a state of at least one frame of 1"),
+            ("bad_direction", ValueError, r"`initial`: expected directions in 0 \.\. 8"),
+        ],
+    )
+    def test_bad_initial(self, initial, error, match):
+        weights = probability_matrices(3, v_max=1.0)
+        frames = torch.zeros(1, 2, 6, 6)
+        if initial == "other_size":
+            initial = accumulate(torch.zeros(2, 6, 7), weights, 0.5, 0.5)
+        elif initial == "other_batch":
+            initial = accumulate(torch.zeros(3, 2, 6, 6), weights, 0.5, 0.5)
+        elif initial == "bad_direction":
+            good = accumulate(frames, weights, 0.5, 0.5)
+            initial = DPAState(good.asf, good.direction + 9, good.origin, True)
+        with pytest.raises(error, match=match):
+            accumulate(frames, weights, 0.5, 0.5, initial=initial)
