@@ -340,6 +340,12 @@ the target's (both tracks are then kept). Measured on 600 hard-case scenes: 1e-9
 rule) loses 1 target point (a track running beside another), 0.5 loses none.
 """
 
+NEAR_DUPLICATE = ("support", "score")
+"""Choices of ``near_duplicate`` (how ``dedupe`` judges a near-duplicate; module notes, step 4)."""
+
+SCORE_POINTS = ("interior", "all")
+"""Choices of ``score_points`` (which point scores a track's average takes)."""
+
 DEFAULT_SHARED_POINTS = True
 """Default of ``shared_points``: an image point may keep several five-point sequences."""
 
@@ -949,6 +955,10 @@ def _select_tracks(
     track_kw: dict[str, Any] | None = None,
     dedupe_scans: int = 1,
     explained: bool = False,
+    own_points: int = 1,
+    near_duplicate: str = "support",
+    score_points: str = "interior",
+    prior: list[list[int]] | None = None,
 ) -> list[tuple[Track, list[int]]]:
     """Score candidate tracks, reject short and low ones, drop tracks covered by better ones.
 
@@ -963,10 +973,18 @@ def _select_tracks(
     points on other kept tracks do not count as differing).
     """
     cands = []
-    # the paths of _score_paths that pass the threshold (same entries, same order and bits)
-    for score, pts, pscores in _fast.score_paths_passing(
-        paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
-    ):
+    if score_points == "all":  # the slow path: every point's score in the average (option)
+        passing = [
+            (_all_points_score(pscores), pts, pscores)
+            for _, pts, pscores in _score_paths(paths, p0, p1, p2, s, coords, min_points, track_kw)
+        ]
+        passing = [item for item in passing if not item[0] < threshold]
+    else:
+        # the paths of _score_paths that pass the threshold (same entries, same order and bits)
+        passing = _fast.score_paths_passing(
+            paths, p0, p1, p2, s, coords, min_points, track_kw, threshold
+        )
+    for score, pts, pscores in passing:
         if image is not None and 2 * sum(image[q] for q in pts) <= len(pts):
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
         cands.append((score, len(pts), pts, pscores))
@@ -975,21 +993,37 @@ def _select_tracks(
     scan_of = coords[:, 0].tolist() if dedupe is not None else []
     xy: dict[int, list[int]] = {}  # (t, y, x) of the candidates' points: the only ones asked
     if dedupe is not None:
-        need = sorted({q for _, _, pts, _ in cands for q in pts})
+        need = sorted(
+            {q for _, _, pts, _ in cands for q in pts} | {q for t in prior or [] for q in t}
+        )
         xy = dict(zip(need, coords[need].tolist(), strict=True))
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     kept_items: list[tuple[float, list[int], list[float]]] = []
+    for pts in (prior or []) if dedupe is not None else []:  # accepted before (option)
+        for q in pts:
+            kept_at.setdefault(q, []).append(len(kept_scans))
+        kept_scans.append((pts, {scan_of[q]: i for i, q in enumerate(pts)}))
     for score, _, pts, pscores in cands:
         if covered.issuperset(pts):
             continue
+        if own_points > 1 and sum(q not in covered for q in pts) < own_points:
+            continue  # ``own_points`` (option): too few points of its own
         if dedupe is not None:
             # only kept tracks sharing a point with the candidate can be near-duplicated, with or
             # without ``explained`` (next to every differing point the two tracks share one,
             # ``_next_to_shared``): the same answer as asking all of them
             others = [kept_scans[i] for i in _fast.kept_sharing_a_point(pts, kept_at)]
             if _is_near_duplicate(
-                pts, others, scan_of, dedupe, xy, dedupe_scans, covered, explained
+                pts,
+                others,
+                scan_of,
+                dedupe,
+                xy,
+                dedupe_scans,
+                covered,
+                explained,
+                by_score=near_duplicate == "score",
             ):
                 continue
             for q in pts:
@@ -1066,6 +1100,22 @@ def _score_paths(
     return [item for item in out if item is not None]
 
 
+def _all_points_score(pscores: list[float]) -> float:
+    """A track's score as the mean over all its points (``score_points="all"``, an option).
+
+    "Scores were calculated for each track individually by averaging all the point scores"
+    ([LA98] section IV-C), read with the end points in: an end point has no in- or out-move,
+    so it takes its neighbour's score (as :attr:`Track.point_scores` does), and the first and
+    last interior scores weigh twice. ``pscores``: the interior point scores (at least one).
+
+    Examples:
+        >>> _all_points_score([3.0, 2.0, 2.0])  # (3 + 3 + 2 + 2 + 2) / 5
+        2.4
+    """
+    full = [pscores[0], *pscores, pscores[-1]]
+    return float(torch.tensor(full, dtype=torch.float64).mean())
+
+
 def _is_near_duplicate(
     pts: list[int],
     kept: list[tuple[list[int], dict[int, int]]],
@@ -1075,6 +1125,7 @@ def _is_near_duplicate(
     max_diff: int = 1,
     covered: set[int] | frozenset[int] = frozenset(),
     explained: bool = False,
+    by_score: bool = False,
 ) -> bool:
     """Whether a candidate track is a worse copy of a kept one (``dedupe``, our addition).
 
@@ -1114,7 +1165,7 @@ def _is_near_duplicate(
             for i in diff
         ):
             continue  # an uncovered image point next to the kept one: maybe a crossing track's
-        if all(
+        if by_score or all(
             _kept_point_wins(pts, i, k_pts, k_scan, on_k, shared_c, scan_of, image, xy)
             for i in diff
         ):
@@ -1410,6 +1461,10 @@ def _identify_sequences(
     track_kw: dict[str, Any] | None = None,
     shared_points: bool = False,
     triples: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    own_points: int = 1,
+    near_duplicate: str = "support",
+    score_points: str = "interior",
+    dedupe_rescued: bool = False,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
     """``method="paper"`` and ``"assignment"`` on one ``(T, H, W)`` scene.
 
@@ -1467,7 +1522,9 @@ def _identify_sequences(
         accepted = _assignment_links(n, p0, p1, p2, key, left, right, coords, is_root, threshold)
     paths, capped = _enumerate_paths(accepted, a_in, a_out, s, max_candidates)
 
-    def select(candidates: list[list[int]]) -> list[tuple[Track, list[int]]]:
+    def select(
+        candidates: list[list[int]], prior: list[list[int]] | None = None
+    ) -> list[tuple[Track, list[int]]]:
         return _select_tracks(
             candidates,
             p0,
@@ -1485,6 +1542,10 @@ def _identify_sequences(
             track_kw,
             int(dedupe),
             shared_points and method == "paper",
+            own_points,
+            near_duplicate,
+            score_points,
+            prior,
         )
 
     tracks = select(paths)
@@ -1508,7 +1569,7 @@ def _identify_sequences(
             coords,
             accepted=accepted,
         )
-        tracks += select(extra)
+        tracks += select(extra, [pts for _, pts in tracks] if dedupe_rescued else None)
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
     kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
     out = [tr for tr, _ in kept]
@@ -1619,6 +1680,11 @@ def identify_tracks(
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
     track_ends: bool = True,
+    own_points: int = 1,
+    near_duplicate: str = "support",
+    case1: bool = False,
+    score_points: str = "interior",
+    dedupe_rescued: bool = False,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor]:
     """Link candidate points into scored tracks (section III-B of [LA98]; see the module notes).
 
@@ -1663,6 +1729,21 @@ def identify_tracks(
             step 5, our addition; ``RESCUE_CROSSING`` and ``RESCUE_ALONE`` are parts of it).
             ``False`` with ``score_span=1, shared_points=False, dedupe=False``: the paper's
             section III-B read literally.
+        own_points: ``method="paper"`` / ``"assignment"``: smallest number of a track's points
+            on no better track (1, default: the rule of step 4; larger: our reading of data
+            association, each point belongs to its best track; an option, module notes
+            "Readings of the identification gap").
+        near_duplicate: how ``dedupe`` judges a near-duplicate: ``"support"`` (default: image
+            point, then residual; step 4) or ``"score"`` (the better whole-sequence average
+            wins; option, module notes "Readings of the identification gap").
+        case1: reject a track with at most half of its points in the modified-HOC image
+            (``roots``; "a real target track should satisfy condition in Case 1 for most of
+            the scans", section III-B); default ``False``.
+        score_points: a track's score averages its ``"interior"`` point scores (default) or
+            ``"all"`` of them (end points take their neighbour's; "averaging all the point
+            scores", section IV-C).
+        dedupe_rescued: judge the tracks of the track-ends step as near-duplicates of the
+            accepted tracks too (default ``False``: among themselves only).
 
     Returns:
         ``(tracks, scores, cleaned)``: the accepted tracks (ids 1, 2, ... in order of first
@@ -1702,6 +1783,11 @@ def identify_tracks(
         track_combine=track_combine,
         shared_points=shared_points,
         track_ends=track_ends,
+        own_points=own_points,
+        near_duplicate=near_duplicate,
+        case1=case1,
+        score_points=score_points,
+        dedupe_rescued=dedupe_rescued,
     )
     return tracks, scores, cleaned
 
@@ -1727,6 +1813,11 @@ def _identify(
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
     track_ends: bool = True,
+    own_points: int = 1,
+    near_duplicate: str = "support",
+    case1: bool = False,
+    score_points: str = "interior",
+    dedupe_rescued: bool = False,
 ) -> tuple[list[Track], torch.Tensor, torch.Tensor, bool]:
     cube, batched = as_cube("support", support, binary=True)
     v = check_int("v", v, minimum=1)
@@ -1737,6 +1828,10 @@ def _identify(
     method = check_choice("method", method, ("paper", "greedy", "assignment"))
     max_candidates = check_int("max_candidates", max_candidates, minimum=1)
     dedupe = _dedupe_scans(dedupe)
+    own_points = check_int("own_points", own_points, minimum=1)
+    near_duplicate = check_choice("near_duplicate", near_duplicate, NEAR_DUPLICATE)
+    score_points = check_choice("score_points", score_points, SCORE_POINTS)
+    case1 = bool(case1)
     kw = _score_kwargs(A1, alpha1, A2, alpha2, combine)
     track_kw = _track_kwargs(kw, score_span, track_combine)
     cube = cube.cpu()
@@ -1773,6 +1868,11 @@ def _identify(
                 track_kw=track_kw,
                 shared_points=bool(shared_points),
                 rescue=bool(track_ends),
+                own_points=own_points,
+                near_duplicate=near_duplicate,
+                case1=case1,
+                score_points=score_points,
+                dedupe_rescued=bool(dedupe_rescued),
             )
             capped |= cap
         all_tracks.extend(tr)
@@ -1890,6 +1990,11 @@ def detect(
     track_combine: str | None = None,
     shared_points: bool = DEFAULT_SHARED_POINTS,
     track_ends: bool = True,
+    own_points: int = 1,
+    near_duplicate: str = "support",
+    case1: bool = False,
+    score_points: str = "interior",
+    dedupe_rescued: bool = False,
 ) -> HOCResult:
     """Detect multiple targets in a binary multi-scan cube with the modified HOC of [LA98].
 
@@ -1948,6 +2053,13 @@ def detect(
         track_ends: run the track-ends step (step 5 of the module notes, our addition; with
             it ``RESCUE_CROSSING`` and ``RESCUE_ALONE``); ``False`` with ``score_span=1,
             shared_points=False, dedupe=False`` is the paper's procedure read literally.
+        own_points: smallest number of a track's points on no better track (default 1;
+            :func:`identify_tracks`).
+        near_duplicate: ``"support"`` (default) or ``"score"`` (:func:`identify_tracks`).
+        case1: Case 1 for most of a track's scans (default ``False``; :func:`identify_tracks`).
+        score_points: ``"interior"`` (default) or ``"all"`` (:func:`identify_tracks`).
+        dedupe_rescued: near-duplicates judged across the track-ends step too (default
+            ``False``; :func:`identify_tracks`).
 
     Returns:
         :class:`HOCResult` with ``support``, ``tracks``, ``scores``, ``cleaned``,
@@ -2029,6 +2141,11 @@ def detect(
         track_combine=track_combine,
         shared_points=shared_points,
         track_ends=track_ends,
+        own_points=own_points,
+        near_duplicate=near_duplicate,
+        case1=case1,
+        score_points=score_points,
+        dedupe_rescued=dedupe_rescued,
         **kw,
     )
     if capped:
