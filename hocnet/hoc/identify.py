@@ -340,7 +340,7 @@ the target's (both tracks are then kept). Measured on 600 hard-case scenes: 1e-9
 rule) loses 1 target point (a track running beside another), 0.5 loses none.
 """
 
-NEAR_DUPLICATE = ("support", "score")
+NEAR_DUPLICATE = ("support", "score", "score-ends")
 """Choices of ``near_duplicate`` (how ``dedupe`` judges a near-duplicate; module notes, step 4)."""
 
 SCORE_POINTS = ("interior", "all")
@@ -1023,7 +1023,7 @@ def _select_tracks(
                 dedupe_scans,
                 covered,
                 explained,
-                by_score=near_duplicate == "score",
+                by_score={"support": False, "score": True, "score-ends": "ends"}[near_duplicate],
             ):
                 continue
             for q in pts:
@@ -1125,7 +1125,7 @@ def _is_near_duplicate(
     max_diff: int = 1,
     covered: set[int] | frozenset[int] = frozenset(),
     explained: bool = False,
-    by_score: bool = False,
+    by_score: bool | str = False,
 ) -> bool:
     """Whether a candidate track is a worse copy of a kept one (``dedupe``, our addition).
 
@@ -1165,12 +1165,24 @@ def _is_near_duplicate(
             for i in diff
         ):
             continue  # an uncovered image point next to the kept one: maybe a crossing track's
-        if by_score or all(
+        ends = by_score == "ends" and _at_ends(diff, len(pts))
+        if (by_score is True or ends) or all(
             _kept_point_wins(pts, i, k_pts, k_scan, on_k, shared_c, scan_of, image, xy)
             for i in diff
         ):
             return True
     return False
+
+
+def _at_ends(diff: list[int], n: int) -> bool:
+    """Whether positions ``diff`` (sorted) of an ``n``-point track are a run at its start or end.
+
+    Examples:
+        >>> _at_ends([0, 1], 10), _at_ends([9], 10), _at_ends([0, 9], 10), _at_ends([4], 10)
+        (True, True, False, False)
+    """
+    m = len(diff)
+    return m > 0 and (diff == list(range(m)) or diff == list(range(n - m, n)))
 
 
 def _next_to_shared(pts: list[int], i: int, on_k: set[int]) -> bool:
@@ -1734,8 +1746,10 @@ def identify_tracks(
             association, each point belongs to its best track; an option, module notes
             "Readings of the identification gap").
         near_duplicate: how ``dedupe`` judges a near-duplicate: ``"support"`` (default: image
-            point, then residual; step 4) or ``"score"`` (the better whole-sequence average
-            wins; option, module notes "Readings of the identification gap").
+            point, then residual; step 4), ``"score"`` (the better whole-sequence average
+            wins) or ``"score-ends"`` (the score where the two differ only at the candidate's
+            first or last scans, the evidence rule elsewhere); options, module notes
+            "Readings of the identification gap".
         case1: reject a track with at most half of its points in the modified-HOC image
             (``roots``; "a real target track should satisfy condition in Case 1 for most of
             the scans", section III-B); default ``False``.
@@ -2055,7 +2069,8 @@ def detect(
             shared_points=False, dedupe=False`` is the paper's procedure read literally.
         own_points: smallest number of a track's points on no better track (default 1;
             :func:`identify_tracks`).
-        near_duplicate: ``"support"`` (default) or ``"score"`` (:func:`identify_tracks`).
+        near_duplicate: ``"support"`` (default), ``"score"`` or ``"score-ends"``
+            (:func:`identify_tracks`).
         case1: Case 1 for most of a track's scans (default ``False``; :func:`identify_tracks`).
         score_points: ``"interior"`` (default) or ``"all"`` (:func:`identify_tracks`).
         dedupe_rescued: near-duplicates judged across the track-ends step too (default

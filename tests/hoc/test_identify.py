@@ -1340,3 +1340,31 @@ class TestTable3GapReadings:
             detect(cube, **kw)
         with pytest.raises(ValueError, match=match):
             identify_tracks(cube, **kw)
+
+    def test_near_duplicate_by_score_at_ends_only(self):
+        # ``score-ends``: the score decides where the candidate differs only at its first or
+        # last scans (an alternative end point); a detour (inner scan) keeps the evidence rule
+        xy = [[t, t, 2 * t] for t in range(5)] + [[0, 1, 1], [2, 4, 4]]
+        scan_of = [p[0] for p in xy]
+        image = [True] * 7
+        line = [0, 1, 2, 3, 4]
+        end_variant, detour = [5, 1, 2, 3, 4], [0, 1, 6, 3, 4]
+        kept = [(end_variant, {scan_of[q]: i for i, q in enumerate(end_variant)})]
+        # the evidence rule: the candidate's end point lies on the line, it wins
+        assert not _is_near_duplicate(line, kept, scan_of, image, xy)
+        assert _is_near_duplicate(line, kept, scan_of, image, xy, by_score="ends")
+        inner = [(detour, {scan_of[q]: i for i, q in enumerate(detour)})]
+        assert not _is_near_duplicate(line, inner, scan_of, image, xy, by_score="ends")
+        assert _is_near_duplicate(line, inner, scan_of, image, xy, by_score=True)
+
+    @pytest.mark.parametrize("seed", sorted(HARD_SCENES))
+    def test_score_ends_regression_scenes(self, seed):
+        cube, truth = _hard_scene(HARD_SCENES[seed], seed)
+        result = detect(cube, near_duplicate="score-ends")
+        assert not (truth & ~result.cleaned).any()
+
+    @pytest.mark.parametrize("seed", [6, 9, 49])
+    def test_score_ends_partial_scenes(self, seed):
+        cube, _, eligible = _partial_scene(seed, eligible=True)
+        result = detect(cube, near_duplicate="score-ends")
+        assert not (eligible & ~result.cleaned).any()
