@@ -147,6 +147,13 @@ PARTIAL_SCENES = 120
 HARD_SEED_BASE = 7000
 PARTIAL_SEED_BASE = 8000
 
+FRESH_SCENES = 300
+"""Fresh hard-case and partial-track scenes (seeds never used above) for the readings that
+cost no target point in section 2 (:data:`FRESH_READINGS`): an out-of-sample check."""
+FRESH_HARD_BASE = 9000
+FRESH_PARTIAL_BASE = 10000
+FRESH_READINGS = ("default", "near_duplicate=score-ends", "dedupe_rescued")
+
 OTHER_KINDS = ("end", "detour", "mixed")
 """Kinds of *other* track (:func:`other_kind`)."""
 
@@ -375,9 +382,15 @@ def table2_rows(
     return rows
 
 
-def hard_rows(n: int, partial: bool, readings: Sequence[str], progress: bool) -> list[dict]:
-    """One row per (scene, reading) on the issue-7 hard (or partial-track) scenes."""
-    base = PARTIAL_SEED_BASE if partial else HARD_SEED_BASE
+def hard_rows(
+    n: int, partial: bool, readings: Sequence[str], progress: bool, base: int | None = None
+) -> list[dict]:
+    """One row per (scene, reading) on the issue-7 hard (or partial-track) scenes.
+
+    Seeds ``base .. base + n - 1`` (default :data:`HARD_SEED_BASE` / :data:`PARTIAL_SEED_BASE`).
+    """
+    if base is None:
+        base = PARTIAL_SEED_BASE if partial else HARD_SEED_BASE
     rows = []
     desc = f"{NAME} {'partial' if partial else 'hard'}"
     for seed in C.progress(range(base, base + n), enabled=progress, desc=desc):
@@ -470,6 +483,7 @@ def _score_table(rows: list[dict], densities: Sequence[float], reading: str) -> 
         "tracks",
         "length (mean)",
         "score min / median / max",
+        "exactly 2.5",
         *(f"[{a:.2f}, {b:.2f})" if b < 3 else f"[{a:.2f}, 3.00]" for a, b in bins),
     ]
     body = []
@@ -479,7 +493,7 @@ def _score_table(rows: list[dict], densities: Sequence[float], reading: str) -> 
         for kind in "abc":
             sel = sorted((s, n) for k, s, n in tracks if k == kind)
             if not sel:
-                body.append([C.pct(d, 1), names[kind], 0, "", "", *([""] * len(bins))])
+                body.append([C.pct(d, 1), names[kind], 0, "", "", "", *([""] * len(bins))])
                 continue
             scores = [s for s, _ in sel]
             hist = [sum(a <= s < b for s in scores) for a, b in bins]
@@ -490,6 +504,7 @@ def _score_table(rows: list[dict], densities: Sequence[float], reading: str) -> 
                     len(sel),
                     f"{sum(n for _, n in sel) / len(sel):.1f}",
                     f"{scores[0]:.3f} / {scores[len(scores) // 2]:.3f} / {scores[-1]:.3f}",
+                    sum(abs(sc - 2.5) < 1e-9 for sc in scores),
                     *hist,
                 ]
             )
@@ -713,8 +728,26 @@ def run(
         )
         hard = hard_rows(4 if quick else HARD_SCENES, False, readings, progress)
         partial = hard_rows(4 if quick else PARTIAL_SCENES, True, readings, progress)
+        fresh_n = 2 if quick else FRESH_SCENES
+        fresh_r = [r for r in FRESH_READINGS if r in readings]
+        fresh = (
+            hard_rows(fresh_n, False, fresh_r, progress, FRESH_HARD_BASE),
+            hard_rows(fresh_n, True, fresh_r, progress, FRESH_PARTIAL_BASE),
+        )
     text = build_report(
         quick, n, timer.seconds, t3, t2, hard, partial, densities, TABLE2_DENSITIES, readings
+    )
+    text += "\n" + "\n".join(
+        [
+            "## 4. Out of sample: fresh hard-case and partial-track scenes",
+            "",
+            f"{fresh_n} fresh scenes of each kind (seeds from {FRESH_HARD_BASE} and "
+            f"{FRESH_PARTIAL_BASE}, used by no rule or measurement above), the readings that "
+            "lost no target point in section 2:",
+            "",
+            _hard_table(*fresh, fresh_r),
+            "",
+        ]
     )
     if not quick or out_dir is not None:
         out = C.out_dir_of(out_dir, quick=quick)
