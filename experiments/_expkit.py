@@ -807,14 +807,22 @@ HOC_CONFIGS = {
     },
     "combine=min, span 3": {"combine": "min", "score_span": 3},
     "combine=mean, span 2": {"combine": "mean", "score_span": 2},
+    "combine=sum, span 2": {"combine": "sum"},
+    "combine=movement (eq. 8 alone), span 2": {"combine": "movement"},
 }
 """HOC detector configurations of hoc-table2 and hoc-table3: ``detect`` keyword arguments
-(order 2; order 3 runs "paper" only).
+(order 2; order 3 runs :data:`HOC_ORDER3_CONFIGS`).
 
 ``"paper"`` is ``detect``'s defaults: MHOC image, section III-B identification, point score
 ``combine="min"`` on moves averaged over ``score_span=2`` scans (the whole five-point sequence,
 our reading; :mod:`hocnet.hoc.identify`, "Point score") and several five-point sequences per
 image point (``shared_points=True``, our reading; step 2 of the module notes; the previous
-default ``shared_points=False`` is a row of its own). ``combine="sum"`` and ``"movement"``
-remain options of ``detect`` (measured earlier: sum below mean, movement equal to min).
+default ``shared_points=False`` is a row of its own). The last two rows are the other
+point-score combinations of ``detect``, ``combine="sum"`` and ``"movement"``
+(:func:`hocnet.hoc.scoring.point_score`), each a row of its own.
 """
+
+HOC_ORDER3_CONFIGS = ("paper", "chain + paper")
+"""Configurations of :data:`HOC_CONFIGS` hoc-table2 and hoc-table3 run at order 3: the MHOC
+image (the paper; for 10 scans forward ``Y^(3)`` covers scans 1-4 and backward ``Y^(3)`` scans
+7-10) and the chain support (our addition)."""

@@ -58,18 +58,12 @@ SCENES = {
 TRACK_NAMES = {1: "T1", 2: "T2", 3: "T3"}
 
 
-CONFIGS = {
-    **C.HOC_CONFIGS,
-    "combine=sum, span 2": {"combine": "sum"},
-    "combine=movement (eq. 8 alone), span 2": {"combine": "movement"},
-}
+CONFIGS = C.HOC_CONFIGS
 """Detector configurations (order 2): :data:`_expkit.HOC_CONFIGS` (shared with the other HOC
-table) plus the two point-score combinations of ``detect`` it does not run (``combine="sum"``,
-``"movement"``; :func:`hocnet.hoc.scoring.point_score`)."""
+table)."""
 
-ORDER3_CONFIGS = ("paper", "chain + paper")
-"""Configurations run at order 3: the MHOC image (the paper; for 10 scans forward ``Y^(3)``
-covers scans 1-4 and backward ``Y^(3)`` scans 7-10) and the chain support (our addition)."""
+ORDER3_CONFIGS = C.HOC_ORDER3_CONFIGS
+"""Configurations run at order 3: :data:`_expkit.HOC_ORDER3_CONFIGS`."""
 
 SPREAD_CONFIGS = ("paper", "mhoc + assignment")
 """Configurations whose per-scene spread is set beside the paper's value."""

@@ -170,27 +170,45 @@ def binarize_frames(
     white, shifts = _preprocess(frames, params)
     binary = cfar_binarize(white, pfa)
     height, width = binary.shape[-2:]
+    note = _binarised_note(pfa, height, width, int(binary.sum()))
+    return binary, shifts, note
+
+
+def _binarised_note(pfa: float, height: int, width: int, points: int, stacklevel: int = 2) -> str:
+    """The note of ``--threshold-pfa`` on ``points`` kept in frames of ``height x width``.
+
+    Shared by :func:`binarize_frames` (the whole cube) and ``hocnet track`` (frame by frame).
+    Warns (:class:`RuntimeWarning`, said by the commands as ``hocnet: warning: ...``) when
+    ``pfa H W < 1`` (every frame keeps 0 points) or when no point is kept at all.
+    ``stacklevel``: the one the caller would give :func:`warnings.warn` itself (2: the
+    warnings point at the caller's caller).
+
+    Returns:
+        The one-line summary ``binarised: N points (CFAR, pfa P per pixel, at most K per frame)``.
+
+    Examples:
+        >>> _binarised_note(0.01, 20, 20, 7)
+        'binarised: 7 points (CFAR, pfa 0.01 per pixel, at most 4 per frame)'
+    """
     per_frame = math.floor(pfa * height * width)
-    points = int(binary.sum())
-    note = (
-        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
-    )
-    if per_frame < 1:  # said through warnings: the command prints `hocnet: warning: ...`
+    if per_frame < 1:
         warnings.warn(
             f"--threshold-pfa: {pfa:g} x {height} x {width} pixels = {pfa * height * width:.3g} "
             "expected false points per frame (< 1): every frame keeps 0 points and the HOC gets "
             f"an empty cube; give at least 1 / (H W) = {1 / (height * width):.3g}",
             RuntimeWarning,
-            stacklevel=2,
+            stacklevel=stacklevel + 1,
         )
     elif points == 0:
         warnings.warn(
             f"--threshold-pfa: no point is left after the binarisation at pfa {pfa:g} (every "
             "frame is flat after the pre-processing); the HOC gets an empty cube",
             RuntimeWarning,
-            stacklevel=2,
+            stacklevel=stacklevel + 1,
         )
-    return binary, shifts, note
+    return (
+        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
+    )
 
 
 def hoc_kwargs(params: dict[str, Any]) -> dict[str, Any]:
@@ -530,53 +548,66 @@ def _check_flat_frames(
     )
 
 
-def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
-    """Pre-process, accumulate (eq. 11 of [NR08]), pick the last-frame peaks, back-track them.
+def dpa_setup(
+    cube: torch.Tensor,
+    params: dict[str, Any],
+    label: str,
+    frame_names: list[str] | None = None,
+    *,
+    weights: torch.Tensor | None = None,
+    cfar: bool = False,
+) -> dict[str, Any]:
+    """The DPA set-up of ``hocnet detect`` (whole batch) and ``hocnet track`` (frame by frame).
 
-    Also writes the causal per-frame candidate detections of the ASF (``detections.csv``): the
-    ASF of frame ``n`` is built from frames ``0..n`` only, and so is every pre-processing step.
+    The command's own checks of the frame count and size come first; then, in this order:
+    no flat frame (:func:`_check_flat_frames`) and values within float32 in ``cube`` and in
+    ``--target-free`` (whose frames must be ``H x W`` too); the probability matrices of
+    [NR08] (:func:`hocnet.dpa.probability_matrices` of ``window``, ``v_max``, ``jitter``,
+    ``p``, ``penalty_step``, or the learned ``weights`` of ``--weights``), their gain
+    equalised with ``--equal-gain`` (:func:`hocnet.dpa.equalize_gain`); ``b``, from ``--b``
+    or :func:`hocnet.dpa.effective_memory` (``--memory``); the target-free frames
+    pre-processed like the input (:func:`_preprocess`).
+
+    Args:
+        cube: the input, ``(T, H, W)`` or ``(B, T, H, W)`` intensities.
+        params: the DPA options (:func:`prepare_dpa`) and the pre-processing options.
+        label: the input's name in messages (``CUBE``, ``SEQ``).
+        frame_names: the image files of the frames, if any (named by the flat-frame check).
+        weights: learned ``(D, k, k)`` matrices replacing the built ones, or ``None``.
+        cfar: with ``--target-free``, compute the CFAR threshold here
+            (:func:`hocnet.dpa.backtrack.cfar_threshold` at ``pfa``, ``nms_radius``); without,
+            :func:`hocnet.dpa.backtrack.detect` computes it from ``target_free``.
+
+    Returns:
+        ``{"weights", "b", "target_free", "threshold"}``: the ``(D, k, k)`` float matrices, the
+        memory factor, the pre-processed target-free frames (``None`` without
+        ``--target-free``) and the ASF threshold: the CFAR one with ``cfar`` and
+        ``--target-free``, else ``--asf-threshold`` (``None``: no threshold).
+
+    Raises:
+        CLIError: all frames flat, values beyond float32, ``--target-free`` frames of another
+            size (:func:`check_target_free`), or a pre-processing overflow (one line each).
+
+    Examples:
+        >>> import torch
+        >>> from hocnet.cli import build_parser
+        >>> params = _prepare_dpa(build_parser().parse_args(["detect", "x.npy", "--method", "dpa"]))
+        >>> setup = dpa_setup(torch.rand(4, 16, 16), params, "CUBE")
+        >>> tuple(setup["weights"].shape), round(setup["b"], 4), setup["threshold"]
+        ((9, 5, 5), 3.1967, None)
     """
-    import torch
-
-    from hocnet.data.io import save_cube
     from hocnet.dpa import effective_memory, equalize_gain, probability_matrices
-    from hocnet.dpa.backtrack import detect
-    from hocnet.plot import plot_dpa
+    from hocnet.dpa.backtrack import cfar_threshold
 
-    label = params.pop("label", "CUBE")  # the input's name in messages (track: SEQ)
-    frame_names = params.pop("frame_names", None)  # the image files of the frames, if any
-    n_t = cube.shape[-3]
-    if n_t < MIN_DPA_FRAMES:
-        raise CLIError(
-            f"{label}: expected at least {MIN_DPA_FRAMES} frames for the DPA (it accumulates "
-            f"evidence over frames; one frame is a single-frame detector), got {n_t}"
-        )
     _check_flat_frames(cube, label, frame_names)
     _check_float32_range(cube, "`frames`")
-    if params["target_free"] is not None:
-        check_target_free(params["target_free"], tuple(cube.shape[-2:]), label)
-        _check_float32_range(params["target_free"], "`target_free`")
-    frames = cube.float()
-    height, width = frames.shape[-2:]
-    window = params["window"]
-    if window > min(height, width):
-        raise CLIError(
-            f"--window: expected at most the frame size min(H, W) = {min(height, width)}, "
-            f"got {window}"
-        )
-    white, shifts = _preprocess(frames, params)
-    model = params.pop("model", None)
-    if model is not None:  # --weights: the learned matrices, b and g
-        with torch.no_grad():
-            weights = model.weights.detach().float()
-            params.update(g=float(model.g), b=float(model.b), equal_gain=False)
-        params.update(window=weights.shape[-1], direction_step=model.direction_step)
-        params.pop("v_max", None)
-        params.pop("p", None)
-        params.pop("penalty_step", None)
-    else:
+    target_free = params["target_free"]
+    if target_free is not None:
+        check_target_free(target_free, tuple(cube.shape[-2:]), label)
+        _check_float32_range(target_free, "`target_free`")
+    if weights is None:
         weights = probability_matrices(
-            window=window,
+            window=params["window"],
             v_max=params["v_max"],
             jitter=params["jitter"],
             p=params["p"],
@@ -591,9 +622,63 @@ def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
                 weights, params["g"], params["memory"], direction=params["memory_direction"]
             )
         )
-    target_free = params["target_free"]
+    threshold = params["asf_threshold"]
     if target_free is not None:
         target_free, _ = _preprocess(target_free, params, "`target_free`")
+        if cfar:
+            threshold = cfar_threshold(
+                target_free,
+                weights,
+                b,
+                params["g"],
+                pfa=params["pfa"],
+                nms_radius=params["nms_radius"],
+                direction_step=params["direction_step"],
+            )
+    return {"weights": weights, "b": b, "target_free": target_free, "threshold": threshold}
+
+
+def _run_dpa(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
+    """Pre-process, accumulate (eq. 11 of [NR08]), pick the last-frame peaks, back-track them.
+
+    Also writes the causal per-frame candidate detections of the ASF (``detections.csv``): the
+    ASF of frame ``n`` is built from frames ``0..n`` only, and so is every pre-processing step.
+    """
+    import torch
+
+    from hocnet.data.io import save_cube
+    from hocnet.dpa.backtrack import detect
+    from hocnet.plot import plot_dpa
+
+    label = params.pop("label", "CUBE")  # the input's name in messages (track: SEQ)
+    frame_names = params.pop("frame_names", None)  # the image files of the frames, if any
+    n_t = cube.shape[-3]
+    if n_t < MIN_DPA_FRAMES:
+        raise CLIError(
+            f"{label}: expected at least {MIN_DPA_FRAMES} frames for the DPA (it accumulates "
+            f"evidence over frames; one frame is a single-frame detector), got {n_t}"
+        )
+    height, width = cube.shape[-2:]
+    window = params["window"]
+    if window > min(height, width):
+        raise CLIError(
+            f"--window: expected at most the frame size min(H, W) = {min(height, width)}, "
+            f"got {window}"
+        )
+    model = params.pop("model", None)
+    weights = None
+    if model is not None:  # --weights: the learned matrices, b and g
+        with torch.no_grad():
+            weights = model.weights.detach().float()
+            params.update(g=float(model.g), b=float(model.b), equal_gain=False)
+        params.update(window=weights.shape[-1], direction_step=model.direction_step)
+        params.pop("v_max", None)
+        params.pop("p", None)
+        params.pop("penalty_step", None)
+    setup = dpa_setup(cube, params, label, frame_names, weights=weights)
+    frames = cube.float()
+    white, shifts = _preprocess(frames, params)
+    weights, b, target_free = setup["weights"], setup["b"], setup["target_free"]
     found = detect(
         white,
         weights,

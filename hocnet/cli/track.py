@@ -228,12 +228,11 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Iterable[Any], dict[s
 
 def _binarised(cube: Any, params: dict[str, Any], info: dict[str, Any]) -> Iterator[Any]:
     """``--threshold-pfa``: each frame pre-processed and binarised as soon as it is read."""
-    from hocnet.cli.detect import _shifts_summary
+    from hocnet.cli.detect import _binarised_note, _shifts_summary
     from hocnet.data.binarize import cfar_binarize
 
     pfa = params["threshold_pfa"]
     _, height, width = cube.shape
-    per_frame = math.floor(pfa * height * width)
     points = 0
     for white in _white_frames(cube.float(), params, info):
         binary = cfar_binarize(white[None], pfa)[0]
@@ -244,24 +243,8 @@ def _binarised(cube: Any, params: dict[str, Any], info: dict[str, Any]) -> Itera
         info["notes"].append(
             _shifts_summary(info["shifts"], _SHIFTS_AT, params["unregistered_pairs"])
         )
-    info["notes"].append(
-        f"binarised: {points} points (CFAR, pfa {pfa:g} per pixel, at most {per_frame} per frame)"
-    )
-    if per_frame < 1:  # as binarize_frames (said by the command as `hocnet: warning: ...`)
-        warnings.warn(
-            f"--threshold-pfa: {pfa:g} x {height} x {width} pixels = {pfa * height * width:.3g} "
-            "expected false points per frame (< 1): every frame keeps 0 points and the HOC gets "
-            f"an empty cube; give at least 1 / (H W) = {1 / (height * width):.3g}",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-    elif points == 0:
-        warnings.warn(
-            f"--threshold-pfa: no point is left after the binarisation at pfa {pfa:g} (every "
-            "frame is flat after the pre-processing); the HOC gets an empty cube",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    # said by the command as `hocnet: warning: ...`, as binarize_frames says them
+    info["notes"].append(_binarised_note(pfa, height, width, points))
 
 
 def _window_starts(n_t: int, window: int, stride: int) -> list[int]:
@@ -434,25 +417,18 @@ def _hoc_plots(
 def _dpa_setup(cube: Any, params: dict[str, Any]) -> dict[str, Any]:
     """What the DPA needs before the first frame: checks, matrices, ``b`` and the threshold.
 
-    As ``hocnet detect --method dpa`` (:func:`hocnet.cli.detect._run_dpa`) before its
-    accumulation: the input checks (over the whole loaded sequence: finite values, float32
-    range, flat frames), the probability matrices (``--preset``), ``b`` and the detection
-    threshold, fixed (``--asf-threshold``) or CFAR from ``--target-free`` (a separate
-    calibration sequence, pre-processed and accumulated as a whole: not the input).
+    The frame count and size checks of ``hocnet track``, then the set-up shared with
+    ``hocnet detect --method dpa`` (:func:`hocnet.cli.detect.dpa_setup`): the input checks
+    (over the whole loaded sequence: finite values, float32 range, flat frames), the
+    probability matrices (``--preset``), ``b`` and the detection threshold, fixed
+    (``--asf-threshold``) or CFAR from ``--target-free`` (a separate calibration sequence,
+    pre-processed and accumulated as a whole: not the input).
 
     Returns:
         ``{"weights", "b", "threshold", "params"}``; ``params``: the options with the values
         used (``b``, ``threshold_used``, ``cfar``).
     """
-    from hocnet.cli.detect import (
-        DETECTION_NMS_RADIUS,
-        MIN_DPA_FRAMES,
-        _check_flat_frames,
-        _check_float32_range,
-        _preprocess,
-    )
-    from hocnet.dpa import effective_memory, equalize_gain, probability_matrices
-    from hocnet.dpa.backtrack import cfar_threshold
+    from hocnet.cli.detect import DETECTION_NMS_RADIUS, MIN_DPA_FRAMES, dpa_setup
 
     params = dict(params)
     frame_names = params.pop("frame_names", None)
@@ -472,48 +448,16 @@ def _dpa_setup(cube: Any, params: dict[str, Any]) -> dict[str, Any]:
             f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
             f"matrices of --preset {params['preset']}, got {height} x {width}"
         )
-    _check_flat_frames(cube, _LABEL, frame_names)
-    _check_float32_range(cube, "`frames`")
-    target_free = params["target_free"]
-    if target_free is not None:
-        _inputs.check_target_free(target_free, (height, width), _LABEL)
-        _check_float32_range(target_free, "`target_free`")
-    weights = probability_matrices(
-        window=size,
-        v_max=params["v_max"],
-        jitter=params["jitter"],
-        p=params["p"],
-        penalty_step=params["penalty_step"],
-    )
-    if params["equal_gain"]:
-        weights = equalize_gain(weights, params["g"])
-    b = params["b"]
-    if b is None:
-        b = float(
-            effective_memory(
-                weights, params["g"], params["memory"], direction=params["memory_direction"]
-            )
-        )
-    threshold = params["asf_threshold"]
-    if target_free is not None:
-        white_free, _ = _preprocess(target_free, params, "`target_free`")
-        threshold = cfar_threshold(
-            white_free,
-            weights,
-            b,
-            params["g"],
-            pfa=params["pfa"],
-            nms_radius=params["nms_radius"],
-            direction_step=params["direction_step"],
-        )
+    setup = dpa_setup(cube, params, _LABEL, frame_names, cfar=True)
+    b, threshold = setup["b"], setup["threshold"]
     params = {k: v for k, v in params.items() if k != "target_free"}
     params.update(
         b=b,
         threshold_used=threshold,
-        cfar=target_free is not None,
+        cfar=setup["target_free"] is not None,
         detections_nms_radius=DETECTION_NMS_RADIUS,
     )
-    return {"weights": weights, "b": b, "threshold": threshold, "params": params}
+    return {"weights": setup["weights"], "b": b, "threshold": threshold, "params": params}
 
 
 def _white_frames(frames: Any, params: dict[str, Any], info: dict[str, Any]) -> Iterator[Any]:

@@ -1335,6 +1335,41 @@ def _declared_type(bba: torch.Tensor | None, rng: np.random.Generator) -> int:
     return int(ties[0] if len(ties) == 1 else rng.choice(ties))
 
 
+def _pd_tracker(
+    scenario: Any, cfg: PDTrackerConfig, *, type_tracking: bool
+) -> tuple[VSIMMRoadFilter, MHT, list[Scan]]:
+    """The filter, the MHT and the scans of :func:`run_pd_tracker` (before its first step).
+
+    The sensors (GMTI, video, UGS) and the road network of ``scenario``, the
+    :class:`VSIMMRoadFilter` on them, the :class:`~hocnet.tracking.mht.MHT` with the
+    parameters of ``cfg`` (``type_term`` only with ``type_tracking``) and the scenario's
+    reports grouped into scans (:func:`report_scans`).
+    """
+    net = RoadNetwork.from_geojson(scenario.network)
+    g = scenario.gmti
+    gmti = GMTISensor(
+        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
+    )
+    video = VideoSensor(scenario.video.sigma, pd=scenario.video.pd, name="video")
+    ugs = VideoSensor(scenario.ugs.sigma, pd=scenario.ugs.pd, name="ugs")
+    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, scenario.video.footprints)
+    mht = MHT(
+        filt,
+        pd=cfg.pd,
+        lambda_fa=cfg.lambda_fa,
+        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
+        gate_probability=cfg.gate_probability,
+        alpha=cfg.alpha,
+        beta=cfg.beta,
+        n_hypotheses=cfg.n_hypotheses,
+        hypothesis_ratio=cfg.hypothesis_ratio,
+        n_scan=cfg.n_scan,
+        merge_scans=cfg.merge_scans,
+        type_term=cfg.type_term if type_tracking else None,
+    )
+    return filt, mht, report_scans(scenario.reports, gmti)
+
+
 def run_pd_tracker(
     scenario: PDScenario,
     *,
@@ -1367,30 +1402,8 @@ def run_pd_tracker(
         True
     """
     cfg = PDTrackerConfig() if config is None else config
-    net = RoadNetwork.from_geojson(scenario.network)
-    g = scenario.gmti
-    gmti = GMTISensor(
-        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
-    )
-    video = VideoSensor(scenario.video.sigma, pd=scenario.video.pd, name="video")
-    ugs = VideoSensor(scenario.ugs.sigma, pd=scenario.ugs.pd, name="ugs")
-    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, scenario.video.footprints)
-    mht = MHT(
-        filt,
-        pd=cfg.pd,
-        lambda_fa=cfg.lambda_fa,
-        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
-        gate_probability=cfg.gate_probability,
-        alpha=cfg.alpha,
-        beta=cfg.beta,
-        n_hypotheses=cfg.n_hypotheses,
-        hypothesis_ratio=cfg.hypothesis_ratio,
-        n_scan=cfg.n_scan,
-        merge_scans=cfg.merge_scans,
-        type_term=cfg.type_term if type_tracking else None,
-    )
+    filt, mht, scans = _pd_tracker(scenario, cfg, type_tracking=type_tracking)
     rng = np.random.default_rng(seed)
-    scans = report_scans(scenario.reports, gmti)
     samples: dict[int, list[tuple[float, float, float, int, int]]] = {}
     last: dict[int, Any] = {}
     max_leaves = 0

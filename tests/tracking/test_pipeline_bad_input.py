@@ -14,17 +14,10 @@ import math
 import pytest
 import torch
 
-from hocnet.tracking.mht import MHT
-from hocnet.tracking.pipeline import (
-    PDTrackerConfig,
-    Scan,
-    VSIMMRoadFilter,
-    report_scans,
-    run_pd_tracker,
-)
+from hocnet.tracking.pipeline import PDTrackerConfig, Scan, _pd_tracker, run_pd_tracker
 from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.scenario import pd_scenario
-from hocnet.tracking.sensors import GMTISensor, VideoSensor
+from hocnet.tracking.sensors import VideoSensor
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     vsimm_init,
@@ -45,29 +38,7 @@ def scenario():
 
 def _tracker(sc, cfg):
     """Filter and MHT as :func:`run_pd_tracker` builds them, and the scenario's scans."""
-    net = RoadNetwork.from_geojson(sc.network)
-    g = sc.gmti
-    gmti = GMTISensor(
-        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
-    )
-    video = VideoSensor(sc.video.sigma, pd=sc.video.pd, name="video")
-    ugs = VideoSensor(sc.ugs.sigma, pd=sc.ugs.pd, name="ugs")
-    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, sc.video.footprints)
-    mht = MHT(
-        filt,
-        pd=cfg.pd,
-        lambda_fa=cfg.lambda_fa,
-        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
-        gate_probability=cfg.gate_probability,
-        alpha=cfg.alpha,
-        beta=cfg.beta,
-        n_hypotheses=cfg.n_hypotheses,
-        hypothesis_ratio=cfg.hypothesis_ratio,
-        n_scan=cfg.n_scan,
-        merge_scans=cfg.merge_scans,
-        type_term=cfg.type_term,
-    )
-    return filt, mht, report_scans(sc.reports, gmti)
+    return _pd_tracker(sc, cfg, type_tracking=True)
 
 
 def _step(filt, mht, scan):
