@@ -386,7 +386,9 @@ class TestSharedOptions:
             assert main([cmd, "--help"]) == 0
             entries: dict[str, str] = {}
             flag = None
-            for line in capsys.readouterr().out.splitlines():
+            text = capsys.readouterr().out
+            text = text.split("\nmethods:\n")[0].split("\ntarget speed")[0]  # options, no epilog
+            for line in text.splitlines():
                 if line.startswith("  --"):
                     flag = line.split()[0].rstrip(",")
                     entries[flag] = ""
