@@ -28,6 +28,7 @@ import math
 from itertools import chain
 from typing import Any
 
+import numpy as np
 import torch
 
 __all__: list[str] = []
@@ -155,20 +156,30 @@ def best_paths(
     min_points: int,
     points: torch.Tensor,
 ) -> list[list[int]]:
-    """``identify._best_paths`` with the same arithmetic in fewer, smaller tensor passes.
+    """``identify._best_paths`` with the same arithmetic in fewer, cheaper array passes.
 
-    Same arguments, same chains in the same order. Three changes, none touching a value:
+    Same arguments, same chains in the same order. The changes, none touching a value:
 
-    - the dynamic-programming sweeps write each column whole (``where`` on the "has a
-      continuation" mask) instead of through boolean-mask indexing (a ``nonzero`` per write);
-      ``ptr`` is the continuation itself, ``-1`` where there is none, as before;
+    - the work is done on NumPy views of the tensors (integer indexing and element-wise
+      ``+``, ``-``, comparisons and ``where``: the same IEEE operations, the same bits; no
+      per-operation dispatch overhead of torch, about 5-30 us per call on 20 000 triples);
+    - the dynamic-programming sweeps group the triples by their joining edge once (a stable
+      sort; the in-edges come sorted) and take each column's group maximum and the first
+      triple reaching it with two segment reductions (``reduceat``) instead of two scatter
+      reductions and a ``nonzero`` per column: the same continuation (the largest sum, the
+      lowest triple index on ties, none where every sum is ``-inf``);
     - the ``(K, L, L)`` table of chain sums over (backward length, forward length) is reduced
       one backward length at a time (``(K, L)`` each, in cache): every entry is the same
       ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
-      (``torch.max`` returns the first maximal index of a row; a later ``lb`` replaces the
+      (``argmax`` returns the first maximal index of a row; a later ``lb`` replaces the
       running best only when strictly greater);
     - the chains are read off the pointer walks (the table of ``identify._walk``) with one
       filter and one ``tolist`` for all of them, not a Python filter per chain.
+
+    With NaN scores (never produced by :func:`~hocnet.hoc.scoring.point_score` on integer
+    moves), the reference itself runs. Measured on the 640 x 512, 2 % clutter, order-2
+    windows of ``benchmarks/hoc.py --stream`` (20 000 triples, 13 000 points asked): 12.3 ->
+    see the module notes.
 
     Wiring: ``identify._extensions`` calls ``best_paths`` instead of ``_best_paths`` (same
     signature).
@@ -181,88 +192,187 @@ def best_paths(
         >>> best_paths(5, p0, p1, p2, s, a_in, a_out, 5, 2.5, 5, middle)  # triples 0, 1, 2
         [[0, 1, 2]]
     """
-    from hocnet.hoc.identify import _group_best
-
     k = p0.numel()
-    n_e = int(torch.maximum(a_in.max(), a_out.max())) + 1
+    w = (s - threshold).numpy()
+    if k == 0 or not bool(np.isfinite(w).all()):
+        from hocnet.hoc.identify import _best_paths
+
+        return _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, points)
+    ai, ao = a_in.numpy(), a_out.numpy()
+    n_e = int(max(ai.max(), ao.max())) + 1
     L = max(1, n_t - 2)  # most triples on one chain
-    w = s - threshold
     neg = -math.inf
-    neg_col = torch.full((k,), neg, dtype=torch.float64)
-    none_col = torch.full((k,), -1, dtype=torch.long)
 
-    def sweep(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        # best[:, l]: best sum of a chain starting at triple k and continuing l triples
-        # (through dst -> src edges); ptr[:, l]: the next triple (-1: none)
-        best, ptr = [w], [none_col]
-        for _ in range(1, L):
-            col = best[-1]
-            ok = col > neg
-            if not bool(ok.any()):
-                best.append(neg_col)
-                ptr.append(none_col)
-                continue
-            idx = ok.nonzero().squeeze(1)
-            g = _group_best(src[idx], col[idx], n_e)
-            nxt = torch.where(g >= 0, idx[g.clamp_min(0)], -1)[dst]
-            best.append(torch.where(nxt >= 0, w + col[nxt.clamp_min(0)], neg))
-            ptr.append(nxt)
-        return torch.stack(best, dim=1), torch.stack(ptr, dim=1)
+    def sweep(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # best[l]: best sum of a chain starting at triple k and continuing l triples (through
+        # dst -> src edges); ptr[l]: the next triple (-1: none); (L, K), one row per length
+        best = np.full((L, k), neg)
+        ptr = np.full((L, k), -1, dtype=np.int64)
+        best[0] = w
+        idx = np.arange(k)  # the triples whose previous column is finite
+        for ell in range(1, L):
+            col = best[ell - 1]
+            g, key = src[idx], col[idx]
+            top = np.full(n_e, neg)
+            np.maximum.at(top, g, key)  # each edge's largest sum
+            hit = key == top[g]
+            first = np.full(n_e, k)
+            np.minimum.at(first, g[hit], idx[hit])  # the lowest triple reaching it
+            nxt = first[dst]
+            idx = np.flatnonzero(nxt < k)
+            if idx.size == 0:
+                break  # no chain continues further: the remaining columns stay empty
+            nxt = nxt[idx]
+            best[ell, idx] = w[idx] + col[nxt]
+            ptr[ell, idx] = nxt
+        return best, ptr
 
-    fw, fptr = sweep(a_in, a_out)  # continue with a triple starting on my out-edge
-    bw, bptr = sweep(a_out, a_in)  # continue with a triple ending on my in-edge
-    sub = (points[p0] | points[p1] | points[p2]).nonzero().squeeze(1)
-    ks = sub.numel()
+    fw, fptr = sweep(ai, ao)  # continue with a triple starting on my out-edge
+    bw, bptr = sweep(ao, ai)  # continue with a triple ending on my in-edge
+    pts = points.numpy()
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    sub = np.flatnonzero(pts[q0] | pts[q1] | pts[q2])
+    # a triple's table maximum is at most (max bw + max fw) - w (rounding is monotone): only
+    # triples whose bound reaches the pass mark can be chosen (nor own a point that is)
+    bound = (bw.max(axis=0)[sub] + fw.max(axis=0)[sub]) - w[sub]
+    sub = sub[bound >= -1e-9]
+    ks = sub.size
     if ks == 0:
         return []
-    bw_s, fw_s, w_s = bw[sub], fw[sub], w[sub][:, None]
-    lf = torch.arange(L)
-    flat_best = arg = None
-    for lb in range(L):
-        total = bw_s[:, lb : lb + 1] + fw_s - w_s  # (Ks, L): the table's row block lb
-        total = torch.where(lf + lb + 3 >= min_points, total, neg)
-        val, a = total.max(dim=1)
-        if flat_best is None:
-            flat_best, arg = val, a
-        else:
-            better = val > flat_best
-            flat_best = torch.where(better, val, flat_best)
-            arg = torch.where(better, a + lb * L, arg)
-    members = torch.cat([p0[sub], p1[sub], p2[sub]])
-    values = flat_best.repeat(3)
-    owner = _group_best(members, values, n)
-    local = owner[points & (owner >= 0)] % max(ks, 1)
-    local = torch.unique(local[flat_best[local] >= -1e-9])
-    if local.numel() == 0:
+    # the (Ks, L, L) table of chain sums over (backward length, forward length), each entry
+    # (bw + fw) - w; the flat arg-max keeps the first maximum in (lb, lf) order
+    length = np.arange(L)[:, None] + np.arange(L)[None, :] + 3
+    total = bw.T[sub][:, :, None] + fw.T[sub][:, None, :] - w[sub][:, None, None]
+    total = np.where(length >= min_points, total, neg).reshape(ks, L * L)
+    arg = total.argmax(axis=1)
+    flat_best = total[np.arange(ks), arg]
+    members = np.concatenate([q0[sub], q1[sub], q2[sub]])
+    values = np.tile(flat_best, 3)
+    top = np.full(n, neg)
+    np.maximum.at(top, members, values)
+    hit = np.flatnonzero(values == top[members])
+    owner = np.full(n, 3 * ks, dtype=np.int64)
+    np.minimum.at(owner, members[hit], hit)  # the first triple reaching the point's best
+    local = owner[pts & (owner < 3 * ks)] % ks
+    local = np.sort(local[flat_best[local] >= -1e-9])
+    if local.size == 0:
         return []
+    local = local[np.concatenate(([True], local[1:] != local[:-1]))]  # unique, ascending
     chosen = sub[local]
     nb, nf = arg[local] // L, arg[local] % L
     # the rows of ``_walk`` (its table before the per-row filter), backward ones reversed, and
     # the chosen triple between: one filter and one ``tolist`` for all chains
-    table = torch.cat([_walk_table(bptr, chosen, nb).flip(1), chosen[:, None]], dim=1)
-    table = torch.cat([table, _walk_table(fptr, chosen, nf)], dim=1)
+    table = np.concatenate(
+        [_walk_table(bptr, chosen, nb)[:, ::-1], chosen[:, None], _walk_table(fptr, chosen, nf)],
+        axis=1,
+    )
     keep = table >= 0
     flat = table[keep].tolist()
-    ends = torch.cumsum(keep.sum(dim=1), 0).tolist()
+    ends = np.cumsum(keep.sum(axis=1)).tolist()
     return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
 
 
-def _walk_table(ptr: torch.Tensor, start: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+def _walk_table(ptr: np.ndarray, start: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """``identify._walk`` before its per-row filter: ``(M, max steps)``, -1 past a row's end.
 
-    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order.
+    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order; ``ptr`` is
+    ``(L, K)`` (one row per chain length).
     """
-    n_steps = int(steps.max()) if steps.numel() else 0
-    cur = start.clone()
-    rem = steps.clone()
-    cols = [torch.full((start.numel(), 0), -1, dtype=torch.long)]
-    for _ in range(n_steps):
+    n_steps = int(steps.max()) if steps.size else 0
+    cur = start.copy()
+    rem = steps.copy()
+    table = np.full((start.size, n_steps), -1, dtype=np.int64)
+    for i in range(n_steps):
         on = rem > 0
-        nxt = ptr[cur, rem.clamp_min(0)]
-        cur = torch.where(on, nxt, cur)
-        cols.append(torch.where(on, cur, -1)[:, None])
+        cur = np.where(on, ptr[np.maximum(rem, 0), cur], cur)
+        table[:, i] = np.where(on, cur, -1)
         rem = rem - 1
-    return torch.cat(cols, dim=1)
+    return table
+
+
+class PathList(list):
+    """Chains of triples (a ``list`` of lists) that also carry their arrays, grouped by length.
+
+    ``groups``: per chain length, ``(index, triples)``: the positions of the chains of that
+    length in the list (ascending) and their triples, an ``(R, length)`` int64 array (row ``r``
+    is chain ``index[r]``). Built by :func:`hocnet.hoc._incremental.enumerate_paths_vectorised`
+    from the arrays it grows the chains in, so that :func:`score_paths_passing` need not turn
+    the lists back into arrays. Equal to the plain list of its chains.
+    """
+
+    __slots__ = ("groups",)
+
+    def __init__(self, rows: list[list[int]], groups: list[tuple[np.ndarray, np.ndarray]]):
+        super().__init__(rows)
+        self.groups = groups
+
+
+def _path_groups(paths: list[list[int]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``PathList.groups`` of a plain list of chains (ascending length)."""
+    groups = getattr(paths, "groups", None)
+    if groups is not None:
+        return sorted(groups, key=lambda g: g[1].shape[1])
+    lens = np.fromiter(map(len, paths), dtype=np.int64, count=len(paths))
+    every = np.fromiter(chain.from_iterable(paths), dtype=np.int64, count=int(lens.sum()))
+    offset = np.cumsum(lens) - lens
+    order = np.argsort(lens, kind="stable")  # by length, path order within a length
+    length, start = np.unique(lens[order], return_index=True)
+    out = []
+    for rows, n_tr in zip(np.split(order, start[1:]), length.tolist(), strict=True):
+        out.append((rows, every[offset[rows][:, None] + np.arange(n_tr)]))
+    return out
+
+
+_TABLES: dict[tuple[Any, ...], np.ndarray] = {}
+
+
+def _score_table(kw: dict[str, Any], reach: int) -> np.ndarray:
+    """:func:`~hocnet.hoc.scoring.point_score` of every pair of half-pixel moves, flat.
+
+    Entry ``((a * w + b) * w + c) * w + d``, ``w = 2 * reach + 1``, is the score of the first
+    move ``(i1, j1) = ((a - reach) / 2, (b - reach) / 2)`` and the second move ``(i2, j2) =
+    ((c - reach) / 2, (d - reach) / 2)``: all moves of components ``k / 2``, ``|k| <= reach``,
+    scored in one call and kept per score arguments (a few milliseconds, once). Reading a move's
+    score here gives the bits of scoring it in any batch (the element-wise score does not depend
+    on the batch: ``tests/hoc/test_stream.py::test_point_score_same_bits_batched_or_alone``,
+    and ``tests/hoc/test_identify_fast.py`` against direct calls).
+    """
+    from hocnet.hoc.scoring import point_score
+
+    key = (tuple(sorted(kw.items())), reach)
+    table = _TABLES.get(key)
+    if table is None:
+        vals = torch.arange(-reach, reach + 1, dtype=torch.float64) / 2
+        g = torch.cartesian_prod(vals, vals, vals, vals)
+        scores = point_score(g[:, 0], g[:, 1], g[:, 2], g[:, 3], **kw)
+        table = torch.as_tensor(scores, dtype=torch.float64).numpy()
+        _TABLES[key] = table
+    return table
+
+
+TABLE_REACH = 16
+"""Largest doubled move component (pixels x 2) scored from the table (``v <= 8``); larger
+moves are scored directly."""
+
+
+def half_move_scores(h1: np.ndarray, h2: np.ndarray, kw: dict[str, Any]) -> np.ndarray | None:
+    """``point_score`` of moves given doubled: ``h1 = 2 * m1``, ``h2 = 2 * m2``, ``(M, 2)`` int.
+
+    Columns ``(y, x)`` (as ``coords[:, 1:]``); the first move is ``(i1, j1) = (x, y) / 2``. The
+    scores are read from :func:`_score_table`; ``None`` when a component exceeds
+    :data:`TABLE_REACH` (the caller then scores directly).
+    """
+    if h1.size == 0:
+        return np.zeros(0)
+    reach = int(max(np.abs(h1).max(), np.abs(h2).max()))
+    if reach > TABLE_REACH:
+        return None
+    reach = max(reach, 8)  # one table for every scene with v <= 4
+    w = 2 * reach + 1
+    table = _score_table(kw, reach)
+    h1 = h1 + reach
+    h2 = h2 + reach
+    return table[((h1[:, 1] * w + h1[:, 0]) * w + h2[:, 1]) * w + h2[:, 0]]
 
 
 def score_paths_passing(
@@ -280,10 +390,14 @@ def score_paths_passing(
 
     The same ``(score, points, point scores)`` entries, in the same order, as
     ``[item for item in _score_paths(...) if not item[0] < threshold]`` (the filter
-    ``_select_tracks`` applies first): the same tensors, built from one flat list per path
-    length (not a nested list), the same element-wise scores and row means, so the same bits;
-    only the rows that pass are turned into Python lists (at 2 % clutter on a 640 x 512
-    window, about 300 of 10 000 paths).
+    ``_select_tracks`` applies first): the paths grouped by length as there (the arrays of a
+    :class:`PathList`, else built from the lists with one pass each), each point's moves over
+    ``span`` scans from the integer coordinates, its score read from the table of every
+    half-pixel move pair (:func:`half_move_scores`; the same bits as scoring it in the batch
+    of ``_score_paths``; directly, as there, for spans above 2 or long moves), and the same row
+    means (``torch.mean`` of the same ``(R, length)`` rows), so the same bits; only the rows
+    that pass are turned into Python lists (at 2 % clutter on a 640 x 512 window, about 300 of
+    10 000 paths).
 
     Wiring: in ``identify._select_tracks``::
 
@@ -303,48 +417,46 @@ def score_paths_passing(
 
     if not paths:
         return []
-    lens = torch.tensor(list(map(len, paths)), dtype=torch.long)
-    every = torch.tensor(list(chain.from_iterable(paths)), dtype=torch.long)
-    offset = torch.cumsum(lens, 0) - lens
-    order = torch.argsort(lens, stable=True)  # by length, path order within a length
-    length, count = torch.unique_consecutive(lens[order], return_counts=True)
-    xy = coords.to(torch.float64) if track_kw is not None else coords
-    groups = []
-    moves: list[tuple[torch.Tensor, torch.Tensor]] = []
-    for rows, n_tr in zip(order.split(count.tolist()), length.tolist(), strict=True):
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    xy = coords.numpy()
+    span = track_kw["span"] if track_kw is not None else 0
+    kw = {key: val for key, val in (track_kw or {}).items() if key != "span"}
+    found: list[tuple[int, tuple[float, list[int], list[float]]]] = []
+    for rows, tri in _path_groups(paths):
+        n_tr = tri.shape[1]
         if n_tr + 2 < min_points:
             continue
-        tri = every[offset[rows][:, None] + torch.arange(n_tr)]  # (R, n_tr)
-        pts = torch.cat([p0[tri[:, :1]], p1[tri[:, :1]], p2[tri]], dim=1)  # (R, n_tr + 2)
-        groups.append((rows, tri, pts))
-        if track_kw is not None:
+        pts = np.concatenate([q0[tri[:, :1]], q1[tri[:, :1]], q2[tri]], axis=1)  # (R, n_tr + 2)
+        if track_kw is None:
+            pscores = s[torch.from_numpy(tri)]
+        else:
             n = n_tr + 2
-            span = track_kw["span"]
-            p = xy[pts]
-            i = torch.arange(1, n - 1)
-            s1 = torch.clamp(i, max=span)
-            s2 = torch.clamp(n - 1 - i, max=span)
-            m1 = (p[:, i] - p[:, i - s1]) / s1.to(torch.float64)[None, :, None]
-            m2 = (p[:, i + s2] - p[:, i]) / s2.to(torch.float64)[None, :, None]
-            moves.append((m1.reshape(-1, 3), m2.reshape(-1, 3)))
-    if track_kw is not None and moves:
-        kw = {key: val for key, val in track_kw.items() if key != "span"}
-        m1 = torch.cat([m for m, _ in moves])
-        m2 = torch.cat([m for _, m in moves])
-        flat_scores = torch.as_tensor(
-            point_score(m1[:, 2], m1[:, 1], m2[:, 2], m2[:, 1], **kw), dtype=torch.float64
-        )
-        parts = flat_scores.split([m.shape[0] for m, _ in moves])
-    found: list[tuple[int, tuple[float, list[int], list[float]]]] = []
-    for g, (rows, tri, pts) in enumerate(groups):
-        pscores = s[tri] if track_kw is None else parts[g].reshape(tri.shape)
+            p = xy[pts][:, :, 1:]  # (R, n, 2) integer (y, x)
+            i = np.arange(1, n - 1)
+            s1 = np.minimum(i, span)
+            s2 = np.minimum(n - 1 - i, span)
+            d1 = p[:, i] - p[:, i - s1]  # (R, n - 2, 2): s1 times the first move
+            d2 = p[:, i + s2] - p[:, i]
+            flat = None
+            if span <= 2:  # moves of components k / 2: the table
+                h1 = (d1 * (2 // s1)[None, :, None]).reshape(-1, 2)
+                h2 = (d2 * (2 // s2)[None, :, None]).reshape(-1, 2)
+                flat = half_move_scores(h1, h2, kw)
+            if flat is None:  # as ``_score_paths``: the float moves, scored directly
+                m1 = torch.from_numpy(d1 / s1[None, :, None].astype(np.float64)).reshape(-1, 2)
+                m2 = torch.from_numpy(d2 / s2[None, :, None].astype(np.float64)).reshape(-1, 2)
+                flat = torch.as_tensor(
+                    point_score(m1[:, 1], m1[:, 0], m2[:, 1], m2[:, 0], **kw), dtype=torch.float64
+                ).numpy()
+            pscores = torch.from_numpy(np.ascontiguousarray(flat.reshape(tri.shape)))
         means = pscores.mean(dim=1)
         keep = (~(means < threshold)).nonzero().squeeze(1)  # NaN passes, as `score < t` does
         if keep.numel() == 0:
             continue
         means_l = means[keep].tolist()
-        pts_l, ps_l = pts[keep].tolist(), pscores[keep].tolist()
-        for r, i in enumerate(rows[keep].tolist()):
+        k_np = keep.numpy()
+        pts_l, ps_l = pts[k_np].tolist(), pscores[keep].tolist()
+        for r, i in enumerate(rows[k_np].tolist()):
             found.append((i, (means_l[r], pts_l[r], ps_l[r])))
     found.sort(key=lambda item: item[0])  # path order
     return [item for _, item in found]
