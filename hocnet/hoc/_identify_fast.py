@@ -109,6 +109,107 @@ def whole_sequences_from_rows(
     return left_t[best], right_t[best], key_rows[best]
 
 
+def whole_sequence_rows(
+    a_in: torch.Tensor,
+    a_out: torch.Tensor,
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    coords: torch.Tensor,
+    track_kw: dict[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``identify._whole_sequence_rows``: the same rows, in the same order, with the same keys.
+
+    Every five-point sequence (centre triple, left triple or -1, right triple or -1) with its
+    whole-sequence key. The changes, none touching a value:
+
+    - the left options of a centre (the triples ending with its in-edge, ascending, or -1 when
+      there are none) and its right options are read off one stable counting sort of the
+      out-edges and of the in-edges (the rows of ``_pairs`` + ``_product_rows`` without
+      ``_pairs``' searches and the two option sorts);
+    - the moves are taken doubled from the integer coordinates (``2 m``: every move of the
+      rows is a whole or a half pixel) and the three point scores of a row read from the table
+      of every half-pixel move pair (:func:`half_move_scores`), the same bits as scoring them
+      in one batch; where a row has no left (right) triple the score is not read (the reference
+      scores a placeholder there and drops it with ``where``);
+    - the key ``100 * count + total / count`` with the same IEEE operations in the same order.
+
+    Moves beyond the table (:data:`TABLE_REACH`) or no triples: the reference runs.
+
+    Wiring: ``identify._identify_sequences`` calls ``whole_sequence_rows`` instead of
+    ``_whole_sequence_rows`` (same signature).
+
+    Examples:
+        >>> coords = torch.tensor([[t, 2, 2 + t] for t in range(5)])
+        >>> p0, p1, p2 = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3]), torch.tensor([2, 3, 4])
+        >>> a_in, a_out = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3])
+        >>> kw = {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "min"}
+        >>> kw["span"] = 2
+        >>> c, left, right, key = whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, kw)
+        >>> c.tolist(), left.tolist(), right.tolist(), key.tolist()
+        ([0, 1, 2], [-1, 0, 1], [1, 2, -1], [203.0, 303.0, 203.0])
+    """
+    from hocnet.hoc.identify import _whole_sequence_rows
+
+    k = p0.numel()
+    if k == 0:
+        return _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    ai, ao = a_in.numpy(), a_out.numpy()
+    q0_i, q1_i, q2_i = p0.numpy(), p1.numpy(), p2.numpy()
+    n_e = int(max(ai.max(), ao.max())) + 1
+    # triples by out-edge (the left options of a centre: out-edge == its in-edge) and by in-edge
+    by_out = _stable_order(ao, n_e)
+    by_in = _stable_order(ai, n_e)
+    cnt_out = np.bincount(ao, minlength=n_e)
+    cnt_in = np.bincount(ai, minlength=n_e)
+    n_l, n_r = cnt_out[ai], cnt_in[ao]  # left / right triples of each centre
+    lo_l = (np.cumsum(cnt_out) - cnt_out)[ai]
+    lo_r = (np.cumsum(cnt_in) - cnt_in)[ao]
+    ways_l, ways_r = np.maximum(n_l, 1), np.maximum(n_r, 1)
+    n_rows = ways_l * ways_r
+    c_idx = np.repeat(np.arange(k), n_rows)
+    off = np.arange(c_idx.size) - np.repeat(np.cumsum(n_rows) - n_rows, n_rows)
+    wr = ways_r[c_idx]
+    li, ri = off // wr, off % wr
+    has_l, has_r = n_l[c_idx] > 0, n_r[c_idx] > 0
+    left_t = np.where(has_l, by_out[np.where(has_l, lo_l[c_idx] + li, 0)], -1)
+    right_t = np.where(has_r, by_in[np.where(has_r, lo_r[c_idx] + ri, 0)], -1)
+    yx = coords.numpy()[:, 1:]
+    q1, q2, q3 = yx[q0_i[c_idx]], yx[q1_i[c_idx]], yx[q2_i[c_idx]]
+    # the outer points: the centre's own where there is no side triple (scores not read there)
+    q0 = np.where(has_l[:, None], yx[q0_i[np.maximum(left_t, 0)]], q1)
+    q4 = np.where(has_r[:, None], yx[q2_i[np.maximum(right_t, 0)]], q3)
+    kw = {key: val for key, val in track_kw.items() if key != "span"}
+    span = track_kw["span"]
+    # doubled moves: h_l = (q2 - q0) / 2 with a left triple (span > 1), else q2 - q1; likewise
+    h_l = np.where(has_l[:, None], q2 - q0, 2 * (q2 - q1)) if span > 1 else 2 * (q2 - q1)
+    h_r = np.where(has_r[:, None], q4 - q2, 2 * (q3 - q2)) if span > 1 else 2 * (q3 - q2)
+    mid = q3 - q1  # 2 * ((q3 - q1) / 2)
+    centre = half_move_scores(h_l, h_r, kw)
+    s1 = half_move_scores(2 * (q1 - q0), mid, kw)  # (q0 -> q1, then (q3 - q1) / 2)
+    s3 = half_move_scores(mid, 2 * (q4 - q3), kw)  # ((q3 - q1) / 2, then q3 -> q4)
+    if centre is None or s1 is None or s3 is None:
+        return _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    total = centre + np.where(has_l, s1, 0.0) + np.where(has_r, s3, 0.0)
+    count = 1 + has_l.astype(np.int64) + has_r.astype(np.int64)
+    key_rows = 100.0 * count + total / count
+    return (
+        torch.from_numpy(c_idx),
+        torch.from_numpy(left_t),
+        torch.from_numpy(right_t),
+        torch.from_numpy(key_rows),
+    )
+
+
+def _stable_order(ids: np.ndarray, n_ids: int) -> np.ndarray:
+    """Stable argsort of ids in ``[0, n_ids)`` (identity when sorted; 16-bit radix if they fit)."""
+    if ids.size < 2 or bool((ids[1:] >= ids[:-1]).all()):
+        return np.arange(ids.size)
+    if n_ids <= 1 << 16:
+        return np.argsort(ids.astype(np.uint16), kind="stable")
+    return np.argsort(ids, kind="stable")
+
+
 def pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``identify._pairs`` for ids ``>= 0``: all ``(i, j)`` with ``keys[j] == queries[i]``.
 

@@ -1434,7 +1434,7 @@ def _identify_sequences(
     rows = None  # the whole-sequence rows, built once for both uses below
     if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
         a_in, a_out, _ = _edge_ids(n, p0, p1, p2)
-        rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+        rows = _fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
         left, right, key = _fast.whole_sequences_from_rows(rows, p0.numel())
     else:
         a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
@@ -1457,7 +1457,7 @@ def _identify_sequences(
         if shared_points:  # several sequences per image point (crossings; our reading)
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
             if rows is None or seq_kw is not track_kw:
-                rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
+                rows = _fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
             accepted |= _short_track_sequences(rows, p0, p1, p2, is_root)
         no_centre = (centre < 0) & is_root
         for pick in (end_f, end_b):

@@ -191,6 +191,7 @@ def _unwired() -> SimpleNamespace:
         best_paths=ident._best_paths,
         pairs=ident._pairs,
         whole_sequences_from_rows=whole_sequences_from_rows,
+        whole_sequence_rows=ident._whole_sequence_rows,
     )
 
 
