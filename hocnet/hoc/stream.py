@@ -67,6 +67,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
@@ -707,9 +708,12 @@ class StreamingDetector:
         h, w = self._shape
         hw = h * w
         n_t = self.window
-        links = [self._dirs[0].links.get(start + t, _NO_EDGES) for t in range(n_t - 1)]
         sizes = [int(p.numel()) for p in points]
         flat = torch.cat([p + t * hw for t, p in enumerate(points)])
+        cached = self._dirs[0].triples[1]
+        if all(start + t in cached for t in range(n_t - 2)):
+            return (flat, *self._window_triples_cached(start, points, sizes))
+        links = [self._dirs[0].links.get(start + t, _NO_EDGES) for t in range(n_t - 1)]
         # the links' ends as candidate numbers (their rank in `flat`, -1: not a candidate), one
         # scan at a time through the grid's slot image: no search over the window's candidates
         slots = self._grid.slots
@@ -736,6 +740,43 @@ class StreamingDetector:
         parts = [self._grid.join(pairs[t], pairs[t + 1], self._allowed) for t in range(n_t - 2)]
         p0, p1, p2 = (torch.cat([part[i] for part in parts]) for i in range(3))
         return flat, p0, p1, p2
+
+    def _window_triples_cached(
+        self, start: int, points: list[torch.Tensor], sizes: list[int]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(p0, p1, p2)`` of :meth:`_window_triples` from the cached first-layer triples.
+
+        The forward triples of ``Y^(1)`` rooted at each scan (``triples[1]``, cached when the
+        scan two later arrived) are the join of the full links, sorted by first point, first
+        move, second move; those with all three points among the window's candidates are the
+        join of the links restricted to the candidates (same triples, same order). Each scan's
+        candidates are numbered through the grid's slot image once (NumPy views, no search),
+        and every triple end lying in that scan is read there.
+        """
+        n_t = self.window
+        cached = [self._dirs[0].triples[1][start + t] for t in range(n_t - 2)]
+        ends = [[part.numpy() for part in tri] for tri in cached]
+        slots = self._grid.slots.numpy()
+        mapped: list[list[np.ndarray]] = [[np.empty(0, np.int64)] * 3 for _ in cached]
+        first = 0
+        for t, p in enumerate(points):
+            pix = p.numpy()
+            slots[pix] = np.arange(first, first + sizes[t])
+            try:
+                for j in range(3):  # the triples rooted at t - j hold their point j here
+                    r = t - j
+                    if 0 <= r < n_t - 2:
+                        mapped[r][j] = slots[ends[r][j]]
+            finally:
+                slots[pix] = -1
+            first += sizes[t]
+        out: list[list[np.ndarray]] = [[], [], []]
+        for a, b, c in mapped:
+            keep = (a >= 0) & (b >= 0) & (c >= 0)
+            for j, x in enumerate((a, b, c)):
+                out[j].append(x[keep])
+        p0, p1, p2 = (torch.from_numpy(np.concatenate(parts)) for parts in out)
+        return p0, p1, p2
 
     def _window_cube(self, start: int, trees: bool) -> torch.Tensor:
         """A ``(window, H, W)`` cube of the window starting at absolute scan ``start``.
