@@ -109,6 +109,74 @@ def whole_sequences_from_rows(
     return left_t[best], right_t[best], key_rows[best]
 
 
+def triple_scores(
+    coords: torch.Tensor,
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    score_kwargs: dict[str, Any],
+) -> torch.Tensor:
+    """``identify._triple_scores``: the point score of every triple's middle point (eq. 8-9).
+
+    The same bits: each triple's two integer moves (``coords[p1] - coords[p0]``,
+    ``coords[p2] - coords[p1]``) looked up, doubled, in the table of every half-pixel move pair
+    (:func:`_score_table`, scored by the same :func:`~hocnet.hoc.scoring.point_score`); the
+    reference runs for moves beyond the table (:data:`TABLE_REACH`).
+
+    Wiring: ``identify._identify_sequences`` calls ``triple_scores`` instead of
+    ``_triple_scores`` (same signature).
+
+    Examples:
+        >>> coords = torch.tensor([[0, 2, 2], [1, 2, 3], [2, 2, 4]])
+        >>> kw = {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "min"}
+        >>> one = torch.tensor([0])
+        >>> triple_scores(coords, one, one + 1, one + 2, kw).tolist()
+        [3.0]
+    """
+    from hocnet.hoc.identify import _triple_scores
+
+    m1, m2, reach = _triple_moves(coords, p0.numpy(), p1.numpy(), p2.numpy())
+    if reach is None or p0.numel() == 0:
+        return _triple_scores(coords, p0, p1, p2, score_kwargs)
+    table = _score_table(score_kwargs, reach)
+    return torch.from_numpy(_read_table(table, 2 * m1, 2 * m2, reach))
+
+
+def fill_scores(
+    scores_cube: torch.Tensor,
+    flat: torch.Tensor,
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    s: torch.Tensor,
+) -> None:
+    """``identify._fill_scores``: each point's best score over its triples, written in place.
+
+    The same per-point maxima (the same scatter reduction, middle points first, then the
+    ends), written into the cube through NumPy views (fancy indexing without torch's
+    per-operation overhead): a point keeps the value written first.
+
+    Wiring: ``identify._identify_sequences`` calls ``fill_scores`` instead of ``_fill_scores``.
+
+    Examples:
+        >>> cube = torch.full((4,), math.nan, dtype=torch.float64)
+        >>> fill_scores(cube, torch.tensor([0, 1, 3]), torch.tensor([0]), torch.tensor([1]),
+        ...             torch.tensor([2]), torch.tensor([2.5], dtype=torch.float64))
+        >>> cube.tolist()
+        [2.5, 2.5, nan, 2.5]
+    """
+    cube = scores_cube.numpy()
+    q = flat.numpy()
+    for members in (p1, p0, p2):
+        best = torch.full((q.size,), -math.inf, dtype=torch.float64)
+        best.scatter_reduce_(0, members, s, reduce="amax")
+        b = best.numpy()
+        has = b > -math.inf
+        idx = q[has]
+        cur = cube[idx]
+        cube[idx] = np.where(np.isnan(cur), b[has], cur)
+
+
 def whole_sequence_rows(
     a_in: torch.Tensor,
     a_out: torch.Tensor,
@@ -128,10 +196,10 @@ def whole_sequence_rows(
       out-edges and of the in-edges (the rows of ``_pairs`` + ``_product_rows`` without
       ``_pairs``' searches and the two option sorts);
     - the moves are taken doubled from the integer coordinates (``2 m``: every move of the
-      rows is a whole or a half pixel) and the three point scores of a row read from the table
-      of every half-pixel move pair (:func:`half_move_scores`), the same bits as scoring them
-      in one batch; where a row has no left (right) triple the score is not read (the reference
-      scores a placeholder there and drops it with ``where``);
+      rows is a whole or a half pixel), as sums of the triples' own moves coded linearly
+      (:func:`_move_code`), and the three point scores of a row read from the table of every
+      half-pixel move pair (:func:`_score_table`), the same bits as scoring them in one batch;
+      where a row has no left (right) triple the score read is dropped by the same ``where``;
     - the key ``100 * count + total / count`` with the same IEEE operations in the same order.
 
     Moves beyond the table (:data:`TABLE_REACH`) or no triples: the reference runs.
@@ -174,22 +242,27 @@ def whole_sequence_rows(
     has_l, has_r = n_l[c_idx] > 0, n_r[c_idx] > 0
     left_t = np.where(has_l, by_out[np.where(has_l, lo_l[c_idx] + li, 0)], -1)
     right_t = np.where(has_r, by_in[np.where(has_r, lo_r[c_idx] + ri, 0)], -1)
-    yx = coords.numpy()[:, 1:]
-    q1, q2, q3 = yx[q0_i[c_idx]], yx[q1_i[c_idx]], yx[q2_i[c_idx]]
-    # the outer points: the centre's own where there is no side triple (scores not read there)
-    q0 = np.where(has_l[:, None], yx[q0_i[np.maximum(left_t, 0)]], q1)
-    q4 = np.where(has_r[:, None], yx[q2_i[np.maximum(right_t, 0)]], q3)
-    kw = {key: val for key, val in track_kw.items() if key != "span"}
-    span = track_kw["span"]
-    # doubled moves: h_l = (q2 - q0) / 2 with a left triple (span > 1), else q2 - q1; likewise
-    h_l = np.where(has_l[:, None], q2 - q0, 2 * (q2 - q1)) if span > 1 else 2 * (q2 - q1)
-    h_r = np.where(has_r[:, None], q4 - q2, 2 * (q3 - q2)) if span > 1 else 2 * (q3 - q2)
-    mid = q3 - q1  # 2 * ((q3 - q1) / 2)
-    centre = half_move_scores(h_l, h_r, kw)
-    s1 = half_move_scores(2 * (q1 - q0), mid, kw)  # (q0 -> q1, then (q3 - q1) / 2)
-    s3 = half_move_scores(mid, 2 * (q4 - q3), kw)  # ((q3 - q1) / 2, then q3 -> q4)
-    if centre is None or s1 is None or s3 is None:
+    # each triple's two moves as one linear code (``_move_code``); the rows' doubled moves
+    # are sums of them: q1 -> q2 is the centre's first move, q0 -> q1 its left triple's,
+    # q2 -> q3 the centre's second, q3 -> q4 its right triple's
+    m1, m2, reach = _triple_moves(coords, q0_i, q1_i, q2_i)
+    if reach is None:
         return _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    c1, c2 = m1[c_idx], m2[c_idx]
+    lm = m1[np.maximum(left_t, 0)]  # q1 - q0 (read only with a left triple)
+    rm = m2[np.maximum(right_t, 0)]  # q4 - q3 (read only with a right triple)
+    kw = {key: val for key, val in track_kw.items() if key != "span"}
+    # doubled moves: h_l = (q2 - q0) / 2 with a left triple (span > 1), else q2 - q1; likewise
+    if track_kw["span"] > 1:
+        h_l = np.where(has_l, c1 + lm, 2 * c1)
+        h_r = np.where(has_r, c2 + rm, 2 * c2)
+    else:
+        h_l, h_r = 2 * c1, 2 * c2
+    mid = c1 + c2  # 2 * ((q3 - q1) / 2)
+    table = _score_table(kw, reach)
+    centre = _read_table(table, h_l, h_r, reach)
+    s1 = _read_table(table, np.where(has_l, 2 * lm, 0), mid, reach)  # q0 -> q1, (q3 - q1) / 2
+    s3 = _read_table(table, mid, np.where(has_r, 2 * rm, 0), reach)  # (q3 - q1) / 2, q3 -> q4
     total = centre + np.where(has_l, s1, 0.0) + np.where(has_r, s3, 0.0)
     count = 1 + has_l.astype(np.int64) + has_r.astype(np.int64)
     key_rows = 100.0 * count + total / count
@@ -199,6 +272,41 @@ def whole_sequence_rows(
         torch.from_numpy(right_t),
         torch.from_numpy(key_rows),
     )
+
+
+def _move_code(dy: np.ndarray, dx: np.ndarray, reach: int) -> np.ndarray:
+    """A doubled move ``(dy, dx)`` (each ``|.| <= reach``) as ``dx * w + dy``, ``w = 2 reach + 1``.
+
+    Linear: the code of a sum (or multiple) of moves is the sum (multiple) of their codes, as
+    long as the result stays within ``reach``; :func:`_read_table` reads the score of a pair.
+    """
+    return dx * (2 * reach + 1) + dy
+
+
+def _triple_moves(
+    coords: torch.Tensor, q0: np.ndarray, q1: np.ndarray, q2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """Codes (``_move_code``) of each triple's two moves and the table reach they need.
+
+    ``reach``: the table's half-width for sums of two moves doubled (at least 8, one table for
+    ``v <= 4``); ``None`` when it would exceed :data:`TABLE_REACH`.
+    """
+    t = coords.numpy()
+    y, x = t[:, 1], t[:, 2]
+    dy1, dx1 = y[q1] - y[q0], x[q1] - x[q0]
+    dy2, dx2 = y[q2] - y[q1], x[q2] - x[q1]
+    big = max((int(np.abs(d).max()) for d in (dy1, dx1, dy2, dx2) if d.size), default=0)
+    reach = max(8, 2 * big)
+    if reach > TABLE_REACH:
+        return dy1, dy1, None
+    return _move_code(dy1, dx1, reach), _move_code(dy2, dx2, reach), reach
+
+
+def _read_table(table: np.ndarray, h1: np.ndarray, h2: np.ndarray, reach: int) -> np.ndarray:
+    """Scores of the doubled move pairs with codes ``h1``, ``h2`` (:func:`_move_code`)."""
+    w = 2 * reach + 1
+    off = reach * (w + 1)  # the code of (-reach, -reach) is -off
+    return table[(h1 + off) * (w * w) + h2 + off]
 
 
 def _stable_order(ids: np.ndarray, n_ids: int) -> np.ndarray:

@@ -1429,8 +1429,8 @@ def _identify_sequences(
     if p0.numel() == 0:
         return [], scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), False
     n = flat.numel()
-    s = _triple_scores(coords, p0, p1, p2, score_kwargs)
-    _fill_scores(scores_cube, flat, p0, p1, p2, s)
+    s = _fast.triple_scores(coords, p0, p1, p2, score_kwargs)
+    _fast.fill_scores(scores_cube, flat, p0, p1, p2, s)
     rows = None  # the whole-sequence rows, built once for both uses below
     if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
         a_in, a_out, _ = _edge_ids(n, p0, p1, p2)

@@ -192,6 +192,8 @@ def _unwired() -> SimpleNamespace:
         pairs=ident._pairs,
         whole_sequences_from_rows=whole_sequences_from_rows,
         whole_sequence_rows=ident._whole_sequence_rows,
+        triple_scores=ident._triple_scores,
+        fill_scores=ident._fill_scores,
     )
 
 
