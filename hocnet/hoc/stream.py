@@ -135,6 +135,11 @@ Edges = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 _NO_EDGES: Edges = (_EMPTY, _EMPTY, _EMPTY)
 
 
+def _tensors(*arrays: np.ndarray) -> Edges:
+    """NumPy int arrays as int64 tensors (no copy when they are int64 already)."""
+    return tuple(torch.from_numpy(np.ascontiguousarray(x, dtype=np.int64)) for x in arrays)
+
+
 class _Grid:
     """Neighbour look-up between two ``(H, W)`` scans through a reusable padded index image.
 
@@ -160,7 +165,7 @@ class _Grid:
         if n > self.slots.numel():
             self.slots = torch.full((n,), -1, dtype=torch.int64)
 
-    def _padded(self, points: torch.Tensor) -> torch.Tensor:
+    def _padded(self, points: np.ndarray) -> np.ndarray:
         return (points // self.w + self.v) * self.wp + points % self.w + self.v
 
     def edges(self, a: torch.Tensor, b: torch.Tensor) -> Edges:
@@ -176,28 +181,34 @@ class _Grid:
         """
         if a.numel() == 0 or b.numel() == 0:
             return _NO_EDGES
-        pos = self._padded(b)
-        self.image[pos] = torch.arange(b.numel(), dtype=torch.int32)
+        # NumPy views of the same buffers: the same reads and writes without torch's
+        # per-operation overhead (the order of ``nonzero`` is row-major in both)
+        image = self.image.numpy()
+        an, bn = a.numpy(), b.numpy()
+        pos = self._padded(bn)
+        image[pos] = np.arange(bn.size, dtype=np.int32)
         try:
-            nb = self.image[self._padded(a)[:, None] + self.offsets[None, :]]
-            row, move = (nb >= 0).nonzero(as_tuple=True)  # row-major: ascending row
-            return a[row], b[nb[row, move].long()], move
+            nb = image[self._padded(an)[:, None] + self.offsets.numpy()[None, :]]
+            row, move = np.nonzero(nb >= 0)  # row-major: ascending row
+            return _tensors(an[row], bn[nb[row, move]], move)
         finally:
-            self.image[pos] = -1
+            image[pos] = -1
 
     def member(self, x: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """``(N,)`` bool: which of the flat indices ``x`` are among ``points`` (one frame)."""
-        self.flags[points] = True
+        flags = self.flags.numpy()
+        pts = points.numpy()
+        flags[pts] = True
         try:
-            return self.flags[x]
+            return torch.from_numpy(flags[x.numpy()])
         finally:
-            self.flags[points] = False
+            flags[pts] = False
 
     def restrict(self, edges: Edges, src_set: torch.Tensor, dst_set: torch.Tensor) -> Edges:
         """The edges with both ends in the given point sets; order kept."""
         src, dst, move = edges
-        keep = self.member(src, src_set) & self.member(dst, dst_set)
-        return src[keep], dst[keep], move[keep]
+        keep = (self.member(src, src_set) & self.member(dst, dst_set)).numpy()
+        return _tensors(src.numpy()[keep], dst.numpy()[keep], move.numpy()[keep])
 
     def join(self, first: Edges, second: Edges, allowed: torch.Tensor) -> Edges:
         """Accepted triples ``(p0, p1, p2)``: ``p0 -> p1`` in ``first``, ``p1 -> p2`` in ``second``.
@@ -213,38 +224,43 @@ class _Grid:
             ``(p0, p1, p2)``: ``(N,)`` int64 point numbers, one entry per accepted triple, sorted
             by ``p0`` when ``first`` is sorted by its source.
         """
-        a, b, m1 = first
-        b2, c, m2 = second
-        if a.numel() == 0 or b2.numel() == 0:
+        if first[0].numel() == 0 or second[0].numel() == 0:
             return _NO_EDGES
-        mids, counts = torch.unique_consecutive(b2, return_counts=True)
-        starts = torch.cumsum(counts, 0) - counts
-        self.slots[mids] = torch.arange(mids.numel())
+        a, b, m1 = (x.numpy() for x in first)
+        b2, c, m2 = (x.numpy() for x in second)
+        # runs of equal middle points in ``second`` (sorted by its source)
+        new = np.empty(b2.size, dtype=bool)
+        new[0] = True
+        np.not_equal(b2[1:], b2[:-1], out=new[1:])
+        starts = np.flatnonzero(new)
+        mids = b2[starts]
+        counts = np.diff(np.append(starts, b2.size))
+        slots = self.slots.numpy()
+        slots[mids] = np.arange(mids.size)
         try:
-            u = self.slots[b]  # the middle point's row in `mids`, -1 if it has no second move
+            u = slots[b]  # the middle point's row in `mids`, -1 if it has no second move
         finally:
-            self.slots[mids] = -1
+            slots[mids] = -1
         has = u >= 0
-        u = u.clamp(min=0)
+        u = np.maximum(u, 0)
         lo = starts[u]
-        fan = torch.where(has, counts[u], 0)  # second moves after each first move
-        ends = torch.cumsum(fan, 0)
+        fan = np.where(has, counts[u], 0)  # second moves after each first move
+        ends = np.cumsum(fan)
         total = int(ends[-1])
         if total == 0:
             return _NO_EDGES
-        # expand every first move into its second moves (measured, 18 000 slots: repeat_interleave
-        # of the counts 26 us, searchsorted of the slots in their cumulative sum 530 us)
-        f = torch.repeat_interleave(fan, output_size=total)
-        g = lo[f] + torch.arange(total) - (ends - fan)[f]
-        ok = allowed[m1[f], m2[g]]
+        # expand every first move into its second moves
+        f = np.repeat(np.arange(fan.size), fan)
+        g = lo[f] + np.arange(total) - (ends - fan)[f]
+        ok = allowed.numpy()[m1[f], m2[g]]
         f, g = f[ok], g[ok]
-        return a[f], b[f], c[g]
+        return _tensors(a[f], b[f], c[g])
 
     def reverse(self, edges: Edges) -> Edges:
         """The same pairs read the other way round in time (move ``-m``), sorted by source."""
-        src, dst, move = edges
-        order = torch.argsort(dst, stable=True)
-        return dst[order], src[order], self.n_moves - 1 - move[order]
+        src, dst, move = (x.numpy() for x in edges)
+        order = np.argsort(dst, kind="stable")
+        return _tensors(dst[order], src[order], self.n_moves - 1 - move[order])
 
 
 class _Direction:
