@@ -65,6 +65,87 @@ def kept_sharing_a_point(pts: list[int], kept_at: dict[int, list[int]]) -> list[
     return sorted({i for q in pts for i in kept_at.get(q, ())})
 
 
+def group_best(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """``identify._group_best``: per group, the index of its largest key (first on ties), or -1.
+
+    The same two scatter reductions (the group maximum, then the first index reaching it) on
+    NumPy views (``ufunc.at``); NaN keys, integer keys or no entries: the reference.
+
+    Wiring: ``identify._identify_sequences`` picks each image point's best sequence and end
+    triples with ``group_best`` instead of ``_group_best``.
+
+    Examples:
+        >>> key = torch.tensor([1.0, 3.0, 3.0, 2.0], dtype=torch.float64)
+        >>> group_best(torch.tensor([0, 0, 0, 2]), key, 4).tolist()
+        [1, -1, 3, -1]
+    """
+    from hocnet.hoc.identify import _group_best
+
+    if groups.numel() == 0 or not key.is_floating_point():
+        return _group_best(groups, key, n_groups)
+    k = key.numpy()
+    if bool(np.isnan(k).any()):
+        return _group_best(groups, key, n_groups)
+    return torch.from_numpy(_group_best_np(groups.numpy(), k, n_groups))
+
+
+def _group_best_np(g: np.ndarray, k: np.ndarray, n_groups: int) -> np.ndarray:
+    """:func:`group_best` on arrays (no NaN in ``k``)."""
+    best = np.full(n_groups, -math.inf, dtype=k.dtype)
+    np.maximum.at(best, g, k)
+    hit = np.flatnonzero(k == best[g])
+    first = np.full(n_groups, g.size, dtype=np.int64)
+    np.minimum.at(first, g[hit], hit)
+    return np.where(first < g.size, first, -1)
+
+
+def short_track_sequences(
+    rows: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    is_root: torch.Tensor,
+) -> torch.Tensor:
+    """``identify._short_track_sequences`` on NumPy views: the same accepted triples.
+
+    The same Case-1 test of every row, the same best row per short track
+    (:func:`_group_best_np`, first on ties), the same marks. NaN keys: the reference.
+
+    Wiring: ``identify._identify_sequences`` calls ``short_track_sequences`` instead of
+    ``_short_track_sequences`` (same signature).
+
+    Examples:
+        >>> rows = (torch.tensor([0, 1]), torch.tensor([-1, 0]), torch.tensor([1, -1]),
+        ...         torch.tensor([203.0, 203.0], dtype=torch.float64))
+        >>> p0, p1, p2 = torch.tensor([0, 1]), torch.tensor([1, 2]), torch.tensor([2, 3])
+        >>> short_track_sequences(rows, p0, p1, p2, torch.ones(4, dtype=torch.bool)).tolist()
+        [True, True]
+    """
+    from hocnet.hoc.identify import _short_track_sequences
+
+    c_idx, left_t, right_t, key_rows = (x.numpy() for x in rows)
+    if bool(np.isnan(key_rows).any()):
+        return _short_track_sequences(rows, p0, p1, p2, is_root)
+    k = p0.numel()
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    root = is_root.numpy()
+    lt, rt = np.maximum(left_t, 0), np.maximum(right_t, 0)
+    case1 = root[q0[c_idx]] & root[q1[c_idx]] & root[q2[c_idx]]
+    case1 &= ((left_t < 0) | root[q0[lt]]) & ((right_t < 0) | root[q2[rt]])
+    accepted = np.zeros(k, dtype=bool)
+    for half in (left_t, right_t):
+        ok = np.flatnonzero(case1 & (half >= 0))
+        if ok.size == 0:
+            continue
+        best = _group_best_np(half[ok], key_rows[ok], k)
+        rsel = ok[best[best >= 0]]
+        accepted[c_idx[rsel]] = True
+        left, right = left_t[rsel], right_t[rsel]
+        accepted[left[left >= 0]] = True
+        accepted[right[right >= 0]] = True
+    return torch.from_numpy(accepted)
+
+
 def whole_sequences_from_rows(
     rows: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], k: int
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -102,10 +183,8 @@ def whole_sequences_from_rows(
         >>> [t.tolist() for t in whole_sequences_from_rows(rows, 2)]
         [[-1, 0], [1, -1], [202.5, 202.0]]
     """
-    from hocnet.hoc.identify import _group_best
-
     c_idx, left_t, right_t, key_rows = rows
-    best = _group_best(c_idx, key_rows, k)
+    best = group_best(c_idx, key_rows, k)
     return left_t[best], right_t[best], key_rows[best]
 
 
@@ -704,11 +783,13 @@ def make_tracks(
     if not kept:
         return []
     lens = [len(pts) for _, pts, _ in kept]
-    idx = torch.tensor(list(chain.from_iterable(pts for _, pts, _ in kept)), dtype=torch.long)
-    points = coords[idx].split(lens)
+    every = chain.from_iterable(pts for _, pts, _ in kept)
+    idx = torch.from_numpy(np.fromiter(every, dtype=np.int64, count=sum(lens)))
+    points = coords.index_select(0, idx).split(lens)
+    ps_lens = [len(ps) + 2 for _, _, ps in kept]
     ends = chain.from_iterable((ps[0], *ps, ps[-1]) for _, _, ps in kept)
-    point_scores = torch.tensor(list(ends), dtype=torch.float64).split(
-        [len(ps) + 2 for _, _, ps in kept]
+    point_scores = torch.from_numpy(np.fromiter(ends, dtype=np.float64, count=sum(ps_lens))).split(
+        ps_lens
     )
     return [
         Track(points=pt, id=0, score=score, point_scores=ps, batch=batch)

@@ -1444,10 +1444,10 @@ def _identify_sequences(
     accepted = torch.zeros(p0.numel(), dtype=torch.bool)
     if method == "paper":
         # each image point keeps its best sequence: centred on it if any, else one triple it ends
-        centre = _group_best(p1, key, n)
+        centre = _fast.group_best(p1, key, n)
         end_key = s.clone()
-        end_f = _group_best(p0, end_key, n)
-        end_b = _group_best(p2, end_key, n)
+        end_f = _fast.group_best(p0, end_key, n)
+        end_b = _fast.group_best(p2, end_key, n)
         for pick in (centre,):
             ok = (pick >= 0) & is_root
             sel = pick[ok]
@@ -1458,7 +1458,7 @@ def _identify_sequences(
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
             if rows is None or seq_kw is not track_kw:
                 rows = _fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
-            accepted |= _short_track_sequences(rows, p0, p1, p2, is_root)
+            accepted |= _fast.short_track_sequences(rows, p0, p1, p2, is_root)
         no_centre = (centre < 0) & is_root
         for pick in (end_f, end_b):
             sel = pick[no_centre & (pick >= 0)]

@@ -356,7 +356,14 @@ def _identify_window(
 
 
 def _union(parts: list[torch.Tensor]) -> torch.Tensor:
-    return torch.unique(torch.cat(parts)) if len(parts) > 1 else parts[0]
+    """Sorted distinct values of the parts (``torch.unique`` of their concatenation)."""
+    if len(parts) == 1:
+        return parts[0]
+    x = np.sort(np.concatenate([p.numpy() for p in parts]))
+    keep = np.empty(x.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(x[1:], x[:-1], out=keep[1:])
+    return torch.from_numpy(x[keep])
 
 
 # ----------------------------------------------------------------------------- detector
@@ -509,7 +516,7 @@ class StreamingDetector:
             _Direction(1, self.order, self._scans),
             _Direction(-1, self.order, self._scans),
         )
-        self._previous: tuple[torch.Tensor, torch.Tensor, list[int]] | None = None
+        self._previous: tuple[np.ndarray, np.ndarray, list[int]] | None = None
         self._next_id = 1
 
     # ------------------------------------------------------------------------- input
@@ -907,28 +914,33 @@ class StreamingDetector:
         """
         h, w = self._shape
         if tracks:
-            pts = torch.cat([tr.points for tr in tracks])
+            pts = torch.cat([tr.points for tr in tracks]).numpy()
             keys = ((pts[:, 0] + start) * h + pts[:, 1]) * w + pts[:, 2]
-            labels = torch.repeat_interleave(
-                torch.arange(len(tracks)), torch.tensor([len(tr) for tr in tracks])
-            )
+            sizes = np.fromiter(map(len, tracks), dtype=np.int64, count=len(tracks))
+            labels = np.repeat(np.arange(len(tracks)), sizes)
         else:
-            keys = labels = _EMPTY
+            keys = labels = np.zeros(0, dtype=np.int64)
         ids: list[int] = []
         if self._previous is not None and self._previous[2] and tracks:
             prev_keys, prev_labels, prev_ids = self._previous
-            lo = torch.searchsorted(prev_keys, keys)
-            hi = torch.searchsorted(prev_keys, keys, right=True)
+            lo = np.searchsorted(prev_keys, keys, side="left")
+            hi = np.searchsorted(prev_keys, keys, side="right")
             count = hi - lo
-            rows = torch.repeat_interleave(labels, count)
-            offset = torch.repeat_interleave(lo - (torch.cumsum(count, 0) - count), count)
-            cols = prev_labels[torch.arange(rows.numel()) + offset]
+            rows = np.repeat(labels, count)
+            offset = np.repeat(lo - (np.cumsum(count) - count), count)
+            cols = prev_labels[np.arange(rows.size) + offset]
             n_prev = len(prev_ids)
-            pair, overlap = torch.unique(rows * n_prev + cols, return_counts=True)
+            pair = np.sort(rows * n_prev + cols)
+            first = np.empty(pair.size, dtype=bool)
+            first[:1] = True
+            np.not_equal(pair[1:], pair[:-1], out=first[1:])
+            at = np.flatnonzero(first)
+            overlap = np.diff(np.append(at, pair.size))  # points shared by each pair of tracks
+            pair = pair[at]
             cur, prev = pair // n_prev, pair % n_prev
             # candidates of each track: largest overlap first, then the earlier previous track
-            most = int(overlap.max()) if overlap.numel() else 0
-            order = torch.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
+            most = int(overlap.max()) if overlap.size else 0
+            order = np.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
             candidates: dict[int, list[int]] = {}
             for i, j in zip(cur[order].tolist(), prev[order].tolist(), strict=True):
                 candidates.setdefault(i, []).append(j)
@@ -944,7 +956,7 @@ class StreamingDetector:
             ids = [self._new_id() for _ in tracks]
         for tr, i in zip(tracks, ids, strict=True):
             tr.id = i
-        order = torch.argsort(keys)
+        order = np.argsort(keys, kind="stable")
         self._previous = (keys[order], labels[order], ids)
 
     def _new_id(self) -> int:

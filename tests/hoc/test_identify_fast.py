@@ -194,6 +194,8 @@ def _unwired() -> SimpleNamespace:
         whole_sequence_rows=ident._whole_sequence_rows,
         triple_scores=ident._triple_scores,
         fill_scores=ident._fill_scores,
+        group_best=ident._group_best_sorted,
+        short_track_sequences=ident._short_track_sequences,
     )
 
 
