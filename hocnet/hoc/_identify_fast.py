@@ -188,39 +188,6 @@ def whole_sequences_from_rows(
     return left_t[best], right_t[best], key_rows[best]
 
 
-def triple_scores(
-    coords: torch.Tensor,
-    p0: torch.Tensor,
-    p1: torch.Tensor,
-    p2: torch.Tensor,
-    score_kwargs: dict[str, Any],
-) -> torch.Tensor:
-    """``identify._triple_scores``: the point score of every triple's middle point (eq. 8-9).
-
-    The same bits: each triple's two integer moves (``coords[p1] - coords[p0]``,
-    ``coords[p2] - coords[p1]``) looked up, doubled, in the table of every half-pixel move pair
-    (:func:`_score_table`, scored by the same :func:`~hocnet.hoc.scoring.point_score`); the
-    reference runs for moves beyond the table (:data:`TABLE_REACH`).
-
-    Wiring: ``identify._identify_sequences`` calls ``triple_scores`` instead of
-    ``_triple_scores`` (same signature).
-
-    Examples:
-        >>> coords = torch.tensor([[0, 2, 2], [1, 2, 3], [2, 2, 4]])
-        >>> kw = {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "min"}
-        >>> one = torch.tensor([0])
-        >>> triple_scores(coords, one, one + 1, one + 2, kw).tolist()
-        [3.0]
-    """
-    from hocnet.hoc.identify import _triple_scores
-
-    m1, m2, reach = _triple_moves(coords, p0.numpy(), p1.numpy(), p2.numpy())
-    if reach is None or p0.numel() == 0:
-        return _triple_scores(coords, p0, p1, p2, score_kwargs)
-    table = _score_table(score_kwargs, reach)
-    return torch.from_numpy(_read_table(table, 2 * m1, 2 * m2, reach))
-
-
 def fill_scores(
     scores_cube: torch.Tensor,
     flat: torch.Tensor,
@@ -620,10 +587,17 @@ def _score_table(kw: dict[str, Any], reach: int) -> np.ndarray:
     Entry ``((a * w + b) * w + c) * w + d``, ``w = 2 * reach + 1``, is the score of the first
     move ``(i1, j1) = ((a - reach) / 2, (b - reach) / 2)`` and the second move ``(i2, j2) =
     ((c - reach) / 2, (d - reach) / 2)``: all moves of components ``k / 2``, ``|k| <= reach``,
-    scored in one call and kept per score arguments (a few milliseconds, once). Reading a move's
-    score here gives the bits of scoring it in any batch (the element-wise score does not depend
-    on the batch: ``tests/hoc/test_stream.py::test_point_score_same_bits_batched_or_alone``,
-    and ``tests/hoc/test_identify_fast.py`` against direct calls).
+    scored in one call and kept per score arguments (a few milliseconds, once).
+
+    Same bits as the references: they score float64 moves given as column slices of ``(M, 3)``
+    move tensors (``m1[:, 2]``, ``m1[:, 1]``, ...), and so does this table (columns of an
+    ``(M, 4)`` tensor). On such strided inputs torch evaluates ``atan2`` element by element,
+    whatever the batch (measured: the same bits in one batch, in chunks of 7 and one by one,
+    ``tests/hoc/test_identify_fast.py::test_score_table_equals_point_score``). Not used for
+    ``identify._triple_scores``: it passes *integer* moves, which ``point_score`` converts to
+    contiguous float64 tensors, and on contiguous inputs the SIMD ``atan2`` of full blocks
+    differs in the last bit from the element-wise one of the tail (e.g. the turn of (-2, -3) ->
+    (-3, -1): 0.6610431688506866 in a block of 16, 0.6610431688506875 alone).
     """
     from hocnet.hoc.scoring import point_score
 
@@ -631,7 +605,7 @@ def _score_table(kw: dict[str, Any], reach: int) -> np.ndarray:
     table = _TABLES.get(key)
     if table is None:
         vals = torch.arange(-reach, reach + 1, dtype=torch.float64) / 2
-        g = torch.cartesian_prod(vals, vals, vals, vals)
+        g = torch.cartesian_prod(vals, vals, vals, vals)  # (M, 4): strided columns, as the callers'
         scores = point_score(g[:, 0], g[:, 1], g[:, 2], g[:, 3], **kw)
         table = torch.as_tensor(scores, dtype=torch.float64).numpy()
         _TABLES[key] = table

@@ -1429,7 +1429,7 @@ def _identify_sequences(
     if p0.numel() == 0:
         return [], scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), False
     n = flat.numel()
-    s = _fast.triple_scores(coords, p0, p1, p2, score_kwargs)
+    s = _triple_scores(coords, p0, p1, p2, score_kwargs)
     _fast.fill_scores(scores_cube, flat, p0, p1, p2, s)
     rows = None  # the whole-sequence rows, built once for both uses below
     if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
