@@ -20,6 +20,20 @@ skipped where the whole-sequence scores replace it), the median process time of 
 199 -> 98 ms (``chain``), order 3 42 -> 28 ms and 74 -> 62 ms; over the max-pool floor
 (process time, 12.4-12.9 ms): 9.3 -> 5.4, 15.6 -> 7.6, 3.2 -> 2.3 and 5.8 -> 4.8. Every
 window still equals batch ``detect``.
+
+Second round (the 4x target at 2 %, order 2, ``mhoc``): the helpers work on NumPy views of
+the tensors (integer indexing and element-wise IEEE operations give the same bits; torch's
+per-operation overhead, 5-30 us on 20 000 triples, and its slow advanced indexing are gone),
+the chains are handed to the scoring as arrays (:class:`PathList`), and every point score of
+a half-pixel move pair is read from a table (:func:`_score_table`, the same bits as the
+references' element-wise scoring). Measured per window on the same scans (process time,
+load 5-10, instrumented): :func:`best_paths` 13.6 -> 3.7 ms (DP columns restricted to the
+finite chains, the chain table to triples whose bound reaches the pass mark),
+:func:`score_paths_passing` 7.4 -> 2.5 ms, the whole-sequence rows 8.6 -> 2.3 ms
+(:func:`whole_sequence_rows`), ``enumerate_paths_vectorised`` 5.6 -> 3.2 ms; with the
+streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push went 70-77 ->
+40-44 ms of process time, back to back at the same load
+(``benchmarks/results/hoc_stream.md`` for the benchmark).
 """
 
 from __future__ import annotations

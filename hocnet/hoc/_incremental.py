@@ -2,9 +2,9 @@
 
 :func:`hocnet.hoc.identify.detect` and :class:`hocnet.hoc.stream.StreamingDetector` identify
 tracks on every window ([LA98] section III-B); the streaming detector must do it within a scan
-period. These helpers replace per-candidate Python loops of :mod:`hocnet.hoc.identify` by tensor
-operations that produce the same result in the same order (each tested against the loop it
-replaces, ``tests/hoc/test_stream.py``).
+period. These helpers replace per-candidate Python loops of :mod:`hocnet.hoc.identify` by array
+operations (NumPy views of the tensors: integer work only) that produce the same result in the
+same order (each tested against the loop it replaces, ``tests/hoc/test_stream.py``).
 """
 
 from __future__ import annotations

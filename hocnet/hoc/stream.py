@@ -45,11 +45,15 @@ from one push to the next (the image gains forward roots at ``n - 2k`` and loses
 at ``start + 2k``, besides the scans entering and leaving), and measured on a 640 x 512 sensor
 at 2 % clutter, order 2, 85 % of a window's candidate triples were in the previous window but
 only 6-8 % lie in connected groups of triples (the unit identification decides on) that are
-unchanged. It starts from what the cache holds: the candidate triples are the cached links
-of successive scans restricted to the window's candidates and joined scan by scan
-(:meth:`StreamingDetector._window_triples`; the batch call builds a padded index volume of the
-window and scans the cube for that), and its per-candidate loops are vectorised
-(:mod:`hocnet.hoc._incremental`; shared with ``detect``).
+unchanged. It starts from what the cache holds: the candidate triples are the cached
+first-layer triples of each root scan (the join of the full links, made once when the scan two
+later arrived) with all three points among the window's candidates
+(:meth:`StreamingDetector._window_triples_cached`; the same triples in the same order as
+joining the links restricted to the candidates, and as the batch call, which builds a padded
+index volume of the window and scans the cube for that), and its per-candidate loops are
+vectorised (:mod:`hocnet.hoc._incremental`, :mod:`hocnet.hoc._identify_fast`; shared with
+``detect``). The look-ups, joins and unions of a push work on NumPy views of the same buffers
+(the same integer results without torch's per-operation overhead).
 What still scales with the window's area: the float64 ``scores`` cube of the result (26 MB,
 NaN-filled, for 10 x 512 x 640) and the bool cubes of the result. Python's cyclic garbage
 collector is paused during a push (:func:`_gc_paused`). Measured on a 640 x 512 sensor:
