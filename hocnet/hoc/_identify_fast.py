@@ -697,33 +697,36 @@ def score_paths_passing(
     xy = coords.numpy()
     span = track_kw["span"] if track_kw is not None else 0
     kw = {key: val for key, val in (track_kw or {}).items() if key != "span"}
+    table = codes = None
+    if track_kw is not None and span <= 2:  # moves of components k / 2: the table
+        m1c, m2c, reach = _triple_moves(coords, q0, q1, q2)
+        if reach is not None:
+            table, codes = _score_table(kw, reach), (m1c, m2c, reach)
     found: list[tuple[int, tuple[float, list[int], list[float]]]] = []
     for rows, tri in _path_groups(paths):
         n_tr = tri.shape[1]
         if n_tr + 2 < min_points:
             continue
-        pts = np.concatenate([q0[tri[:, :1]], q1[tri[:, :1]], q2[tri]], axis=1)  # (R, n_tr + 2)
+        pts = None
         if track_kw is None:
             pscores = s[torch.from_numpy(tri)]
-        else:
+        elif codes is not None:
+            flat = _path_table_scores(table, codes, tri, span)
+            pscores = torch.from_numpy(flat)
+        else:  # as ``_score_paths``: the float moves, scored directly
             n = n_tr + 2
+            pts = np.concatenate([q0[tri[:, :1]], q1[tri[:, :1]], q2[tri]], axis=1)
             p = xy[pts][:, :, 1:]  # (R, n, 2) integer (y, x)
             i = np.arange(1, n - 1)
             s1 = np.minimum(i, span)
             s2 = np.minimum(n - 1 - i, span)
             d1 = p[:, i] - p[:, i - s1]  # (R, n - 2, 2): s1 times the first move
             d2 = p[:, i + s2] - p[:, i]
-            flat = None
-            if span <= 2:  # moves of components k / 2: the table
-                h1 = (d1 * (2 // s1)[None, :, None]).reshape(-1, 2)
-                h2 = (d2 * (2 // s2)[None, :, None]).reshape(-1, 2)
-                flat = half_move_scores(h1, h2, kw)
-            if flat is None:  # as ``_score_paths``: the float moves, scored directly
-                m1 = torch.from_numpy(d1 / s1[None, :, None].astype(np.float64)).reshape(-1, 2)
-                m2 = torch.from_numpy(d2 / s2[None, :, None].astype(np.float64)).reshape(-1, 2)
-                flat = torch.as_tensor(
-                    point_score(m1[:, 1], m1[:, 0], m2[:, 1], m2[:, 0], **kw), dtype=torch.float64
-                ).numpy()
+            m1 = torch.from_numpy(d1 / s1[None, :, None].astype(np.float64)).reshape(-1, 2)
+            m2 = torch.from_numpy(d2 / s2[None, :, None].astype(np.float64)).reshape(-1, 2)
+            flat = torch.as_tensor(
+                point_score(m1[:, 1], m1[:, 0], m2[:, 1], m2[:, 0], **kw), dtype=torch.float64
+            ).numpy()
             pscores = torch.from_numpy(np.ascontiguousarray(flat.reshape(tri.shape)))
         means = pscores.mean(dim=1)
         keep = (~(means < threshold)).nonzero().squeeze(1)  # NaN passes, as `score < t` does
@@ -731,11 +734,43 @@ def score_paths_passing(
             continue
         means_l = means[keep].tolist()
         k_np = keep.numpy()
-        pts_l, ps_l = pts[k_np].tolist(), pscores[keep].tolist()
+        if pts is None:  # the points of the passing rows only
+            t_k = tri[k_np]
+            pts = np.concatenate([q0[t_k[:, :1]], q1[t_k[:, :1]], q2[t_k]], axis=1)
+        else:
+            pts = pts[k_np]
+        pts_l, ps_l = pts.tolist(), pscores[keep].tolist()
         for r, i in enumerate(rows[k_np].tolist()):
             found.append((i, (means_l[r], pts_l[r], ps_l[r])))
     found.sort(key=lambda item: item[0])  # path order
     return [item for _, item in found]
+
+
+def _path_table_scores(
+    table: np.ndarray,
+    codes: tuple[np.ndarray, np.ndarray, int],
+    tri: np.ndarray,
+    span: int,
+) -> np.ndarray:
+    """Interior point scores ``(R, n_tr)`` of chains of ``n_tr`` triples (``span <= 2``).
+
+    What ``_score_paths`` computes for each interior point ``i`` of an ``n``-point path: the
+    moves ``(p[i] - p[i - s1]) / s1`` and ``(p[i + s2] - p[i]) / s2`` (``s1 = min(i, span)``,
+    ``s2 = min(n - 1 - i, span)``), here doubled and summed from the coded moves between
+    successive points (``M[:, j]``: point ``j`` to ``j + 1``, the first triple's first move, then
+    each triple's second move), and scored from the table.
+    """
+    m1c, m2c, reach = codes
+    w = 2 * reach + 1
+    off = reach * (w + 1)
+    moves = np.concatenate([m1c[tri[:, :1]], m2c[tri]], axis=1)  # (R, n - 1)
+    n_in = tri.shape[1]  # interior points: i = 1 .. n - 2, column i - 1
+    h1 = 2 * moves[:, :n_in]  # s1 = 1: 2 (p[i] - p[i - 1])
+    h2 = 2 * moves[:, 1 : n_in + 1]  # s2 = 1: 2 (p[i + 1] - p[i])
+    if span >= 2:
+        h1[:, 1:] = moves[:, : n_in - 1] + moves[:, 1:n_in]  # i >= 2: p[i] - p[i - 2]
+        h2[:, :-1] = moves[:, 1:n_in] + moves[:, 2 : n_in + 1]  # i <= n - 3: p[i + 2] - p[i]
+    return table[(h1 + off) * (w * w) + h2 + off]
 
 
 def make_tracks(
