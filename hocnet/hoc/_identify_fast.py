@@ -508,13 +508,14 @@ def best_paths(
     ks = sub.size
     if ks == 0:
         return []
-    # the (Ks, L, L) table of chain sums over (backward length, forward length), each entry
+    # the (L, L, Ks) table of chain sums over (backward length, forward length), each entry
     # (bw + fw) - w; the flat arg-max keeps the first maximum in (lb, lf) order
-    length = np.arange(L)[:, None] + np.arange(L)[None, :] + 3
-    total = bw.T[sub][:, :, None] + fw.T[sub][:, None, :] - w[sub][:, None, None]
-    total = np.where(length >= min_points, total, neg).reshape(ks, L * L)
-    arg = total.argmax(axis=1)
-    flat_best = total[np.arange(ks), arg]
+    length = np.arange(L)[:, None, None] + np.arange(L)[None, :, None] + 3
+    bw_s, fw_s = np.take(bw, sub, axis=1), np.take(fw, sub, axis=1)
+    total = bw_s[:, None, :] + fw_s[None, :, :] - w[sub][None, None, :]
+    total = np.where(length >= min_points, total, neg).reshape(L * L, ks)
+    arg = total.argmax(axis=0)
+    flat_best = total[arg, np.arange(ks)]
     members = np.concatenate([q0[sub], q1[sub], q2[sub]])
     values = np.tile(flat_best, 3)
     top = np.full(n, neg)
