@@ -163,6 +163,13 @@ class _Grid:
         # move m = (j + v) * (2v + 1) + (i + v) for (i, j) = (dx, dy): kernels.move_offsets order
         self.offsets = (rng[:, None] * self.wp + rng[None, :]).reshape(-1)
         self.n_moves = self.offsets.numel()
+        # which padded pixels hold a point of the later scan, and every (2v + 1)^2 patch of it
+        # (a strided view: patch [y, x] is centred on pixel (y, x), its entries in move order)
+        self.present = np.zeros((h + 2 * v) * self.wp, dtype=bool)
+        side = 2 * v + 1
+        self.patches = np.lib.stride_tricks.sliding_window_view(
+            self.present.reshape(h + 2 * v, self.wp), (side, side)
+        )
 
     def reserve(self, n: int) -> None:
         """Make :meth:`join` accept point numbers below ``n`` (grows the slot image if needed)."""
@@ -191,12 +198,17 @@ class _Grid:
         an, bn = a.numpy(), b.numpy()
         pos = self._padded(bn)
         image[pos] = np.arange(bn.size, dtype=np.int32)
+        self.present[pos] = True
         try:
-            nb = image[self._padded(an)[:, None] + self.offsets.numpy()[None, :]]
-            row, move = np.nonzero(nb >= 0)  # row-major: ascending row
-            return _tensors(an[row], bn[nb[row, move]], move)
+            # each point's patch of the presence image (one strided copy per point), then the
+            # later scan's point numbers at the hits only
+            hit = self.patches[an // self.w, an % self.w].reshape(an.size, -1)
+            row, move = np.nonzero(hit)  # row-major: ascending row, then move
+            nb = image[self._padded(an)[row] + self.offsets.numpy()[move]]
+            return _tensors(an[row], bn[nb], move)
         finally:
             image[pos] = -1
+            self.present[pos] = False
 
     def member(self, x: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """``(N,)`` bool: which of the flat indices ``x`` are among ``points`` (one frame)."""
