@@ -31,9 +31,10 @@ load 5-10, instrumented): :func:`best_paths` 13.6 -> 3.7 ms (DP columns restrict
 finite chains, the chain table to triples whose bound reaches the pass mark),
 :func:`score_paths_passing` 7.4 -> 2.5 ms, the whole-sequence rows 8.6 -> 2.3 ms
 (:func:`whole_sequence_rows`), ``enumerate_paths_vectorised`` 5.6 -> 3.2 ms; with the
-streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push went 70-77 ->
-40-44 ms of process time, back to back at the same load
-(``benchmarks/results/hoc_stream.md`` for the benchmark).
+streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push (process time,
+20 pushes, old and new code back to back at load 6) went 69.0 -> 39.9 ms at 2 %, order 2,
+``mhoc`` (116.5 -> 54.4 ms with ``chain``; order 3: 37.7 -> 19.2 and 65.5 -> 32.2 ms; at 1 %:
+9.1-10.8 ms from 13.0-18.9 ms); ``benchmarks/results/hoc_stream.md`` for the benchmark.
 """
 
 from __future__ import annotations
