@@ -20,6 +20,21 @@ skipped where the whole-sequence scores replace it), the median process time of 
 199 -> 98 ms (``chain``), order 3 42 -> 28 ms and 74 -> 62 ms; over the max-pool floor
 (process time, 12.4-12.9 ms): 9.3 -> 5.4, 15.6 -> 7.6, 3.2 -> 2.3 and 5.8 -> 4.8. Every
 window still equals batch ``detect``.
+
+Second round (the 4x target at 2 %, order 2, ``mhoc``): the helpers work on NumPy views of
+the tensors (integer indexing and element-wise IEEE operations give the same bits; torch's
+per-operation overhead, 5-30 us on 20 000 triples, and its slow advanced indexing are gone),
+the chains are handed to the scoring as arrays (:class:`PathList`), and every point score of
+a half-pixel move pair is read from a table (:func:`_score_table`, the same bits as the
+references' element-wise scoring). Measured per window on the same scans (process time,
+load 5-10, instrumented): :func:`best_paths` 13.6 -> 3.7 ms (DP columns restricted to the
+finite chains, the chain table to triples whose bound reaches the pass mark),
+:func:`score_paths_passing` 7.4 -> 2.5 ms, the whole-sequence rows 8.6 -> 2.3 ms
+(:func:`whole_sequence_rows`), ``enumerate_paths_vectorised`` 5.6 -> 3.2 ms; with the
+streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push (process time,
+20 pushes, old and new code back to back at load 6) went 69.0 -> 39.9 ms at 2 %, order 2,
+``mhoc`` (116.5 -> 54.4 ms with ``chain``; order 3: 37.7 -> 19.2 and 65.5 -> 32.2 ms; at 1 %:
+9.1-10.8 ms from 13.0-18.9 ms); ``benchmarks/results/hoc_stream.md`` for the benchmark.
 """
 
 from __future__ import annotations
@@ -28,6 +43,7 @@ import math
 from itertools import chain
 from typing import Any
 
+import numpy as np
 import torch
 
 __all__: list[str] = []
@@ -62,6 +78,87 @@ def kept_sharing_a_point(pts: list[int], kept_at: dict[int, list[int]]) -> list[
         [0, 2]
     """
     return sorted({i for q in pts for i in kept_at.get(q, ())})
+
+
+def group_best(groups: torch.Tensor, key: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """``identify._group_best``: per group, the index of its largest key (first on ties), or -1.
+
+    The same two scatter reductions (the group maximum, then the first index reaching it) on
+    NumPy views (``ufunc.at``); NaN keys, integer keys or no entries: the reference.
+
+    Wiring: ``identify._identify_sequences`` picks each image point's best sequence and end
+    triples with ``group_best`` instead of ``_group_best``.
+
+    Examples:
+        >>> key = torch.tensor([1.0, 3.0, 3.0, 2.0], dtype=torch.float64)
+        >>> group_best(torch.tensor([0, 0, 0, 2]), key, 4).tolist()
+        [1, -1, 3, -1]
+    """
+    from hocnet.hoc.identify import _group_best
+
+    if groups.numel() == 0 or not key.is_floating_point():
+        return _group_best(groups, key, n_groups)
+    k = key.numpy()
+    if bool(np.isnan(k).any()):
+        return _group_best(groups, key, n_groups)
+    return torch.from_numpy(_group_best_np(groups.numpy(), k, n_groups))
+
+
+def _group_best_np(g: np.ndarray, k: np.ndarray, n_groups: int) -> np.ndarray:
+    """:func:`group_best` on arrays (no NaN in ``k``)."""
+    best = np.full(n_groups, -math.inf, dtype=k.dtype)
+    np.maximum.at(best, g, k)
+    hit = np.flatnonzero(k == best[g])
+    first = np.full(n_groups, g.size, dtype=np.int64)
+    np.minimum.at(first, g[hit], hit)
+    return np.where(first < g.size, first, -1)
+
+
+def short_track_sequences(
+    rows: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    is_root: torch.Tensor,
+) -> torch.Tensor:
+    """``identify._short_track_sequences`` on NumPy views: the same accepted triples.
+
+    The same Case-1 test of every row, the same best row per short track
+    (:func:`_group_best_np`, first on ties), the same marks. NaN keys: the reference.
+
+    Wiring: ``identify._identify_sequences`` calls ``short_track_sequences`` instead of
+    ``_short_track_sequences`` (same signature).
+
+    Examples:
+        >>> rows = (torch.tensor([0, 1]), torch.tensor([-1, 0]), torch.tensor([1, -1]),
+        ...         torch.tensor([203.0, 203.0], dtype=torch.float64))
+        >>> p0, p1, p2 = torch.tensor([0, 1]), torch.tensor([1, 2]), torch.tensor([2, 3])
+        >>> short_track_sequences(rows, p0, p1, p2, torch.ones(4, dtype=torch.bool)).tolist()
+        [True, True]
+    """
+    from hocnet.hoc.identify import _short_track_sequences
+
+    c_idx, left_t, right_t, key_rows = (x.numpy() for x in rows)
+    if bool(np.isnan(key_rows).any()):
+        return _short_track_sequences(rows, p0, p1, p2, is_root)
+    k = p0.numel()
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    root = is_root.numpy()
+    lt, rt = np.maximum(left_t, 0), np.maximum(right_t, 0)
+    case1 = root[q0[c_idx]] & root[q1[c_idx]] & root[q2[c_idx]]
+    case1 &= ((left_t < 0) | root[q0[lt]]) & ((right_t < 0) | root[q2[rt]])
+    accepted = np.zeros(k, dtype=bool)
+    for half in (left_t, right_t):
+        ok = np.flatnonzero(case1 & (half >= 0))
+        if ok.size == 0:
+            continue
+        best = _group_best_np(half[ok], key_rows[ok], k)
+        rsel = ok[best[best >= 0]]
+        accepted[c_idx[rsel]] = True
+        left, right = left_t[rsel], right_t[rsel]
+        accepted[left[left >= 0]] = True
+        accepted[right[right >= 0]] = True
+    return torch.from_numpy(accepted)
 
 
 def whole_sequences_from_rows(
@@ -101,11 +198,185 @@ def whole_sequences_from_rows(
         >>> [t.tolist() for t in whole_sequences_from_rows(rows, 2)]
         [[-1, 0], [1, -1], [202.5, 202.0]]
     """
-    from hocnet.hoc.identify import _group_best
-
     c_idx, left_t, right_t, key_rows = rows
-    best = _group_best(c_idx, key_rows, k)
+    best = group_best(c_idx, key_rows, k)
     return left_t[best], right_t[best], key_rows[best]
+
+
+def fill_scores(
+    scores_cube: torch.Tensor,
+    flat: torch.Tensor,
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    s: torch.Tensor,
+) -> None:
+    """``identify._fill_scores``: each point's best score over its triples, written in place.
+
+    The same per-point maxima (the same scatter reduction, middle points first, then the
+    ends), written into the cube through NumPy views (fancy indexing without torch's
+    per-operation overhead): a point keeps the value written first.
+
+    Wiring: ``identify._identify_sequences`` calls ``fill_scores`` instead of ``_fill_scores``.
+
+    Examples:
+        >>> cube = torch.full((4,), math.nan, dtype=torch.float64)
+        >>> fill_scores(cube, torch.tensor([0, 1, 3]), torch.tensor([0]), torch.tensor([1]),
+        ...             torch.tensor([2]), torch.tensor([2.5], dtype=torch.float64))
+        >>> cube.tolist()
+        [2.5, 2.5, nan, 2.5]
+    """
+    cube = scores_cube.numpy()
+    q = flat.numpy()
+    for members in (p1, p0, p2):
+        best = torch.full((q.size,), -math.inf, dtype=torch.float64)
+        best.scatter_reduce_(0, members, s, reduce="amax")
+        b = best.numpy()
+        has = b > -math.inf
+        idx = q[has]
+        cur = cube[idx]
+        cube[idx] = np.where(np.isnan(cur), b[has], cur)
+
+
+def whole_sequence_rows(
+    a_in: torch.Tensor,
+    a_out: torch.Tensor,
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    coords: torch.Tensor,
+    track_kw: dict[str, Any],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``identify._whole_sequence_rows``: the same rows, in the same order, with the same keys.
+
+    Every five-point sequence (centre triple, left triple or -1, right triple or -1) with its
+    whole-sequence key. The changes, none touching a value:
+
+    - the left options of a centre (the triples ending with its in-edge, ascending, or -1 when
+      there are none) and its right options are read off one stable counting sort of the
+      out-edges and of the in-edges (the rows of ``_pairs`` + ``_product_rows`` without
+      ``_pairs``' searches and the two option sorts);
+    - the moves are taken doubled from the integer coordinates (``2 m``: every move of the
+      rows is a whole or a half pixel), as sums of the triples' own moves coded linearly
+      (:func:`_move_code`), and the three point scores of a row read from the table of every
+      half-pixel move pair (:func:`_score_table`), the same bits as scoring them in one batch;
+      where a row has no left (right) triple the score read is dropped by the same ``where``;
+    - the key ``100 * count + total / count`` with the same IEEE operations in the same order.
+
+    Moves beyond the table (:data:`TABLE_REACH`) or no triples: the reference runs.
+
+    Wiring: ``identify._identify_sequences`` calls ``whole_sequence_rows`` instead of
+    ``_whole_sequence_rows`` (same signature).
+
+    Examples:
+        >>> coords = torch.tensor([[t, 2, 2 + t] for t in range(5)])
+        >>> p0, p1, p2 = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3]), torch.tensor([2, 3, 4])
+        >>> a_in, a_out = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3])
+        >>> kw = {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "min"}
+        >>> kw["span"] = 2
+        >>> c, left, right, key = whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, kw)
+        >>> c.tolist(), left.tolist(), right.tolist(), key.tolist()
+        ([0, 1, 2], [-1, 0, 1], [1, 2, -1], [203.0, 303.0, 203.0])
+    """
+    from hocnet.hoc.identify import _whole_sequence_rows
+
+    k = p0.numel()
+    if k == 0:
+        return _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    ai, ao = a_in.numpy(), a_out.numpy()
+    q0_i, q1_i, q2_i = p0.numpy(), p1.numpy(), p2.numpy()
+    n_e = int(max(ai.max(), ao.max())) + 1
+    # triples by out-edge (the left options of a centre: out-edge == its in-edge) and by in-edge
+    by_out = _stable_order(ao, n_e)
+    by_in = _stable_order(ai, n_e)
+    cnt_out = np.bincount(ao, minlength=n_e)
+    cnt_in = np.bincount(ai, minlength=n_e)
+    n_l, n_r = cnt_out[ai], cnt_in[ao]  # left / right triples of each centre
+    lo_l = (np.cumsum(cnt_out) - cnt_out)[ai]
+    lo_r = (np.cumsum(cnt_in) - cnt_in)[ao]
+    ways_l, ways_r = np.maximum(n_l, 1), np.maximum(n_r, 1)
+    n_rows = ways_l * ways_r
+    c_idx = np.repeat(np.arange(k), n_rows)
+    off = np.arange(c_idx.size) - np.repeat(np.cumsum(n_rows) - n_rows, n_rows)
+    wr = ways_r[c_idx]
+    li, ri = off // wr, off % wr
+    has_l, has_r = n_l[c_idx] > 0, n_r[c_idx] > 0
+    left_t = np.where(has_l, by_out[np.where(has_l, lo_l[c_idx] + li, 0)], -1)
+    right_t = np.where(has_r, by_in[np.where(has_r, lo_r[c_idx] + ri, 0)], -1)
+    # each triple's two moves as one linear code (``_move_code``); the rows' doubled moves
+    # are sums of them: q1 -> q2 is the centre's first move, q0 -> q1 its left triple's,
+    # q2 -> q3 the centre's second, q3 -> q4 its right triple's
+    m1, m2, reach = _triple_moves(coords, q0_i, q1_i, q2_i)
+    if reach is None:
+        return _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+    c1, c2 = m1[c_idx], m2[c_idx]
+    lm = m1[np.maximum(left_t, 0)]  # q1 - q0 (read only with a left triple)
+    rm = m2[np.maximum(right_t, 0)]  # q4 - q3 (read only with a right triple)
+    kw = {key: val for key, val in track_kw.items() if key != "span"}
+    # doubled moves: h_l = (q2 - q0) / 2 with a left triple (span > 1), else q2 - q1; likewise
+    if track_kw["span"] > 1:
+        h_l = np.where(has_l, c1 + lm, 2 * c1)
+        h_r = np.where(has_r, c2 + rm, 2 * c2)
+    else:
+        h_l, h_r = 2 * c1, 2 * c2
+    mid = c1 + c2  # 2 * ((q3 - q1) / 2)
+    table = _score_table(kw, reach)
+    centre = _read_table(table, h_l, h_r, reach)
+    s1 = _read_table(table, np.where(has_l, 2 * lm, 0), mid, reach)  # q0 -> q1, (q3 - q1) / 2
+    s3 = _read_table(table, mid, np.where(has_r, 2 * rm, 0), reach)  # (q3 - q1) / 2, q3 -> q4
+    total = centre + np.where(has_l, s1, 0.0) + np.where(has_r, s3, 0.0)
+    count = 1 + has_l.astype(np.int64) + has_r.astype(np.int64)
+    key_rows = 100.0 * count + total / count
+    return (
+        torch.from_numpy(c_idx),
+        torch.from_numpy(left_t),
+        torch.from_numpy(right_t),
+        torch.from_numpy(key_rows),
+    )
+
+
+def _move_code(dy: np.ndarray, dx: np.ndarray, reach: int) -> np.ndarray:
+    """A doubled move ``(dy, dx)`` (each ``|.| <= reach``) as ``dx * w + dy``, ``w = 2 reach + 1``.
+
+    Linear: the code of a sum (or multiple) of moves is the sum (multiple) of their codes, as
+    long as the result stays within ``reach``; :func:`_read_table` reads the score of a pair.
+    """
+    return dx * (2 * reach + 1) + dy
+
+
+def _triple_moves(
+    coords: torch.Tensor, q0: np.ndarray, q1: np.ndarray, q2: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """Codes (``_move_code``) of each triple's two moves and the table reach they need.
+
+    ``reach``: the table's half-width for sums of two moves doubled (at least 8, one table for
+    ``v <= 4``); ``None`` when it would exceed :data:`TABLE_REACH`.
+    """
+    t = coords.numpy()
+    y, x = t[:, 1], t[:, 2]
+    dy1, dx1 = y[q1] - y[q0], x[q1] - x[q0]
+    dy2, dx2 = y[q2] - y[q1], x[q2] - x[q1]
+    big = max((int(np.abs(d).max()) for d in (dy1, dx1, dy2, dx2) if d.size), default=0)
+    reach = max(8, 2 * big)
+    if reach > TABLE_REACH:
+        return dy1, dy1, None
+    return _move_code(dy1, dx1, reach), _move_code(dy2, dx2, reach), reach
+
+
+def _read_table(table: np.ndarray, h1: np.ndarray, h2: np.ndarray, reach: int) -> np.ndarray:
+    """Scores of the doubled move pairs with codes ``h1``, ``h2`` (:func:`_move_code`)."""
+    w = 2 * reach + 1
+    off = reach * (w + 1)  # the code of (-reach, -reach) is -off
+    return table[(h1 + off) * (w * w) + h2 + off]
+
+
+def _stable_order(ids: np.ndarray, n_ids: int) -> np.ndarray:
+    """Stable argsort of ids in ``[0, n_ids)`` (identity when sorted; 16-bit radix if they fit)."""
+    if ids.size < 2 or bool((ids[1:] >= ids[:-1]).all()):
+        return np.arange(ids.size)
+    if n_ids <= 1 << 16:
+        return np.argsort(ids.astype(np.uint16), kind="stable")
+    return np.argsort(ids, kind="stable")
 
 
 def pairs(keys: torch.Tensor, queries: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -155,20 +426,30 @@ def best_paths(
     min_points: int,
     points: torch.Tensor,
 ) -> list[list[int]]:
-    """``identify._best_paths`` with the same arithmetic in fewer, smaller tensor passes.
+    """``identify._best_paths`` with the same arithmetic in fewer, cheaper array passes.
 
-    Same arguments, same chains in the same order. Three changes, none touching a value:
+    Same arguments, same chains in the same order. The changes, none touching a value:
 
-    - the dynamic-programming sweeps write each column whole (``where`` on the "has a
-      continuation" mask) instead of through boolean-mask indexing (a ``nonzero`` per write);
-      ``ptr`` is the continuation itself, ``-1`` where there is none, as before;
+    - the work is done on NumPy views of the tensors (integer indexing and element-wise
+      ``+``, ``-``, comparisons and ``where``: the same IEEE operations, the same bits; no
+      per-operation dispatch overhead of torch, about 5-30 us per call on 20 000 triples);
+    - the dynamic-programming sweeps group the triples by their joining edge once (a stable
+      sort; the in-edges come sorted) and take each column's group maximum and the first
+      triple reaching it with two segment reductions (``reduceat``) instead of two scatter
+      reductions and a ``nonzero`` per column: the same continuation (the largest sum, the
+      lowest triple index on ties, none where every sum is ``-inf``);
     - the ``(K, L, L)`` table of chain sums over (backward length, forward length) is reduced
       one backward length at a time (``(K, L)`` each, in cache): every entry is the same
       ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
-      (``torch.max`` returns the first maximal index of a row; a later ``lb`` replaces the
+      (``argmax`` returns the first maximal index of a row; a later ``lb`` replaces the
       running best only when strictly greater);
     - the chains are read off the pointer walks (the table of ``identify._walk``) with one
       filter and one ``tolist`` for all of them, not a Python filter per chain.
+
+    With NaN scores (never produced by :func:`~hocnet.hoc.scoring.point_score` on integer
+    moves), the reference itself runs. Measured on the 640 x 512, 2 % clutter, order-2
+    windows of ``benchmarks/hoc.py --stream`` (20 000 triples, 13 000 points asked): 12.3 ->
+    see the module notes.
 
     Wiring: ``identify._extensions`` calls ``best_paths`` instead of ``_best_paths`` (same
     signature).
@@ -181,88 +462,195 @@ def best_paths(
         >>> best_paths(5, p0, p1, p2, s, a_in, a_out, 5, 2.5, 5, middle)  # triples 0, 1, 2
         [[0, 1, 2]]
     """
-    from hocnet.hoc.identify import _group_best
-
     k = p0.numel()
-    n_e = int(torch.maximum(a_in.max(), a_out.max())) + 1
+    w = (s - threshold).numpy()
+    if k == 0 or not bool(np.isfinite(w).all()):
+        from hocnet.hoc.identify import _best_paths
+
+        return _best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, points)
+    ai, ao = a_in.numpy(), a_out.numpy()
+    n_e = int(max(ai.max(), ao.max())) + 1
     L = max(1, n_t - 2)  # most triples on one chain
-    w = s - threshold
     neg = -math.inf
-    neg_col = torch.full((k,), neg, dtype=torch.float64)
-    none_col = torch.full((k,), -1, dtype=torch.long)
 
-    def sweep(src: torch.Tensor, dst: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        # best[:, l]: best sum of a chain starting at triple k and continuing l triples
-        # (through dst -> src edges); ptr[:, l]: the next triple (-1: none)
-        best, ptr = [w], [none_col]
-        for _ in range(1, L):
-            col = best[-1]
-            ok = col > neg
-            if not bool(ok.any()):
-                best.append(neg_col)
-                ptr.append(none_col)
-                continue
-            idx = ok.nonzero().squeeze(1)
-            g = _group_best(src[idx], col[idx], n_e)
-            nxt = torch.where(g >= 0, idx[g.clamp_min(0)], -1)[dst]
-            best.append(torch.where(nxt >= 0, w + col[nxt.clamp_min(0)], neg))
-            ptr.append(nxt)
-        return torch.stack(best, dim=1), torch.stack(ptr, dim=1)
+    def sweep(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # best[l]: best sum of a chain starting at triple k and continuing l triples (through
+        # dst -> src edges); ptr[l]: the next triple (-1: none); (L, K), one row per length
+        best = np.full((L, k), neg)
+        ptr = np.full((L, k), -1, dtype=np.int64)
+        best[0] = w
+        idx = np.arange(k)  # the triples whose previous column is finite
+        for ell in range(1, L):
+            col = best[ell - 1]
+            g, key = src[idx], col[idx]
+            top = np.full(n_e, neg)
+            np.maximum.at(top, g, key)  # each edge's largest sum
+            hit = key == top[g]
+            first = np.full(n_e, k)
+            np.minimum.at(first, g[hit], idx[hit])  # the lowest triple reaching it
+            nxt = first[dst]
+            idx = np.flatnonzero(nxt < k)
+            if idx.size == 0:
+                break  # no chain continues further: the remaining columns stay empty
+            nxt = nxt[idx]
+            best[ell, idx] = w[idx] + col[nxt]
+            ptr[ell, idx] = nxt
+        return best, ptr
 
-    fw, fptr = sweep(a_in, a_out)  # continue with a triple starting on my out-edge
-    bw, bptr = sweep(a_out, a_in)  # continue with a triple ending on my in-edge
-    sub = (points[p0] | points[p1] | points[p2]).nonzero().squeeze(1)
-    ks = sub.numel()
+    fw, fptr = sweep(ai, ao)  # continue with a triple starting on my out-edge
+    bw, bptr = sweep(ao, ai)  # continue with a triple ending on my in-edge
+    pts = points.numpy()
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    sub = np.flatnonzero(pts[q0] | pts[q1] | pts[q2])
+    # a triple's table maximum is at most (max bw + max fw) - w (rounding is monotone): only
+    # triples whose bound reaches the pass mark can be chosen (nor own a point that is)
+    bound = (bw.max(axis=0)[sub] + fw.max(axis=0)[sub]) - w[sub]
+    sub = sub[bound >= -1e-9]
+    ks = sub.size
     if ks == 0:
         return []
-    bw_s, fw_s, w_s = bw[sub], fw[sub], w[sub][:, None]
-    lf = torch.arange(L)
-    flat_best = arg = None
-    for lb in range(L):
-        total = bw_s[:, lb : lb + 1] + fw_s - w_s  # (Ks, L): the table's row block lb
-        total = torch.where(lf + lb + 3 >= min_points, total, neg)
-        val, a = total.max(dim=1)
-        if flat_best is None:
-            flat_best, arg = val, a
-        else:
-            better = val > flat_best
-            flat_best = torch.where(better, val, flat_best)
-            arg = torch.where(better, a + lb * L, arg)
-    members = torch.cat([p0[sub], p1[sub], p2[sub]])
-    values = flat_best.repeat(3)
-    owner = _group_best(members, values, n)
-    local = owner[points & (owner >= 0)] % max(ks, 1)
-    local = torch.unique(local[flat_best[local] >= -1e-9])
-    if local.numel() == 0:
+    # the (L, L, Ks) table of chain sums over (backward length, forward length), each entry
+    # (bw + fw) - w; the flat arg-max keeps the first maximum in (lb, lf) order
+    length = np.arange(L)[:, None, None] + np.arange(L)[None, :, None] + 3
+    bw_s, fw_s = np.take(bw, sub, axis=1), np.take(fw, sub, axis=1)
+    total = bw_s[:, None, :] + fw_s[None, :, :] - w[sub][None, None, :]
+    total = np.where(length >= min_points, total, neg).reshape(L * L, ks)
+    arg = total.argmax(axis=0)
+    flat_best = total[arg, np.arange(ks)]
+    members = np.concatenate([q0[sub], q1[sub], q2[sub]])
+    values = np.tile(flat_best, 3)
+    top = np.full(n, neg)
+    np.maximum.at(top, members, values)
+    hit = np.flatnonzero(values == top[members])
+    owner = np.full(n, 3 * ks, dtype=np.int64)
+    np.minimum.at(owner, members[hit], hit)  # the first triple reaching the point's best
+    local = owner[pts & (owner < 3 * ks)] % ks
+    local = np.sort(local[flat_best[local] >= -1e-9])
+    if local.size == 0:
         return []
+    local = local[np.concatenate(([True], local[1:] != local[:-1]))]  # unique, ascending
     chosen = sub[local]
     nb, nf = arg[local] // L, arg[local] % L
     # the rows of ``_walk`` (its table before the per-row filter), backward ones reversed, and
     # the chosen triple between: one filter and one ``tolist`` for all chains
-    table = torch.cat([_walk_table(bptr, chosen, nb).flip(1), chosen[:, None]], dim=1)
-    table = torch.cat([table, _walk_table(fptr, chosen, nf)], dim=1)
+    table = np.concatenate(
+        [_walk_table(bptr, chosen, nb)[:, ::-1], chosen[:, None], _walk_table(fptr, chosen, nf)],
+        axis=1,
+    )
     keep = table >= 0
     flat = table[keep].tolist()
-    ends = torch.cumsum(keep.sum(dim=1), 0).tolist()
+    ends = np.cumsum(keep.sum(axis=1)).tolist()
     return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
 
 
-def _walk_table(ptr: torch.Tensor, start: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+def _walk_table(ptr: np.ndarray, start: np.ndarray, steps: np.ndarray) -> np.ndarray:
     """``identify._walk`` before its per-row filter: ``(M, max steps)``, -1 past a row's end.
 
-    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order.
+    ``identify._walk`` returns each row's entries ``>= 0`` of this table, in order; ``ptr`` is
+    ``(L, K)`` (one row per chain length).
     """
-    n_steps = int(steps.max()) if steps.numel() else 0
-    cur = start.clone()
-    rem = steps.clone()
-    cols = [torch.full((start.numel(), 0), -1, dtype=torch.long)]
-    for _ in range(n_steps):
+    n_steps = int(steps.max()) if steps.size else 0
+    cur = start.copy()
+    rem = steps.copy()
+    table = np.full((start.size, n_steps), -1, dtype=np.int64)
+    for i in range(n_steps):
         on = rem > 0
-        nxt = ptr[cur, rem.clamp_min(0)]
-        cur = torch.where(on, nxt, cur)
-        cols.append(torch.where(on, cur, -1)[:, None])
+        cur = np.where(on, ptr[np.maximum(rem, 0), cur], cur)
+        table[:, i] = np.where(on, cur, -1)
         rem = rem - 1
-    return torch.cat(cols, dim=1)
+    return table
+
+
+class PathList(list):
+    """Chains of triples (a ``list`` of lists) that also carry their arrays, grouped by length.
+
+    ``groups``: per chain length, ``(index, triples)``: the positions of the chains of that
+    length in the list (ascending) and their triples, an ``(R, length)`` int64 array (row ``r``
+    is chain ``index[r]``). Built by :func:`hocnet.hoc._incremental.enumerate_paths_vectorised`
+    from the arrays it grows the chains in, so that :func:`score_paths_passing` need not turn
+    the lists back into arrays. Equal to the plain list of its chains.
+    """
+
+    __slots__ = ("groups",)
+
+    def __init__(self, rows: list[list[int]], groups: list[tuple[np.ndarray, np.ndarray]]):
+        super().__init__(rows)
+        self.groups = groups
+
+
+def _path_groups(paths: list[list[int]]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``PathList.groups`` of a plain list of chains (ascending length)."""
+    groups = getattr(paths, "groups", None)
+    if groups is not None:
+        return sorted(groups, key=lambda g: g[1].shape[1])
+    lens = np.fromiter(map(len, paths), dtype=np.int64, count=len(paths))
+    every = np.fromiter(chain.from_iterable(paths), dtype=np.int64, count=int(lens.sum()))
+    offset = np.cumsum(lens) - lens
+    order = np.argsort(lens, kind="stable")  # by length, path order within a length
+    length, start = np.unique(lens[order], return_index=True)
+    out = []
+    for rows, n_tr in zip(np.split(order, start[1:]), length.tolist(), strict=True):
+        out.append((rows, every[offset[rows][:, None] + np.arange(n_tr)]))
+    return out
+
+
+_TABLES: dict[tuple[Any, ...], np.ndarray] = {}
+
+
+def _score_table(kw: dict[str, Any], reach: int) -> np.ndarray:
+    """:func:`~hocnet.hoc.scoring.point_score` of every pair of half-pixel moves, flat.
+
+    Entry ``((a * w + b) * w + c) * w + d``, ``w = 2 * reach + 1``, is the score of the first
+    move ``(i1, j1) = ((a - reach) / 2, (b - reach) / 2)`` and the second move ``(i2, j2) =
+    ((c - reach) / 2, (d - reach) / 2)``: all moves of components ``k / 2``, ``|k| <= reach``,
+    scored in one call and kept per score arguments (a few milliseconds, once).
+
+    Same bits as the references: they score float64 moves given as column slices of ``(M, 3)``
+    move tensors (``m1[:, 2]``, ``m1[:, 1]``, ...), and so does this table (columns of an
+    ``(M, 4)`` tensor). On such strided inputs torch evaluates ``atan2`` element by element,
+    whatever the batch (measured: the same bits in one batch, in chunks of 7 and one by one,
+    ``tests/hoc/test_identify_fast.py::test_score_table_equals_point_score``). Not used for
+    ``identify._triple_scores``: it passes *integer* moves, which ``point_score`` converts to
+    contiguous float64 tensors, and on contiguous inputs the SIMD ``atan2`` of full blocks
+    differs in the last bit from the element-wise one of the tail (e.g. the turn of (-2, -3) ->
+    (-3, -1): 0.6610431688506866 in a block of 16, 0.6610431688506875 alone).
+    """
+    from hocnet.hoc.scoring import point_score
+
+    key = (tuple(sorted(kw.items())), reach)
+    table = _TABLES.get(key)
+    if table is None:
+        vals = torch.arange(-reach, reach + 1, dtype=torch.float64) / 2
+        g = torch.cartesian_prod(vals, vals, vals, vals)  # (M, 4): strided columns, as the callers'
+        scores = point_score(g[:, 0], g[:, 1], g[:, 2], g[:, 3], **kw)
+        table = torch.as_tensor(scores, dtype=torch.float64).numpy()
+        _TABLES[key] = table
+    return table
+
+
+TABLE_REACH = 16
+"""Largest doubled move component (pixels x 2) scored from the table (``v <= 8``); larger
+moves are scored directly."""
+
+
+def half_move_scores(h1: np.ndarray, h2: np.ndarray, kw: dict[str, Any]) -> np.ndarray | None:
+    """``point_score`` of moves given doubled: ``h1 = 2 * m1``, ``h2 = 2 * m2``, ``(M, 2)`` int.
+
+    Columns ``(y, x)`` (as ``coords[:, 1:]``); the first move is ``(i1, j1) = (x, y) / 2``. The
+    scores are read from :func:`_score_table`; ``None`` when a component exceeds
+    :data:`TABLE_REACH` (the caller then scores directly).
+    """
+    if h1.size == 0:
+        return np.zeros(0)
+    reach = int(max(np.abs(h1).max(), np.abs(h2).max()))
+    if reach > TABLE_REACH:
+        return None
+    reach = max(reach, 8)  # one table for every scene with v <= 4
+    w = 2 * reach + 1
+    table = _score_table(kw, reach)
+    h1 = h1 + reach
+    h2 = h2 + reach
+    return table[((h1[:, 1] * w + h1[:, 0]) * w + h2[:, 1]) * w + h2[:, 0]]
 
 
 def score_paths_passing(
@@ -280,10 +668,14 @@ def score_paths_passing(
 
     The same ``(score, points, point scores)`` entries, in the same order, as
     ``[item for item in _score_paths(...) if not item[0] < threshold]`` (the filter
-    ``_select_tracks`` applies first): the same tensors, built from one flat list per path
-    length (not a nested list), the same element-wise scores and row means, so the same bits;
-    only the rows that pass are turned into Python lists (at 2 % clutter on a 640 x 512
-    window, about 300 of 10 000 paths).
+    ``_select_tracks`` applies first): the paths grouped by length as there (the arrays of a
+    :class:`PathList`, else built from the lists with one pass each), each point's moves over
+    ``span`` scans from the integer coordinates, its score read from the table of every
+    half-pixel move pair (:func:`half_move_scores`; the same bits as scoring it in the batch
+    of ``_score_paths``; directly, as there, for spans above 2 or long moves), and the same row
+    means (``torch.mean`` of the same ``(R, length)`` rows), so the same bits; only the rows
+    that pass are turned into Python lists (at 2 % clutter on a 640 x 512 window, about 300 of
+    10 000 paths).
 
     Wiring: in ``identify._select_tracks``::
 
@@ -303,51 +695,84 @@ def score_paths_passing(
 
     if not paths:
         return []
-    lens = torch.tensor(list(map(len, paths)), dtype=torch.long)
-    every = torch.tensor(list(chain.from_iterable(paths)), dtype=torch.long)
-    offset = torch.cumsum(lens, 0) - lens
-    order = torch.argsort(lens, stable=True)  # by length, path order within a length
-    length, count = torch.unique_consecutive(lens[order], return_counts=True)
-    xy = coords.to(torch.float64) if track_kw is not None else coords
-    groups = []
-    moves: list[tuple[torch.Tensor, torch.Tensor]] = []
-    for rows, n_tr in zip(order.split(count.tolist()), length.tolist(), strict=True):
+    q0, q1, q2 = p0.numpy(), p1.numpy(), p2.numpy()
+    xy = coords.numpy()
+    span = track_kw["span"] if track_kw is not None else 0
+    kw = {key: val for key, val in (track_kw or {}).items() if key != "span"}
+    table = codes = None
+    if track_kw is not None and span <= 2:  # moves of components k / 2: the table
+        m1c, m2c, reach = _triple_moves(coords, q0, q1, q2)
+        if reach is not None:
+            table, codes = _score_table(kw, reach), (m1c, m2c, reach)
+    found: list[tuple[int, tuple[float, list[int], list[float]]]] = []
+    for rows, tri in _path_groups(paths):
+        n_tr = tri.shape[1]
         if n_tr + 2 < min_points:
             continue
-        tri = every[offset[rows][:, None] + torch.arange(n_tr)]  # (R, n_tr)
-        pts = torch.cat([p0[tri[:, :1]], p1[tri[:, :1]], p2[tri]], dim=1)  # (R, n_tr + 2)
-        groups.append((rows, tri, pts))
-        if track_kw is not None:
+        pts = None
+        if track_kw is None:
+            pscores = s[torch.from_numpy(tri)]
+        elif codes is not None:
+            flat = _path_table_scores(table, codes, tri, span)
+            pscores = torch.from_numpy(flat)
+        else:  # as ``_score_paths``: the float moves, scored directly
             n = n_tr + 2
-            span = track_kw["span"]
-            p = xy[pts]
-            i = torch.arange(1, n - 1)
-            s1 = torch.clamp(i, max=span)
-            s2 = torch.clamp(n - 1 - i, max=span)
-            m1 = (p[:, i] - p[:, i - s1]) / s1.to(torch.float64)[None, :, None]
-            m2 = (p[:, i + s2] - p[:, i]) / s2.to(torch.float64)[None, :, None]
-            moves.append((m1.reshape(-1, 3), m2.reshape(-1, 3)))
-    if track_kw is not None and moves:
-        kw = {key: val for key, val in track_kw.items() if key != "span"}
-        m1 = torch.cat([m for m, _ in moves])
-        m2 = torch.cat([m for _, m in moves])
-        flat_scores = torch.as_tensor(
-            point_score(m1[:, 2], m1[:, 1], m2[:, 2], m2[:, 1], **kw), dtype=torch.float64
-        )
-        parts = flat_scores.split([m.shape[0] for m, _ in moves])
-    found: list[tuple[int, tuple[float, list[int], list[float]]]] = []
-    for g, (rows, tri, pts) in enumerate(groups):
-        pscores = s[tri] if track_kw is None else parts[g].reshape(tri.shape)
+            pts = np.concatenate([q0[tri[:, :1]], q1[tri[:, :1]], q2[tri]], axis=1)
+            p = xy[pts][:, :, 1:]  # (R, n, 2) integer (y, x)
+            i = np.arange(1, n - 1)
+            s1 = np.minimum(i, span)
+            s2 = np.minimum(n - 1 - i, span)
+            d1 = p[:, i] - p[:, i - s1]  # (R, n - 2, 2): s1 times the first move
+            d2 = p[:, i + s2] - p[:, i]
+            m1 = torch.from_numpy(d1 / s1[None, :, None].astype(np.float64)).reshape(-1, 2)
+            m2 = torch.from_numpy(d2 / s2[None, :, None].astype(np.float64)).reshape(-1, 2)
+            flat = torch.as_tensor(
+                point_score(m1[:, 1], m1[:, 0], m2[:, 1], m2[:, 0], **kw), dtype=torch.float64
+            ).numpy()
+            pscores = torch.from_numpy(np.ascontiguousarray(flat.reshape(tri.shape)))
         means = pscores.mean(dim=1)
         keep = (~(means < threshold)).nonzero().squeeze(1)  # NaN passes, as `score < t` does
         if keep.numel() == 0:
             continue
         means_l = means[keep].tolist()
-        pts_l, ps_l = pts[keep].tolist(), pscores[keep].tolist()
-        for r, i in enumerate(rows[keep].tolist()):
+        k_np = keep.numpy()
+        if pts is None:  # the points of the passing rows only
+            t_k = tri[k_np]
+            pts = np.concatenate([q0[t_k[:, :1]], q1[t_k[:, :1]], q2[t_k]], axis=1)
+        else:
+            pts = pts[k_np]
+        pts_l, ps_l = pts.tolist(), pscores[keep].tolist()
+        for r, i in enumerate(rows[k_np].tolist()):
             found.append((i, (means_l[r], pts_l[r], ps_l[r])))
     found.sort(key=lambda item: item[0])  # path order
     return [item for _, item in found]
+
+
+def _path_table_scores(
+    table: np.ndarray,
+    codes: tuple[np.ndarray, np.ndarray, int],
+    tri: np.ndarray,
+    span: int,
+) -> np.ndarray:
+    """Interior point scores ``(R, n_tr)`` of chains of ``n_tr`` triples (``span <= 2``).
+
+    What ``_score_paths`` computes for each interior point ``i`` of an ``n``-point path: the
+    moves ``(p[i] - p[i - s1]) / s1`` and ``(p[i + s2] - p[i]) / s2`` (``s1 = min(i, span)``,
+    ``s2 = min(n - 1 - i, span)``), here doubled and summed from the coded moves between
+    successive points (``M[:, j]``: point ``j`` to ``j + 1``, the first triple's first move, then
+    each triple's second move), and scored from the table.
+    """
+    m1c, m2c, reach = codes
+    w = 2 * reach + 1
+    off = reach * (w + 1)
+    moves = np.concatenate([m1c[tri[:, :1]], m2c[tri]], axis=1)  # (R, n - 1)
+    n_in = tri.shape[1]  # interior points: i = 1 .. n - 2, column i - 1
+    h1 = 2 * moves[:, :n_in]  # s1 = 1: 2 (p[i] - p[i - 1])
+    h2 = 2 * moves[:, 1 : n_in + 1]  # s2 = 1: 2 (p[i + 1] - p[i])
+    if span >= 2:
+        h1[:, 1:] = moves[:, : n_in - 1] + moves[:, 1:n_in]  # i >= 2: p[i] - p[i - 2]
+        h2[:, :-1] = moves[:, 1:n_in] + moves[:, 2 : n_in + 1]  # i <= n - 3: p[i + 2] - p[i]
+    return table[(h1 + off) * (w * w) + h2 + off]
 
 
 def make_tracks(
@@ -383,11 +808,13 @@ def make_tracks(
     if not kept:
         return []
     lens = [len(pts) for _, pts, _ in kept]
-    idx = torch.tensor(list(chain.from_iterable(pts for _, pts, _ in kept)), dtype=torch.long)
-    points = coords[idx].split(lens)
+    every = chain.from_iterable(pts for _, pts, _ in kept)
+    idx = torch.from_numpy(np.fromiter(every, dtype=np.int64, count=sum(lens)))
+    points = coords.index_select(0, idx).split(lens)
+    ps_lens = [len(ps) + 2 for _, _, ps in kept]
     ends = chain.from_iterable((ps[0], *ps, ps[-1]) for _, _, ps in kept)
-    point_scores = torch.tensor(list(ends), dtype=torch.float64).split(
-        [len(ps) + 2 for _, _, ps in kept]
+    point_scores = torch.from_numpy(np.fromiter(ends, dtype=np.float64, count=sum(ps_lens))).split(
+        ps_lens
     )
     return [
         Track(points=pt, id=0, score=score, point_scores=ps, batch=batch)

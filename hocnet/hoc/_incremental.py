@@ -2,14 +2,17 @@
 
 :func:`hocnet.hoc.identify.detect` and :class:`hocnet.hoc.stream.StreamingDetector` identify
 tracks on every window ([LA98] section III-B); the streaming detector must do it within a scan
-period. These helpers replace per-candidate Python loops of :mod:`hocnet.hoc.identify` by tensor
-operations that produce the same result in the same order (each tested against the loop it
-replaces, ``tests/hoc/test_stream.py``).
+period. These helpers replace per-candidate Python loops of :mod:`hocnet.hoc.identify` by array
+operations (NumPy views of the tensors: integer work only) that produce the same result in the
+same order (each tested against the loop it replaces, ``tests/hoc/test_stream.py``).
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
+
+from hocnet.hoc._identify_fast import PathList
 
 __all__: list[str] = []
 
@@ -20,7 +23,7 @@ def enumerate_paths_vectorised(
     a_out: torch.Tensor,
     s: torch.Tensor,
     max_candidates: int,
-) -> list[list[int]] | None:
+) -> PathList | None:
     """Maximal chains of accepted triples, in the order of the depth-first loop, or ``None``.
 
     The same chains as ``identify._enumerate_paths`` (a triple ``k`` continues a chain ending
@@ -45,33 +48,34 @@ def enumerate_paths_vectorised(
         max_candidates: the cap of the loop.
 
     Returns:
-        The chains as lists of triple indices, or ``None``.
+        The chains as lists of triple indices (a :class:`~hocnet.hoc._identify_fast.PathList`:
+        also their arrays, per length), or ``None``.
     """
-    idx = accepted.nonzero().squeeze(1)
-    if idx.numel() == 0:
-        return []
-    ai, ao, sc = a_in[idx], a_out[idx], s[idx]
-    n_e = int(torch.maximum(ai.max(), ao.max())) + 1  # edge ids are small (torch.unique)
+    idx = np.flatnonzero(accepted.numpy())
+    if idx.size == 0:
+        return PathList([], [])
+    ai, ao, sc = a_in.numpy()[idx], a_out.numpy()[idx], s.numpy()[idx]
+    n_e = int(max(ai.max(), ao.max())) + 1  # edge ids are small (torch.unique)
     # continuations grouped by in-edge, each group by descending score, then index
-    order = torch.argsort(-sc, stable=True)
-    order = order[torch.argsort(ai[order], stable=True)]
-    count = torch.bincount(ai, minlength=n_e)  # triples starting with each edge
-    lo = (torch.cumsum(count, 0) - count)[ao]  # first continuation of each triple in `order`
+    order = np.argsort(-sc, kind="stable")
+    order = order[_stable_argsort(ai[order], n_e)]
+    count = np.bincount(ai, minlength=n_e)  # triples starting with each edge
+    lo = (np.cumsum(count) - count)[ao]  # first continuation of each triple in `order`
     fan = count[ao]
-    ends_one = torch.zeros(n_e, dtype=torch.bool)
+    ends_one = np.zeros(n_e, dtype=bool)
     ends_one[ao] = True
-    starts = (~ends_one[ai]).nonzero().squeeze(1)
-    starts = starts[torch.argsort(-sc[starts], stable=True)]
+    starts = np.flatnonzero(~ends_one[ai])
+    starts = starts[np.argsort(-sc[starts], kind="stable")]
     paths = starts[:, None]
-    ranks = torch.arange(starts.numel())[:, None]
-    done_paths: list[torch.Tensor] = []
-    done_ranks: list[torch.Tensor] = []
+    ranks = np.arange(starts.size)[:, None]
+    done_paths: list[np.ndarray] = []
+    done_ranks: list[np.ndarray] = []
     n_done = 0
     while paths.shape[0]:
         last = paths[:, -1]
         cnt = fan[last]
         leaf = cnt == 0
-        n_leaf = int(leaf.sum())
+        n_leaf = int(np.count_nonzero(leaf))
         if n_leaf:
             done_paths.append(paths[leaf])
             done_ranks.append(ranks[leaf])
@@ -82,38 +86,57 @@ def enumerate_paths_vectorised(
             return None  # at least this many chains: the loop's cap decides
         if not paths.shape[0]:
             break
-        rep = torch.repeat_interleave(cnt)
-        within = torch.arange(rep.numel()) - (torch.cumsum(cnt, 0) - cnt)[rep]
+        rep = np.repeat(np.arange(cnt.size), cnt)
+        within = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep]
         child = order[lo[last[rep]] + within]
-        paths = torch.cat([paths[rep], child[:, None]], dim=1)
-        ranks = torch.cat([ranks[rep], within[:, None]], dim=1)
+        paths = np.concatenate([paths[rep], child[:, None]], axis=1)
+        ranks = np.concatenate([ranks[rep], within[:, None]], axis=1)
     if not done_paths:
-        return []
-    perm = _rank_order(done_ranks, starts.numel(), int(fan.max()) + 1)
+        return PathList([], [])
+    perm = _rank_order(done_ranks, starts.size, int(fan.max()) + 1)
     rows: list[list[int]] = []
     for p in done_paths:  # one list per chain, its length that of its group
         rows.extend(idx[p].tolist())
-    return [rows[i] for i in perm.tolist()]
+    # the same chains as arrays, per length, for the scoring (``PathList.groups``)
+    rank = np.empty_like(perm)
+    rank[perm] = np.arange(perm.size)
+    groups = []
+    base = 0
+    for p in done_paths:
+        at = rank[base : base + p.shape[0]]
+        sort = np.argsort(at)
+        groups.append((at[sort], idx[p[sort]]))
+        base += p.shape[0]
+    return PathList([rows[i] for i in perm.tolist()], groups)
 
 
-def _rank_order(ranks: list[torch.Tensor], n_start: int, n_sib: int) -> torch.Tensor:
+def _stable_argsort(ids: np.ndarray, n_ids: int) -> np.ndarray:
+    """Stable argsort of ids in ``[0, n_ids)`` (as 16-bit keys, NumPy's radix sort, if they fit)."""
+    if n_ids <= 1 << 16:
+        return np.argsort(ids.astype(np.uint16), kind="stable")
+    return np.argsort(ids, kind="stable")
+
+
+def _rank_order(ranks: list[np.ndarray], n_start: int, n_sib: int) -> np.ndarray:
     """Permutation sorting the chains (groups of equal length) lexicographically by rank.
 
-    ``ranks``: per group an ``(R, w)`` int64 tensor of ranks (column 0 below ``n_start``, the
-    others below ``n_sib``); no row is a prefix of another. Rows are packed into one int64 key
-    (mixed radix, rank + 1 so that a shorter row pads with 0) and sorted once; when the key
-    could overflow, stable sorts column by column (last column first) over the padded rows.
+    ``ranks``: per group an ``(R, w)`` int64 array (or tensor) of ranks (column 0 below
+    ``n_start``, the others below ``n_sib``); no row is a prefix of another. Rows are packed
+    into one int64 key (mixed radix, rank + 1 so that a shorter row pads with 0) and sorted
+    once (the keys are distinct); when the key could overflow, stable sorts column by column
+    (last column first) over the padded rows.
     """
+    ranks = [np.asarray(r, dtype=np.int64) for r in ranks]
     width = max(r.shape[1] for r in ranks)
     base = n_sib + 1
     if (n_start + 1) * base ** (width - 1) < 2**62:
-        weights = base ** torch.arange(width - 1, -1, -1)
-        key = torch.cat([((r + 1) * weights[: r.shape[1]]).sum(1) for r in ranks])
-        return torch.argsort(key)
-    pad_r = torch.cat(
-        [torch.nn.functional.pad(r, (0, width - r.shape[1]), value=-1) for r in ranks]
+        weights = base ** np.arange(width - 1, -1, -1, dtype=np.int64)
+        key = np.concatenate([((r + 1) * weights[: r.shape[1]]).sum(1) for r in ranks])
+        return np.argsort(key, kind="stable")
+    pad_r = np.concatenate(
+        [np.pad(r, ((0, 0), (0, width - r.shape[1])), constant_values=-1) for r in ranks]
     )
-    perm = torch.arange(pad_r.shape[0])
+    perm = np.arange(pad_r.shape[0])
     for col in range(width - 1, -1, -1):  # lexicographic: stable sorts, last column first
-        perm = perm[torch.argsort(pad_r[perm, col], stable=True)]
+        perm = perm[np.argsort(pad_r[perm, col], kind="stable")]
     return perm

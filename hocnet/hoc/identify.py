@@ -1578,11 +1578,11 @@ def _identify_sequences(
         return [], scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), False
     n = flat.numel()
     s = _triple_scores(coords, p0, p1, p2, score_kwargs)
-    _fill_scores(scores_cube, flat, p0, p1, p2, s)
+    _fast.fill_scores(scores_cube, flat, p0, p1, p2, s)
     rows = None  # the whole-sequence rows, built once for both uses below
     if track_kw is not None and track_kw["span"] > 1:  # the sequences scored whole only
         a_in, a_out, _ = _edge_ids(n, p0, p1, p2)
-        rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+        rows = _fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
         left, right, key = _fast.whole_sequences_from_rows(rows, p0.numel())
     else:
         a_in, a_out, left, right, key = _sequences(n, p0, p1, p2, s)
@@ -1592,10 +1592,10 @@ def _identify_sequences(
     accepted = torch.zeros(p0.numel(), dtype=torch.bool)
     if method == "paper":
         # each image point keeps its best sequence: centred on it if any, else one triple it ends
-        centre = _group_best(p1, key, n)
+        centre = _fast.group_best(p1, key, n)
         end_key = s.clone()
-        end_f = _group_best(p0, end_key, n)
-        end_b = _group_best(p2, end_key, n)
+        end_f = _fast.group_best(p0, end_key, n)
+        end_b = _fast.group_best(p2, end_key, n)
         for pick in (centre,):
             ok = (pick >= 0) & is_root
             sel = pick[ok]
@@ -1605,8 +1605,8 @@ def _identify_sequences(
         if shared_points:  # several sequences per image point (crossings; our reading)
             seq_kw = track_kw if track_kw is not None else {**score_kwargs, "span": 1}
             if rows is None or seq_kw is not track_kw:
-                rows = _whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
-            accepted |= _short_track_sequences(rows, p0, p1, p2, is_root)
+                rows = _fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, seq_kw)
+            accepted |= _fast.short_track_sequences(rows, p0, p1, p2, is_root)
         no_centre = (centre < 0) & is_root
         for pick in (end_f, end_b):
             sel = pick[no_centre & (pick >= 0)]

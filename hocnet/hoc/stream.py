@@ -45,11 +45,15 @@ from one push to the next (the image gains forward roots at ``n - 2k`` and loses
 at ``start + 2k``, besides the scans entering and leaving), and measured on a 640 x 512 sensor
 at 2 % clutter, order 2, 85 % of a window's candidate triples were in the previous window but
 only 6-8 % lie in connected groups of triples (the unit identification decides on) that are
-unchanged. It starts from what the cache holds: the candidate triples are the cached links
-of successive scans restricted to the window's candidates and joined scan by scan
-(:meth:`StreamingDetector._window_triples`; the batch call builds a padded index volume of the
-window and scans the cube for that), and its per-candidate loops are vectorised
-(:mod:`hocnet.hoc._incremental`; shared with ``detect``).
+unchanged. It starts from what the cache holds: the candidate triples are the cached
+first-layer triples of each root scan (the join of the full links, made once when the scan two
+later arrived) with all three points among the window's candidates
+(:meth:`StreamingDetector._window_triples_cached`; the same triples in the same order as
+joining the links restricted to the candidates, and as the batch call, which builds a padded
+index volume of the window and scans the cube for that), and its per-candidate loops are
+vectorised (:mod:`hocnet.hoc._incremental`, :mod:`hocnet.hoc._identify_fast`; shared with
+``detect``). The look-ups, joins and unions of a push work on NumPy views of the same buffers
+(the same integer results without torch's per-operation overhead).
 What still scales with the window's area: the float64 ``scores`` cube of the result (26 MB,
 NaN-filled, for 10 x 512 x 640) and the bool cubes of the result. Python's cyclic garbage
 collector is paused during a push (:func:`_gc_paused`). Measured on a 640 x 512 sensor:
@@ -67,6 +71,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
 import torch
 
 from hocnet._check import as_cube, check_choice, check_int, check_number
@@ -134,6 +139,11 @@ Edges = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 _NO_EDGES: Edges = (_EMPTY, _EMPTY, _EMPTY)
 
 
+def _tensors(*arrays: np.ndarray) -> Edges:
+    """NumPy int arrays as int64 tensors (no copy when they are int64 already)."""
+    return tuple(torch.from_numpy(np.ascontiguousarray(x, dtype=np.int64)) for x in arrays)
+
+
 class _Grid:
     """Neighbour look-up between two ``(H, W)`` scans through a reusable padded index image.
 
@@ -153,13 +163,20 @@ class _Grid:
         # move m = (j + v) * (2v + 1) + (i + v) for (i, j) = (dx, dy): kernels.move_offsets order
         self.offsets = (rng[:, None] * self.wp + rng[None, :]).reshape(-1)
         self.n_moves = self.offsets.numel()
+        # which padded pixels hold a point of the later scan, and every (2v + 1)^2 patch of it
+        # (a strided view: patch [y, x] is centred on pixel (y, x), its entries in move order)
+        self.present = np.zeros((h + 2 * v) * self.wp, dtype=bool)
+        side = 2 * v + 1
+        self.patches = np.lib.stride_tricks.sliding_window_view(
+            self.present.reshape(h + 2 * v, self.wp), (side, side)
+        )
 
     def reserve(self, n: int) -> None:
         """Make :meth:`join` accept point numbers below ``n`` (grows the slot image if needed)."""
         if n > self.slots.numel():
             self.slots = torch.full((n,), -1, dtype=torch.int64)
 
-    def _padded(self, points: torch.Tensor) -> torch.Tensor:
+    def _padded(self, points: np.ndarray) -> np.ndarray:
         return (points // self.w + self.v) * self.wp + points % self.w + self.v
 
     def edges(self, a: torch.Tensor, b: torch.Tensor) -> Edges:
@@ -175,28 +192,39 @@ class _Grid:
         """
         if a.numel() == 0 or b.numel() == 0:
             return _NO_EDGES
-        pos = self._padded(b)
-        self.image[pos] = torch.arange(b.numel(), dtype=torch.int32)
+        # NumPy views of the same buffers: the same reads and writes without torch's
+        # per-operation overhead (the order of ``nonzero`` is row-major in both)
+        image = self.image.numpy()
+        an, bn = a.numpy(), b.numpy()
+        pos = self._padded(bn)
+        image[pos] = np.arange(bn.size, dtype=np.int32)
+        self.present[pos] = True
         try:
-            nb = self.image[self._padded(a)[:, None] + self.offsets[None, :]]
-            row, move = (nb >= 0).nonzero(as_tuple=True)  # row-major: ascending row
-            return a[row], b[nb[row, move].long()], move
+            # each point's patch of the presence image (one strided copy per point), then the
+            # later scan's point numbers at the hits only
+            hit = self.patches[an // self.w, an % self.w].reshape(an.size, -1)
+            row, move = np.nonzero(hit)  # row-major: ascending row, then move
+            nb = image[self._padded(an)[row] + self.offsets.numpy()[move]]
+            return _tensors(an[row], bn[nb], move)
         finally:
-            self.image[pos] = -1
+            image[pos] = -1
+            self.present[pos] = False
 
     def member(self, x: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         """``(N,)`` bool: which of the flat indices ``x`` are among ``points`` (one frame)."""
-        self.flags[points] = True
+        flags = self.flags.numpy()
+        pts = points.numpy()
+        flags[pts] = True
         try:
-            return self.flags[x]
+            return torch.from_numpy(flags[x.numpy()])
         finally:
-            self.flags[points] = False
+            flags[pts] = False
 
     def restrict(self, edges: Edges, src_set: torch.Tensor, dst_set: torch.Tensor) -> Edges:
         """The edges with both ends in the given point sets; order kept."""
         src, dst, move = edges
-        keep = self.member(src, src_set) & self.member(dst, dst_set)
-        return src[keep], dst[keep], move[keep]
+        keep = (self.member(src, src_set) & self.member(dst, dst_set)).numpy()
+        return _tensors(src.numpy()[keep], dst.numpy()[keep], move.numpy()[keep])
 
     def join(self, first: Edges, second: Edges, allowed: torch.Tensor) -> Edges:
         """Accepted triples ``(p0, p1, p2)``: ``p0 -> p1`` in ``first``, ``p1 -> p2`` in ``second``.
@@ -212,38 +240,43 @@ class _Grid:
             ``(p0, p1, p2)``: ``(N,)`` int64 point numbers, one entry per accepted triple, sorted
             by ``p0`` when ``first`` is sorted by its source.
         """
-        a, b, m1 = first
-        b2, c, m2 = second
-        if a.numel() == 0 or b2.numel() == 0:
+        if first[0].numel() == 0 or second[0].numel() == 0:
             return _NO_EDGES
-        mids, counts = torch.unique_consecutive(b2, return_counts=True)
-        starts = torch.cumsum(counts, 0) - counts
-        self.slots[mids] = torch.arange(mids.numel())
+        a, b, m1 = (x.numpy() for x in first)
+        b2, c, m2 = (x.numpy() for x in second)
+        # runs of equal middle points in ``second`` (sorted by its source)
+        new = np.empty(b2.size, dtype=bool)
+        new[0] = True
+        np.not_equal(b2[1:], b2[:-1], out=new[1:])
+        starts = np.flatnonzero(new)
+        mids = b2[starts]
+        counts = np.diff(np.append(starts, b2.size))
+        slots = self.slots.numpy()
+        slots[mids] = np.arange(mids.size)
         try:
-            u = self.slots[b]  # the middle point's row in `mids`, -1 if it has no second move
+            u = slots[b]  # the middle point's row in `mids`, -1 if it has no second move
         finally:
-            self.slots[mids] = -1
+            slots[mids] = -1
         has = u >= 0
-        u = u.clamp(min=0)
+        u = np.maximum(u, 0)
         lo = starts[u]
-        fan = torch.where(has, counts[u], 0)  # second moves after each first move
-        ends = torch.cumsum(fan, 0)
+        fan = np.where(has, counts[u], 0)  # second moves after each first move
+        ends = np.cumsum(fan)
         total = int(ends[-1])
         if total == 0:
             return _NO_EDGES
-        # expand every first move into its second moves (measured, 18 000 slots: repeat_interleave
-        # of the counts 26 us, searchsorted of the slots in their cumulative sum 530 us)
-        f = torch.repeat_interleave(fan, output_size=total)
-        g = lo[f] + torch.arange(total) - (ends - fan)[f]
-        ok = allowed[m1[f], m2[g]]
+        # expand every first move into its second moves
+        f = np.repeat(np.arange(fan.size), fan)
+        g = lo[f] + np.arange(total) - (ends - fan)[f]
+        ok = allowed.numpy()[m1[f], m2[g]]
         f, g = f[ok], g[ok]
-        return a[f], b[f], c[g]
+        return _tensors(a[f], b[f], c[g])
 
     def reverse(self, edges: Edges) -> Edges:
         """The same pairs read the other way round in time (move ``-m``), sorted by source."""
-        src, dst, move = edges
-        order = torch.argsort(dst, stable=True)
-        return dst[order], src[order], self.n_moves - 1 - move[order]
+        src, dst, move = (x.numpy() for x in edges)
+        order = np.argsort(dst, kind="stable")
+        return _tensors(dst[order], src[order], self.n_moves - 1 - move[order])
 
 
 class _Direction:
@@ -339,7 +372,14 @@ def _identify_window(
 
 
 def _union(parts: list[torch.Tensor]) -> torch.Tensor:
-    return torch.unique(torch.cat(parts)) if len(parts) > 1 else parts[0]
+    """Sorted distinct values of the parts (``torch.unique`` of their concatenation)."""
+    if len(parts) == 1:
+        return parts[0]
+    x = np.sort(np.concatenate([p.numpy() for p in parts]))
+    keep = np.empty(x.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(x[1:], x[:-1], out=keep[1:])
+    return torch.from_numpy(x[keep])
 
 
 # ----------------------------------------------------------------------------- detector
@@ -492,7 +532,7 @@ class StreamingDetector:
             _Direction(1, self.order, self._scans),
             _Direction(-1, self.order, self._scans),
         )
-        self._previous: tuple[torch.Tensor, torch.Tensor, list[int]] | None = None
+        self._previous: tuple[np.ndarray, np.ndarray, list[int]] | None = None
         self._next_id = 1
 
     # ------------------------------------------------------------------------- input
@@ -707,9 +747,12 @@ class StreamingDetector:
         h, w = self._shape
         hw = h * w
         n_t = self.window
-        links = [self._dirs[0].links.get(start + t, _NO_EDGES) for t in range(n_t - 1)]
         sizes = [int(p.numel()) for p in points]
         flat = torch.cat([p + t * hw for t, p in enumerate(points)])
+        cached = self._dirs[0].triples[1]
+        if all(start + t in cached for t in range(n_t - 2)):
+            return (flat, *self._window_triples_cached(start, points, sizes))
+        links = [self._dirs[0].links.get(start + t, _NO_EDGES) for t in range(n_t - 1)]
         # the links' ends as candidate numbers (their rank in `flat`, -1: not a candidate), one
         # scan at a time through the grid's slot image: no search over the window's candidates
         slots = self._grid.slots
@@ -736,6 +779,43 @@ class StreamingDetector:
         parts = [self._grid.join(pairs[t], pairs[t + 1], self._allowed) for t in range(n_t - 2)]
         p0, p1, p2 = (torch.cat([part[i] for part in parts]) for i in range(3))
         return flat, p0, p1, p2
+
+    def _window_triples_cached(
+        self, start: int, points: list[torch.Tensor], sizes: list[int]
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(p0, p1, p2)`` of :meth:`_window_triples` from the cached first-layer triples.
+
+        The forward triples of ``Y^(1)`` rooted at each scan (``triples[1]``, cached when the
+        scan two later arrived) are the join of the full links, sorted by first point, first
+        move, second move; those with all three points among the window's candidates are the
+        join of the links restricted to the candidates (same triples, same order). Each scan's
+        candidates are numbered through the grid's slot image once (NumPy views, no search),
+        and every triple end lying in that scan is read there.
+        """
+        n_t = self.window
+        cached = [self._dirs[0].triples[1][start + t] for t in range(n_t - 2)]
+        ends = [[part.numpy() for part in tri] for tri in cached]
+        slots = self._grid.slots.numpy()
+        mapped: list[list[np.ndarray]] = [[np.empty(0, np.int64)] * 3 for _ in cached]
+        first = 0
+        for t, p in enumerate(points):
+            pix = p.numpy()
+            slots[pix] = np.arange(first, first + sizes[t])
+            try:
+                for j in range(3):  # the triples rooted at t - j hold their point j here
+                    r = t - j
+                    if 0 <= r < n_t - 2:
+                        mapped[r][j] = slots[ends[r][j]]
+            finally:
+                slots[pix] = -1
+            first += sizes[t]
+        out: list[list[np.ndarray]] = [[], [], []]
+        for a, b, c in mapped:
+            keep = (a >= 0) & (b >= 0) & (c >= 0)
+            for j, x in enumerate((a, b, c)):
+                out[j].append(x[keep])
+        p0, p1, p2 = (torch.from_numpy(np.concatenate(parts)) for parts in out)
+        return p0, p1, p2
 
     def _window_cube(self, start: int, trees: bool) -> torch.Tensor:
         """A ``(window, H, W)`` cube of the window starting at absolute scan ``start``.
@@ -850,28 +930,33 @@ class StreamingDetector:
         """
         h, w = self._shape
         if tracks:
-            pts = torch.cat([tr.points for tr in tracks])
+            pts = torch.cat([tr.points for tr in tracks]).numpy()
             keys = ((pts[:, 0] + start) * h + pts[:, 1]) * w + pts[:, 2]
-            labels = torch.repeat_interleave(
-                torch.arange(len(tracks)), torch.tensor([len(tr) for tr in tracks])
-            )
+            sizes = np.fromiter(map(len, tracks), dtype=np.int64, count=len(tracks))
+            labels = np.repeat(np.arange(len(tracks)), sizes)
         else:
-            keys = labels = _EMPTY
+            keys = labels = np.zeros(0, dtype=np.int64)
         ids: list[int] = []
         if self._previous is not None and self._previous[2] and tracks:
             prev_keys, prev_labels, prev_ids = self._previous
-            lo = torch.searchsorted(prev_keys, keys)
-            hi = torch.searchsorted(prev_keys, keys, right=True)
+            lo = np.searchsorted(prev_keys, keys, side="left")
+            hi = np.searchsorted(prev_keys, keys, side="right")
             count = hi - lo
-            rows = torch.repeat_interleave(labels, count)
-            offset = torch.repeat_interleave(lo - (torch.cumsum(count, 0) - count), count)
-            cols = prev_labels[torch.arange(rows.numel()) + offset]
+            rows = np.repeat(labels, count)
+            offset = np.repeat(lo - (np.cumsum(count) - count), count)
+            cols = prev_labels[np.arange(rows.size) + offset]
             n_prev = len(prev_ids)
-            pair, overlap = torch.unique(rows * n_prev + cols, return_counts=True)
+            pair = np.sort(rows * n_prev + cols)
+            first = np.empty(pair.size, dtype=bool)
+            first[:1] = True
+            np.not_equal(pair[1:], pair[:-1], out=first[1:])
+            at = np.flatnonzero(first)
+            overlap = np.diff(np.append(at, pair.size))  # points shared by each pair of tracks
+            pair = pair[at]
             cur, prev = pair // n_prev, pair % n_prev
             # candidates of each track: largest overlap first, then the earlier previous track
-            most = int(overlap.max()) if overlap.numel() else 0
-            order = torch.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
+            most = int(overlap.max()) if overlap.size else 0
+            order = np.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
             candidates: dict[int, list[int]] = {}
             for i, j in zip(cur[order].tolist(), prev[order].tolist(), strict=True):
                 candidates.setdefault(i, []).append(j)
@@ -887,7 +972,7 @@ class StreamingDetector:
             ids = [self._new_id() for _ in tracks]
         for tr, i in zip(tracks, ids, strict=True):
             tr.id = i
-        order = torch.argsort(keys)
+        order = np.argsort(keys, kind="stable")
         self._previous = (keys[order], labels[order], ids)
 
     def _new_id(self) -> int:

@@ -191,6 +191,10 @@ def _unwired() -> SimpleNamespace:
         best_paths=ident._best_paths,
         pairs=ident._pairs,
         whole_sequences_from_rows=whole_sequences_from_rows,
+        whole_sequence_rows=ident._whole_sequence_rows,
+        fill_scores=ident._fill_scores,
+        group_best=ident._group_best_sorted,
+        short_track_sequences=ident._short_track_sequences,
     )
 
 
@@ -248,3 +252,129 @@ def test_pairs_equals_identify(seed):
         assert want[0].numel() > 0
         for g, w in zip(fast.pairs(keys, queries), want, strict=True):
             assert torch.equal(g, w)
+
+
+KW_VARIANTS = [
+    {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "min"},
+    {"A1": 9.0, "alpha1": 0.5, "A2": 2.356, "alpha2": 1.91, "combine": "mean"},
+    {"A1": 7.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "sum"},
+    {"A1": 9.0, "alpha1": 1 / 3, "A2": 2.12, "alpha2": 2.0, "combine": "movement"},
+]
+
+
+def _same_bits(a: torch.Tensor, b: torch.Tensor) -> bool:
+    return a.dtype == b.dtype and torch.equal(a.view(torch.int64), b.view(torch.int64))
+
+
+@pytest.mark.parametrize("kw", KW_VARIANTS)
+def test_score_table_equals_point_score(kw):
+    """Every half-pixel move pair read from the table == `point_score` called on it, bit for bit."""
+    from hocnet.hoc.scoring import point_score
+
+    gen = torch.Generator().manual_seed(0)
+    h1 = torch.randint(-8, 9, (3000, 2), generator=gen)
+    h2 = torch.randint(-8, 9, (3000, 2), generator=gen)
+    got = fast.half_move_scores(h1.numpy(), h2.numpy(), kw)
+    m1, m2 = h1.double() / 2, h2.double() / 2  # columns (y, x)
+    want = point_score(m1[:, 1], m1[:, 0], m2[:, 1], m2[:, 0], **kw)
+    assert _same_bits(torch.from_numpy(got), want)
+    # one by one (no batch at all) as well
+    for i in range(0, 3000, 150):
+        one = point_score(m1[i, 1], m1[i, 0], m2[i, 1], m2[i, 0], **kw)
+        assert float(one) == float(got[i])
+    too_far = h1.numpy().copy()
+    too_far[0, 0] = fast.TABLE_REACH + 1
+    assert fast.half_move_scores(too_far, h2.numpy(), kw) is None  # the caller scores directly
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("v", [3, 9])  # v = 9: moves beyond the table, the reference runs
+def test_whole_sequence_rows_equal_identify(seed, v):
+    _, p0, p1, p2, _, a_in, a_out, coords, _, _ = _scene(seed, density=0.05, v=v, size=30)
+    assert p0.numel() > 0
+    for kw in KW_VARIANTS:
+        for span in (1, 2, 3):
+            track_kw = {**kw, "span": span}
+            want = ident._whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+            got = fast.whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, track_kw)
+            for g, w in zip(got[:3], want[:3], strict=True):
+                assert torch.equal(g, w) and g.dtype == w.dtype
+            assert _same_bits(got[3], want[3])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fill_scores_equals_identify(seed):
+    flat, p0, p1, p2, s, *_ = _scene(seed, density=0.06)
+    size = 8 * 24 * 24
+    for values in (s, torch.full_like(s, 3.0)):  # ties too
+        want = torch.full((size,), math.nan, dtype=torch.float64)
+        got = want.clone()
+        want[flat[:5]] = 1.5  # points already holding a score keep it
+        got[flat[:5]] = 1.5
+        ident._fill_scores(want, flat, p0, p1, p2, values)
+        fast.fill_scores(got, flat, p0, p1, p2, values)
+        assert _same_bits(got, want)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_group_best_equals_identify(seed):
+    gen = torch.Generator().manual_seed(seed)
+    n = int(torch.randint(1, 60, (1,), generator=gen))
+    groups = torch.randint(0, 40, (n,), generator=gen)
+    for key in (
+        torch.randint(0, 4, (n,), generator=gen).double(),  # many ties
+        torch.rand(n, generator=gen, dtype=torch.float64),
+        torch.where(torch.rand(n, generator=gen) < 0.3, -math.inf, 1.0).double(),
+    ):
+        want = ident._group_best_sorted(groups, key, 45)
+        assert torch.equal(fast.group_best(groups, key, 45), want)
+        assert torch.equal(ident._group_best(groups, key, 45), want)
+    nan_key = torch.tensor([1.0, math.nan] * (n // 2) + [0.5] * (n % 2), dtype=torch.float64)
+    assert torch.equal(fast.group_best(groups, nan_key, 45), ident._group_best(groups, nan_key, 45))
+    empty = torch.zeros(0, dtype=torch.long)
+    assert torch.equal(fast.group_best(empty, empty.double(), 3), torch.full((3,), -1))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_short_track_sequences_equals_identify(seed):
+    flat, p0, p1, p2, _, a_in, a_out, coords, kw, gen = _scene(seed, density=0.06)
+    rows = ident._whole_sequence_rows(a_in, a_out, p0, p1, p2, coords, {**kw, "span": 2})
+    for frac in (1.0, 0.7, 0.4):
+        is_root = torch.rand(flat.numel(), generator=gen) < frac
+        want = ident._short_track_sequences(rows, p0, p1, p2, is_root)
+        got = fast.short_track_sequences(rows, p0, p1, p2, is_root)
+        assert torch.equal(got, want)
+    assert bool(want.any())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_path_list_groups_hold_the_chains(seed):
+    """`PathList.groups` are the chains of the list, per length, in list order."""
+    _, p0, p1, p2, s, a_in, a_out, coords, _, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.8
+    paths, capped = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    assert not capped and isinstance(paths, fast.PathList) and paths
+    seen = {}
+    for index, tri in paths.groups:
+        assert list(index) == sorted(index)
+        for i, row in zip(index.tolist(), tri.tolist(), strict=True):
+            seen[i] = row
+    assert [seen[i] for i in range(len(paths))] == list(paths)
+    # the same scores from the plain list (groups rebuilt from the lists)
+    for span in (None, 2, 3):
+        kw = None if span is None else {**KW_VARIANTS[0], "span": span}
+        args = (p0, p1, p2, s, coords, 4, kw, 2.0)
+        got = fast.score_paths_passing(paths, *args)
+        assert got == fast.score_paths_passing(list(paths), *args)
+        assert got  # paths pass: the comparison is not vacuous
+
+
+def test_best_paths_non_finite_scores_use_the_reference():
+    flat, p0, p1, p2, s, a_in, a_out, *_ = _scene(1, density=0.08)
+    n = flat.numel()
+    points = torch.ones(n, dtype=torch.bool)
+    for bad in (math.nan, math.inf):
+        s2 = s.clone()
+        s2[::7] = bad
+        args = (n, p0, p1, p2, s2, a_in, a_out, 8, 2.5, 5, points)
+        assert fast.best_paths(*args) == ident._best_paths(*args)

@@ -523,6 +523,29 @@ class TestLatencyPathsEqualBatch:
             checked += int(got[1].numel() > 0)
         assert checked > 0
 
+    @pytest.mark.parametrize("order", [1, 2, 3])
+    def test_window_triples_cached_equal_joined_links(self, order):
+        """The cached first-layer triples, filtered == the restricted links, joined."""
+        cube = _clutter_with_targets(12, 36, 40, 0.03, 5)
+        det = StreamingDetector(window=2 * order + 3, stride=1, order=order)
+        checked = 0
+        for t in range(cube.shape[0]):
+            if det.push(cube[t]) is None:
+                continue
+            start = det.pushed - det.window
+            points = det._window_points(start, trees=True)
+            got = det._window_triples(start, points)
+            cached = det._dirs[0].triples[1]
+            det._dirs[0].triples[1] = {}  # not cached: the links are joined
+            try:
+                want = det._window_triples(start, points)
+            finally:
+                det._dirs[0].triples[1] = cached
+            for g, w in zip(got, want, strict=True):
+                assert torch.equal(g, w)
+            checked += int(got[1].numel() > 0)
+        assert checked > 0
+
     @pytest.mark.parametrize("seed", range(40))
     def test_enumerate_paths_vectorised_equals_loop(self, seed):
         from hocnet.hoc._incremental import enumerate_paths_vectorised
