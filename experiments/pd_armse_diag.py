@@ -80,6 +80,7 @@ def run_seed(seed: int, type_tracking: bool, config: PDTrackerConfig | None = No
         n_scan=cfg.n_scan,
         merge_scans=cfg.merge_scans,
         type_term=cfg.type_term if type_tracking else None,
+        section_distance=cfg.section_distance,
     )
     rng = np.random.default_rng(seed)
     scans = report_scans(sc.reports, gmti)

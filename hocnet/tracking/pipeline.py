@@ -275,6 +275,10 @@ class PDTrackerConfig:
             0.01 / 0.01 as :func:`~hocnet.tracking.vsimm.vsimm_section_sprt`: ``B = 99``, the
             one-step ``junction_accept``).
 
+        section_distance: the MHT's ``section_distance`` (m): the road-section exception of
+            the N-scan pruning keeps another section's best leaf of a family only within this
+            distance of the family's leaf in the best hypothesis (``None``: any distance).
+
     ``merge_scans`` (3) merges duplicate leaves of one target tree (the MHT's merge once grouped
     leaves of *different* families and emptied the convoy's cluster during an overtaking; fixed
     in :mod:`hocnet.tracking.mht`, the pipeline had run with merging off).
@@ -314,6 +318,7 @@ class PDTrackerConfig:
     junction_test: str = "one-step"
     junction_alpha: float = 0.01
     junction_beta: float = 0.01
+    section_distance: float | None = None
     vsimm: VSIMMConfig = field(init=False)
 
     def __post_init__(self) -> None:
@@ -1291,6 +1296,7 @@ def run_pd_tracker(
         n_scan=cfg.n_scan,
         merge_scans=cfg.merge_scans,
         type_term=cfg.type_term if type_tracking else None,
+        section_distance=cfg.section_distance,
     )
     rng = np.random.default_rng(seed)
     scans = report_scans(scenario.reports, gmti)
