@@ -1412,7 +1412,9 @@ def vsimm_oosm(
     ``Q(k, tau)`` over ``t_k - tau`` (``config.noise``) with the mode's last acceleration
     covariance, the A1 retrodiction (:mod:`hocnet.tracking.oosm`), the retrodiction projected on
     the segment of the section nearest to the retrodicted position (24.14-24.16, "retrodiction
-    done on the road"), the A1 update of ``x(k|k)``, the projection of the result on the mode's
+    done on the road"; a retrodiction behind the junction the mode passed after ``tau`` is first
+    carried back onto the segment it came from, :func:`_retro_junction`), the A1 update of
+    ``x(k|k)``, the projection of the result on the mode's
     current segment, and the mode probabilities ``mu_i ∝ mu_i Lambda_i(tau)`` with the
     PD-aware likelihoods of 24.30-24.31 (the IMM-OOSM of Bar-Shalom and Chen, the chapter's [3],
     in its simplest form: mode probabilities at ``t_k`` re-weighted; our reading). With the

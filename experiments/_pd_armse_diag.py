@@ -5,7 +5,7 @@ sample of a confirmed track, what the tracker was doing: scan kind, stop-mode pr
 since the last detection, the road section, the target of the current leaf's measurement and of
 the final history. Writes a pickle of the samples and prints the worst contributors to the ARMSE.
 
-Run: ``python experiments/pd_armse_diag.py --seeds 2400-2409 --jobs 2 [--pcr5] [--out F]``.
+Run: ``python experiments/_pd_armse_diag.py --seeds 2400-2409 --jobs 2 [--pcr5] [--out F]``.
 """
 
 from __future__ import annotations
