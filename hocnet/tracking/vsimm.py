@@ -1502,7 +1502,9 @@ def vsimm_oosm(
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
-    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    new, ll_out, mode_ll = _oosm_finish(
+        state, r0, zt, det, sensor, net, config, back_across_junction=True
+    )
     return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
 
 
@@ -1590,8 +1592,14 @@ def _oosm_finish(
     sensor: Any,
     net: RoadNetwork,
     config: VSIMMConfig,
+    back_across_junction: bool = False,
 ) -> tuple[VSIMMState, torch.Tensor, torch.Tensor]:
     """The common end of :func:`vsimm_oosm` and ``_vsimm_oosm_lag`` after the retrodiction.
+
+    ``back_across_junction``: first carry a one-step A1 retrodiction (a straight
+    back-extrapolation along the current segment) back across a junction passed after ``tau``
+    (:func:`_retro_junction`); not for the lag memory's RTS, which undoes the junction rotation
+    through its stored steps already.
 
     The retrodiction ``r0`` projected on the segment of the section nearest to it (24.14-24.16,
     "retrodiction done on the road"), the OOSM update of ``x(k|k)`` (:func:`_apply`), its
@@ -1604,7 +1612,8 @@ def _oosm_finish(
     m = sensor.dim
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
-    r0 = _retro_junction(state, r0, loc.segment, net, config)
+    if back_across_junction:
+        r0 = _retro_junction(state, r0, loc.segment, net, config)
     on = state.segment >= 0
     D, L = net.constraint(loc.segment)
     xs, A = _projection(r0.x, r0.P, D, L)
