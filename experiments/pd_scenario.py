@@ -128,9 +128,10 @@ PARAMETER_NOTES = {
     "tracks still coasted up to 1.2 km from their target and dominated the ARMSE.",
     "junction_hypotheses / junction_accept / junction_other_kind": "ours (24.38-24.40 inside a "
     "leaf): past a junction every other road section leaving it is predicted too; gating on "
-    "their mixture, the score with the mixture likelihood, the leaf moves to a branch when its "
-    "posterior is 99 times the nearest segment's ((1 - beta) / alpha of the section SPRT, "
-    "0.01 / 0.01), Omega 1 to a road of the same class and 0.2 to another. Without it a "
+    "their mixture, the score with the mixture likelihood, Omega 1 to a road of the same "
+    "class and 0.2 to another; the branch is decided by junction_test (junction_accept = 99, "
+    "(1 - beta) / alpha of the section SPRT at 0.01 / 0.01, is the one-step test's bound, "
+    "unused by 'sprt'). Without it a "
     "target turning at a junction was predicted straight on, its report fell outside the gate "
     "and the track coasted on the stop model (seed 2400, target 6, t = 680 s).",
     "junction_test": "'sprt': the chapter's multi-scan section test (24.38-24.40, each branch "
