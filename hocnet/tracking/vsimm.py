@@ -1419,7 +1419,9 @@ def vsimm_oosm(
     ``Q(k, tau)`` over ``t_k - tau`` (``config.noise``) with the mode's last acceleration
     covariance, the A1 retrodiction (:mod:`hocnet.tracking.oosm`), the retrodiction projected on
     the segment of the section nearest to the retrodicted position (24.14-24.16, "retrodiction
-    done on the road"), the A1 update of ``x(k|k)``, the projection of the result on the mode's
+    done on the road"; a retrodiction behind the junction the mode passed after ``tau`` is first
+    carried back onto the segment it came from, :func:`_retro_junction`), the A1 update of
+    ``x(k|k)``, the projection of the result on the mode's
     current segment, and the mode probabilities ``mu_i ∝ mu_i Lambda_i(tau)`` with the
     PD-aware likelihoods of 24.30-24.31 (the IMM-OOSM of Bar-Shalom and Chen, the chapter's [3],
     in its simplest form: mode probabilities at ``t_k`` re-weighted; our reading). With the
@@ -1509,7 +1511,9 @@ def vsimm_oosm(
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
     r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
-    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    new, ll_out, mode_ll = _oosm_finish(
+        state, r0, zt, det, sensor, net, config, back_across_junction=True
+    )
     return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
 
 
@@ -1572,6 +1576,45 @@ def _oosm_result(
     return new, VSIMMUpdate(ll_out, mode_ll)
 
 
+def _retro_junction(
+    state: VSIMMState,
+    r0: Retrodiction,
+    seg_tau: torch.Tensor,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+) -> Retrodiction:
+    """Carry a retrodiction back across the junction the mode passed after ``tau`` (ours).
+
+    The A1 retrodiction extrapolates ``x(k|k)`` backwards with the constant velocity of the
+    mode's current segment. When the target crossed a junction between ``tau`` and ``t_k`` the
+    back-extrapolated position lies on the straight extension of the current segment behind the
+    node, and its covariance (constrained to the current segment) has no across-road spread:
+    the projection on the segment located at ``tau`` (24.14-24.16) then moves it *along the
+    current segment* to the node, with zero variance, and the report's likelihood collapses
+    (issue 12: a UGS report 9 m from the target got ``ln Lambda = -32`` against ``-11`` for the
+    stop mode 35 m away; every moving mode lost its probability and the track stopped at the
+    junction, seed 2405, target 2, t = 563 s). The backward counterpart of
+    :func:`junction_transition`: positions rotate about the shared node and velocities by the
+    angle between the two segments (the distance travelled and the speed are kept), covariance
+    ``T P T'`` and cross covariance ``C T'``; rows / modes not behind a node shared by the two
+    segments are unchanged. ``config.junction != "rotate"`` keeps the former behaviour.
+    """
+    if config.junction != "rotate" or not state.mu.numel():
+        return r0
+    moving = torch.tensor([k == "road" for k in config.kinds]).view(1, -1)
+    seg_k = state.segment
+    cand = moving & (seg_k >= 0) & (seg_tau >= 0) & (seg_k != seg_tau)
+    if not bool(cand.any()):
+        return r0
+    flip = torch.tensor([1.0, -1.0, 1.0, -1.0], dtype=DTYPE)
+    new = torch.where(cand, seg_tau, seg_k)
+    T, b = junction_transition(net, seg_k, new, state.x * flip, r0.x * flip, moving)
+    x = (T @ r0.x.unsqueeze(-1)).squeeze(-1) + b
+    Tt = T.transpose(-1, -2)
+    P = T @ r0.P @ Tt
+    return Retrodiction(x, 0.5 * (P + P.transpose(-1, -2)), r0.C @ Tt)
+
+
 def _oosm_finish(
     state: VSIMMState,
     r0: Retrodiction,
@@ -1580,8 +1623,14 @@ def _oosm_finish(
     sensor: Any,
     net: RoadNetwork,
     config: VSIMMConfig,
+    back_across_junction: bool = False,
 ) -> tuple[VSIMMState, torch.Tensor, torch.Tensor]:
     """The common end of :func:`vsimm_oosm` and ``_vsimm_oosm_lag`` after the retrodiction.
+
+    ``back_across_junction``: first carry a one-step A1 retrodiction (a straight
+    back-extrapolation along the current segment) back across a junction passed after ``tau``
+    (:func:`_retro_junction`); not for the lag memory's RTS, which undoes the junction rotation
+    through its stored steps already.
 
     The retrodiction ``r0`` projected on the segment of the section nearest to it (24.14-24.16,
     "retrodiction done on the road"), the OOSM update of ``x(k|k)`` (:func:`_apply`), its
@@ -1594,6 +1643,8 @@ def _oosm_finish(
     m = sensor.dim
     allowed = net.section_mask(state.section).unsqueeze(1)
     loc = net.locate(r0.x, allowed=allowed)
+    if back_across_junction:
+        r0 = _retro_junction(state, r0, loc.segment, net, config)
     on = state.segment >= 0
     D, L = net.constraint(loc.segment)
     xs, A = _projection(r0.x, r0.P, D, L)

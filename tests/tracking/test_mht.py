@@ -247,6 +247,24 @@ class TestPruning:
         assert max(len({k for k, _ in v}) for v in fam_plain.values()) == 1
         assert max(len({k for k, _ in v}) for v in fam_road.values()) >= 2
 
+        # section_distance: the other section's branch is kept only near the family's best leaf
+        # (the two branches here are about 1.6 apart)
+        counts = {}
+        for dist in (0.5, 100.0):
+            mht = make_mht(
+                filter=SectionCV(0.1, 3.0),
+                n_scan=1,
+                merge_scans=0,
+                n_hypotheses=50,
+                section_distance=dist,
+            )
+            for z in scans:
+                mht.step(torch.from_numpy(z))
+            counts[dist] = max(len({k for k, _ in v}) for v in sections_of_family(mht).values())
+        assert counts == {0.5: 1, 100.0: 2}
+        with pytest.raises(ValueError, match="section_distance"):
+            make_mht(section_distance=-1.0)
+
     def test_merging_removes_duplicates(self) -> None:
         starts = [(40.0, 40.0, 4.0, 4.0)]
         scans, _ = simulate(starts, 15, pd=1.0, clutter=0, sigma=0.5, seed=0)

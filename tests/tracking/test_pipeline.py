@@ -371,14 +371,14 @@ def test_sprt_junction_test_against_a_loop_reference():
     assert float(lmu2[1] - lmu2[0]) > float(lmu1[1] - lmu1[0])  # the evidence accumulates
 
 
-def test_junction_test_one_step_equals_the_default(short):
+def test_junction_test_sprt_equals_the_default(short):
     a = run_pd_tracker(short, type_tracking=False)
-    b = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="one-step"))
+    b = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="sprt"))
     assert a.tracks.keys() == b.tracks.keys() and a.junction_switches == b.junction_switches
     for k in a.tracks:
         for name in ("times", "positions", "truth_ids", "types"):
             np.testing.assert_array_equal(getattr(a.tracks[k], name), getattr(b.tracks[k], name))
-    c = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="sprt"))
+    c = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_test="one-step"))
     assert c.tracks and all(np.isfinite(tr.positions).all() for tr in c.tracks.values())
 
 
