@@ -173,7 +173,7 @@ def option_kind(
         path = hoc_file(draw, folder) if method == "hoc" else dpa_file(draw, folder)
         value = draw(values)
         argv = ["detect", str(path), "--method", method, flag, str(value), *out_of(folder)]
-        return argv, expect or f"^hocnet: error: (argument )?{re.escape(flag)}"
+        return argv, expect or f"^hocnet: error: (argument |\\d+ problems: )?{re.escape(flag)}"
 
     return Kind(name, build)
 
