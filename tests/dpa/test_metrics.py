@@ -836,3 +836,95 @@ class TestMaxNumbersScene:
         mean = max_numbers_curves("pixel", 0.0).mean(dim=0)
         assert float(mean[2]) > 1.15 * float(mean[0]), mean
         assert float(mean[1]) < float(mean[2]) <= float(mean.max()) < 1.05 * float(mean[2]), mean
+
+
+# ----------------------------------------------------------------------------- Max_Numbers peak
+
+PEAK_SEEDS = tuple(range(40))
+"""Seeds of :class:`TestMaxNumbersPeak` (g = 0 uses all 40, g = 1 the first 20)."""
+PEAK_SNR = 12.0
+"""Peak / noise std of the one-pixel target of :class:`TestMaxNumbersPeak` (21.6 dB)."""
+
+
+@functools.cache
+def mn_peak_scene() -> tuple[torch.Tensor, torch.Tensor]:
+    """Whitened frames ``(40, 25, 90, 240)`` and truth ``(40, 25, 2)``: NA23A s_n = 4, peak 12."""
+    seqs = [
+        na23a_like(shape=(97, 90, 240), snr_db=20.0 * math.log10(PEAK_SNR), psf="pixel", seed=seed)
+        for seed in PEAK_SEEDS
+    ]
+    frames = anti_mean(torch.stack([q.frames[::4] for q in seqs]))
+    return frames, torch.stack([q.positions[0, ::4] for q in seqs])
+
+
+@functools.cache
+def mn_peak_curves(g: float) -> torch.Tensor:
+    """``(n, 7)`` float64 A_S (mean of the last 6 frames), Max_Numbers 1..7, on mn_peak_scene.
+
+    ``n`` = 40 seeds for g = 0 (b = 4.8), the first 20 for g = 1 (b = 0.8).
+    """
+    frames, truth = mn_peak_scene()
+    n = len(PEAK_SEEDS) if g == 0.0 else 20
+    frames, truth = frames[:n], truth[:n]
+    asf = accumulate(frames, probability_matrices(5, v_max=1.0), {0.0: 4.8, 1.0: 0.8}[g], g).asf
+    curves = [
+        algorithm_score(asf, truth, last=6, block=(30, 80), max_numbers=m) for m in range(1, 8)
+    ]
+    return torch.stack(curves, dim=1).double()
+
+
+def paired_margin(curves: torch.Tensor, best: int, other: int) -> tuple[float, float]:
+    """Mean and standard error over the seeds of ``A_S(best) - A_S(other)`` (0-based columns)."""
+    diff = curves[:, best] - curves[:, other]
+    return float(diff.mean()), float(diff.std()) / math.sqrt(diff.numel())
+
+
+class TestMaxNumbersPeak:
+    """A_S peaks at Max_Numbers 3 for g = 0 and at 1 for g = 1 on one scene ([NR08] Table 2).
+
+    The scene: NA23A as in section 3.2.1(2)-(3) of [NR08] (one target moving right to left at
+    0.3 px/frame in clear sky, every 4th frame kept: s_n = 4, 1.2 px/frame, 25 frames, 30 x 80
+    blocks, U[-0.5, 0.5] px jitter, anti-mean whitening, 5 x 5 matrices, b = 4.8 for g = 0 and
+    0.8 for g = 1, A_S the mean of the last six frames) with two choices of ours: the one-pixel
+    target (``psf="pixel"``) and a peak of 12 x the noise std, not Table 2's ~60.
+
+    The g = 0 peak at 3 is small and set by the target's SNR, not by a 3-pixel footprint
+    (``experiments/dpa_max_numbers.py``, ``experiments/results/dpa-max-numbers.md``): the last
+    ASF at g = 0 holds the target, its trail (a pixel the target left keeps about
+    b max(w(9)) = 0.83 of its score per frame) and its neighbours, decaying without an edge
+    after 3 pixels; A_S rises with Max_Numbers while the mean of the highest target-block pixels
+    falls more slowly than the spread of the non-target SNRs, so the argmax moves with the peak
+    SNR (one-pixel target, experiment seeds: 4-5 at peaks 20-60, 3-4 at 15 (flat), 3 at
+    10-13, 2 at 8; the presets' 0.7 px Gaussian: 4-7 at every peak). At Table 2's 60 the
+    curve is flat beyond 3 (``TestMaxNumbersScene.test_g0_knee_at_three``). At 20 seeds the
+    margins are about one standard error and hold on some seed sets only, hence 40 seeds here
+    (the experiment: 60 seeds 8000-8059 at peak 12 give A(3) - A(2) = 0.75 ± 0.20 and
+    A(3) - A(4) = 0.35 ± 0.18).
+
+    Measured (mean ± standard error over the seeds, Max_Numbers 1..7):
+
+    g = 0, b = 4.8, seeds 0-39 (argmax 3; 16 of the 40 seeds have their own argmax at 3):
+        25.09 ± 0.68  28.03 ± 0.72  28.58 ± 0.74  27.94 ± 0.72  27.13 ± 0.70  26.38 ± 0.70
+        25.79 ± 0.70
+        paired margins (per seed): A(3) - A(2) = 0.55 ± 0.21, A(3) - A(4) = 0.65 ± 0.17, i.e.
+        2.6 and 3.8 standard errors (asserted: > 2). They are smaller than the standard errors
+        of the values themselves (~0.7): A_S moves from seed to seed by a common level, so the
+        margins are taken per seed.
+    g = 1, b = 0.8, seeds 0-19 (argmax 1 in every seed):
+        32.00 ± 0.86  20.96 ± 0.65  16.53 ± 0.57  14.07 ± 0.47  12.40 ± 0.40  11.22 ± 0.38
+        10.28 ± 0.38
+        A(1) - A(2) = 11.04 ± 0.40 (asserted: > 10 standard errors).
+    """
+
+    def test_g0_peaks_at_three(self):
+        curves = mn_peak_curves(0.0)
+        assert int(curves.mean(dim=0).argmax()) == 2, curves.mean(dim=0)
+        for other in (1, 3):
+            margin, se = paired_margin(curves, 2, other)
+            assert margin > 2 * se, (other + 1, margin, se)
+
+    def test_g1_peaks_at_one(self):
+        curves = mn_peak_curves(1.0)
+        assert (curves.argmax(dim=1) == 0).all(), curves
+        margin, se = paired_margin(curves, 0, 1)
+        assert margin > 10 * se, (margin, se)
