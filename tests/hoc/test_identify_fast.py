@@ -109,10 +109,11 @@ def test_near_duplicate_asks_only_tracks_sharing_a_point(seed):
         near = [kept[i] for i in fast.kept_sharing_a_point(cand, kept_at)]
         for max_diff in (1, 2, 3):
             for explained in (False, True):
-                args = (scan_of, image, xy, max_diff, covered, explained)
-                want = ident._is_near_duplicate(cand, kept, *args)
-                assert ident._is_near_duplicate(cand, near, *args) == want
-                answers.append(want)
+                for residual in ident.RESIDUAL:
+                    args = (scan_of, image, xy, max_diff, covered, explained, False, residual)
+                    want = ident._is_near_duplicate(cand, kept, *args)
+                    assert ident._is_near_duplicate(cand, near, *args) == want
+                    answers.append(want)
     assert any(answers) and not all(answers)
 
 
@@ -216,6 +217,9 @@ DETECT_SETTINGS = [
     {"score_span": 1, "shared_points": False, "dedupe": False, "track_ends": False},
     {"dedupe": 1},
     {"max_candidates": 40},
+    {"residual": "two-point"},
+    {"residual": "lsq"},
+    {"residual": "both"},
 ]
 
 
