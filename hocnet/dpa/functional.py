@@ -685,10 +685,11 @@ def accumulate(
           trail; ``b`` = 2.34 or 0 lifts 1 px/frame from 0.40 to about 0.8, whereas ``p = 0``,
           ``W(d)`` in eq. (7) or ``direction_step="source"`` (which does not use ``w_basic``)
           leave it at 0.41-0.44. At the paper's 30 and 60 x the noise the same paper DPA stays
-          on the truth in >= 0.9 of the frames up to 1.5 px/frame (README, *Target speed*). The product is also multiplicative: with
-          whitened (negative) ASF values a larger ``Var`` makes the score more negative. Both
-          are the paper's eq. (7) as printed; ``direction_step="source"`` tracks faster
-          targets better with ``g = 1`` (README, DPA results).
+          on the truth in >= 0.9 of the frames up to 1.5 px/frame (README, *Target speed*).
+          The product is also multiplicative: with whitened (negative) ASF values a larger
+          ``Var`` makes the score more negative. Both are the paper's eq. (7) as printed;
+          ``direction_step="source"`` tracks faster targets better with ``g = 1`` (README, DPA
+          results).
 
     Args:
         frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``, finite, float (integer
