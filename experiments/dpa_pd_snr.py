@@ -22,15 +22,17 @@ detected when ``hocnet.dpa.detect`` (CFAR threshold, NMS radius 3, at most 10 pe
 track ending within 1.5 px of it; Pd versus frames uses the per-pixel rule of
 ``detection_probability`` with the per-frame thresholds of ``frame_thresholds``.
 
-Part 2, target speed 0 .. 2.5 px/frame (plus the 0.5 px jitter; 2.5 is issue 8's range end), one
+Part 2, target speed 0 .. 2.5 px/frame (plus the 0.5 px jitter; the 7 x 7 matrices are built for
+up to 2 px/frame plus that jitter, so 2.5 lies beyond them: it is issue 8's range end), one
 clear-sky target at 17 dB: the fraction of frames where the track back-tracked from the highest
 last-frame ASF lies within 1.5 px of the truth, and where each option holds (>= 0.8 of the
 frames). Every option is a :class:`hocnet.dpa.presets.DPAPreset` run on the raw frames
 (:func:`speed_options`): the options above with 7 x 7 matrices for 0-2 px/frame, equal gain with
 the source direction step, and the command line's default ``RECOMMENDED`` pipeline with the flags
-a user changes for faster targets. ``--part speed`` reruns part 2 alone (about 5 min with
-``OMP_NUM_THREADS=1``) and merges it into the results of the last run, whose part-1 rows it reads
-back unchanged (``load_part1``).
+a user changes for faster targets, and ablation rows (:func:`ablation_options`: ``--preset
+paper`` with one change each, to find the cause of the lag of faster targets). ``--part speed``
+reruns part 2 alone (about 5 min with ``OMP_NUM_THREADS=1``) and merges it into the results of the
+last run, whose part-1 rows it reads back unchanged (``load_part1``).
 
 Run: ``python experiments/dpa_pd_snr.py [--quick] [--seeds N] [--out DIR] [--part {all,speed}]`` or
 ``hocnet reproduce dpa-pd-snr``. ``--engine ray`` (the ``sweep`` extra) runs the same grid on Ray
@@ -42,6 +44,7 @@ running Ray cluster. The default engine, ``loop``, is unchanged.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import pathlib
@@ -104,8 +107,8 @@ LEVEL = 0.9
 EMC = 0.8
 SINGLE = "single frame"
 SPEEDS = (0.0, 0.25, 0.5, 1.0, 1.5, 2.0, 2.5)
-"""Target speeds (px/frame) of part 2; 2.5 is the end of issue 8's range (the 7 x 7 matrices'
-2 px/frame plus the 0.5 px jitter)."""
+"""Target speeds (px/frame) of part 2; 2.5 is the end of issue 8's range, beyond the 7 x 7
+matrices, which are built for up to 2 px/frame plus the 0.5 px jitter."""
 QUICK_SPEEDS = (0.0, 2.0)
 SPEED_SNR = 17.0
 SPEED_SHAPE = (25, 64, 64)
@@ -116,6 +119,13 @@ HOLDS = 0.8
 """An option *holds* at a speed when its track is on the truth in >= 80 % of the frames."""
 SOURCE_STEP = "source direction step"
 """Label of ``direction_step="source"`` (our earlier reading of eq. (6)-(8))."""
+ABLATION = "ablation:"
+"""Prefix of the speed table's ablation rows: variants measured to find the cause of the lag of
+faster targets, not options we recommend (README, *Target speed*)."""
+EQ7_W_OF_D = "eq. (7) with W(d) for W_basic"
+"""Label part of the ablation rows whose direction step scores the sources of eq. (7) with the
+source pixel's own ``W(d_{n-1}(q))`` in place of ``W_basic`` (not the paper's eq. (7) and not a
+library option: :func:`eq7_with_w_of_d` patches it in for the row)."""
 PARTS = ("all", "speed")
 """``--part``: ``all`` (both parts) or ``speed`` (part 2 alone, merged into the results file
 of the last full run: the part-1 rows are read back from its CSV, unchanged)."""
@@ -186,7 +196,106 @@ def speed_options() -> list[tuple[str, Any, str]]:
             f"{seven_flags} --g 1 --direction-step source",
         ),
     ]
+    return out + ablation_options()
+
+
+def ablation_options() -> list[tuple[str, Any, str]]:
+    """The speed table's ablation rows (label prefix :data:`ABLATION`).
+
+    ``--preset paper`` with one change each, to find what makes faster targets lag (README,
+    *Target speed*); not recommendations.
+
+    ``p = 0`` (no ``W_basic`` in the direction matrices of eq. (5)), the 5 x 5 matrices of
+    section 3 (0-1 px/frame), ``b`` of the effective memory 0.4 instead of 0.8 and ``b = 0``
+    (no memory: the origin pointers of eq. (7)-(8) on the whitened frame alone), and eq. (7)
+    with ``W(d)`` for ``W_basic`` (:func:`eq7_with_w_of_d`), at g = 0 and g = 1. Flags in
+    parentheses have no ``hocnet detect`` flag (library: ``PAPER.replace(...)``).
+    """
+    from hocnet.dpa.presets import PAPER
+
+    half = round(0.5 * _paper_b(PAPER), 2)  # effective memory 0.4 of direction 9
+    out = []
+    for g in (0.0, 1.0):
+        gf = " --g 1" * (g == 1.0)
+        base = PAPER.replace(g=g)
+        out += [
+            (
+                f"{ABLATION} p = 0, g = {g:g}",
+                base.replace(p=0.0),
+                f"--preset paper{gf} (+ p = 0: no flag)",
+            ),
+            (
+                f"{ABLATION} 5 x 5, g = {g:g}",
+                base.replace(window=5, v_max=1.0),
+                f"--preset paper --window 5 --v-max 1{gf}",
+            ),
+        ]
+        g_half = round(0.5 * _paper_b(base), 2)  # effective memory 0.4 of direction 9
+        out += [
+            (
+                f"{ABLATION} b = {g_half:g}, g = {g:g}",
+                base.replace(b=g_half),
+                f"--preset paper{gf} --b {g_half:g}",
+            ),
+            (f"{ABLATION} b = 0, g = {g:g}", base.replace(b=0.0), f"--preset paper{gf} --b 0"),
+        ]
+        out.append(
+            (
+                f"{ABLATION} {EQ7_W_OF_D}, g = {g:g}",
+                base,
+                f"--preset paper{gf} (+ eq. 7 patched: no flag)",
+            )
+        )
+    out.append(
+        (
+            f"{ABLATION} {EQ7_W_OF_D}, b = {half:g}, g = 0",
+            PAPER.replace(b=half),
+            f"--preset paper --b {half:g} (+ eq. 7 patched: no flag)",
+        )
+    )
     return out
+
+
+def _paper_b(preset) -> float:
+    from hocnet.dpa.presets import weights_and_b
+
+    return weights_and_b(preset)[1]
+
+
+@contextlib.contextmanager
+def eq7_with_w_of_d():
+    """Ablation only: eq. (7) with ``W(d_{n-1}(q)) * Var`` instead of ``W_basic * Var``.
+
+    ``d_{n-1}(q)`` is the source pixel's own previous direction. Patches
+    ``hocnet.dpa.functional._eq7_weights`` for the duration of the block (not the paper's
+    eq. (7), not a library option).
+
+    Examples:
+        >>> from hocnet.dpa import functional as F
+        >>> original = F._eq7_weights
+        >>> with eq7_with_w_of_d():
+        ...     F._eq7_weights is original
+        False
+        >>> F._eq7_weights is original
+        True
+    """
+    from hocnet.dpa import functional as F
+
+    original = F._eq7_weights
+
+    def patched(weights: torch.Tensor, var_table: torch.Tensor) -> torch.Tensor:
+        k = weights.shape[-1]
+        r = torch.arange(-(k // 2), k // 2 + 1, device=weights.device)
+        dy, dx = torch.meshgrid(r, r, indexing="ij")
+        move_dir = F._sector(dy, dx)
+        v = var_table.to(device=weights.device, dtype=weights.dtype)
+        return weights.detach() * v[:, move_dir.reshape(-1)].view(F.N_DIRECTIONS, k, k)
+
+    F._eq7_weights = patched
+    try:
+        yield
+    finally:
+        F._eq7_weights = original
 
 
 def simulate(kind: str, seeds: Sequence[int], shape: tuple[int, int, int]) -> Any:
@@ -321,7 +430,9 @@ def _speed_rows(option, v: float, data: tuple, seeds) -> list[dict]:
     label, preset, flags = option
     frames, truth = data
     b = weights_and_b(preset)[1]
-    path = backtrack(run_preset(frames, preset))
+    patch = eq7_with_w_of_d() if EQ7_W_OF_D in label else contextlib.nullcontext()
+    with patch:
+        path = backtrack(run_preset(frames, preset))
     frac = P.on_truth(path, truth)
     return [
         {
@@ -838,7 +949,15 @@ def run(
         "g = 0* is `--preset paper` itself. The *recommended* rows are the command line's default "
         "pipeline (`RECOMMENDED`: registration + median background of 10 past frames + "
         "anti-mean, 5 x 5 matrices for 0-1 px/frame, g = 0, equal gain, effective memory 0.4) "
-        "and the flags that change it.",
+        "and the flags that change it. The *ablation* rows (not recommendations) are "
+        "`--preset paper` with one change each, to find what makes faster targets lag: "
+        "p = 0 (no W_basic in the eq. (5) matrices), the 5 x 5 matrices of section 3, "
+        "b of the effective memory 0.4 instead of 0.8, b = 0, and eq. (7) with the "
+        "source pixel's W(d) in place of W_basic (not the paper's eq. (7), not a "
+        "library option: `eq7_with_w_of_d` patches it in for the row); flags in "
+        "parentheses have no command-line flag. The 7 x 7 matrices are built for "
+        "targets up to 2 px/frame plus the 0.5 px jitter: 2.5 px/frame lies beyond "
+        "them (kept as the end of issue 8's range).",
         "- Detectors:",
         *method_lines,
         "",

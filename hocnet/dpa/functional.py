@@ -672,14 +672,24 @@ def accumulate(
         * An empty batch (``B = 0``) gives an empty state.
         * **Eq. (7) favours short moves.** The paper step scores each source by
           ``ASF_{n-1}(q) * w_basic * Var``; ``w_basic`` (a standing target's spread) is about
-          0.17 in place, 0.10 one pixel out and 0.02 two pixels out, so a source 2 px away wins
-          only if its ASF is 6-9 times that of the pixel itself. Targets faster than about
-          1 px/frame are then back-tracked with a lag (measured: 20 dB, 1.5 px/frame, 4-20 of 20
-          frames on the truth; 2 px/frame, 1-3 of 20), as the paper's own remark that the
-          algorithm "needs targets at around 1 [ppf]" suggests. The product is also
-          multiplicative: with whitened (negative) ASF values a larger ``Var`` makes the score
-          more negative. Both are the paper's eq. (7) as printed; ``direction_step="source"``
-          tracks faster targets better with ``g = 1`` (README, DPA results).
+          0.17 in place, 0.10 one pixel out and 0.02 two pixels out (7 x 7), so a source 2 px
+          away wins only if its ASF is 6-9 times that of the pixel itself. A difference from
+          [NR08] (which finds the algorithm effective near 1 px/frame and better for faster
+          targets, section 3.2.1(2)-(3)): in our clear-sky scenes at 17 dB (7 x the noise;
+          ``dpa-pd-snr`` speed table and its ablation rows, 20 scenes) faster targets are
+          back-tracked with a lag, and the measured causes differ with ``g``. At ``g = 1`` it
+          is this ``w_basic``: eq. (7) with the source's own ``W(d)`` instead (not the paper's)
+          lifts the frames on the truth at 1.5 / 2 px/frame from 0.27 / 0.08 to 0.87 / 0.62.
+          At ``g = 0`` it is the memory: with ``b`` = 4.67 the pixels the target left keep
+          ``b max W(9)`` = 0.8 of their ASF per frame and the origins point back along that
+          trail; ``b`` = 2.34 or 0 lifts 1 px/frame from 0.40 to about 0.8, whereas ``p = 0``,
+          ``W(d)`` in eq. (7) or ``direction_step="source"`` (which does not use ``w_basic``)
+          leave it at 0.41-0.44. At the paper's 30 and 60 x the noise the same paper DPA stays
+          on the truth in >= 0.9 of the frames up to 1.5 px/frame (README, *Target speed*).
+          The product is also multiplicative: with whitened (negative) ASF values a larger
+          ``Var`` makes the score more negative. Both are the paper's eq. (7) as printed;
+          ``direction_step="source"`` tracks faster targets better with ``g = 1`` (README, DPA
+          results).
 
     Args:
         frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``, finite, float (integer

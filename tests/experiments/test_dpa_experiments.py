@@ -523,6 +523,50 @@ class TestPdSnr:
             if label.startswith(("paper DPA", "equal gain", "source direction step")):
                 assert (preset.window, preset.v_max, preset.memory) == (7, 2.0, 0.8), label
 
+    def test_ablation_rows_change_one_setting_of_the_paper_preset(self):
+        import dataclasses
+
+        from hocnet.dpa.presets import PAPER
+
+        module = load("dpa-pd-snr")
+        rows = module.ablation_options()
+        assert rows and all(label.startswith(module.ABLATION) for label, *_ in rows)
+        # the ablation rows come after every recommended / paper option
+        labels = [label for label, *_ in module.speed_options()]
+        assert labels[-len(rows) :] == [label for label, *_ in rows]
+        for label, preset, flags in rows:
+            base = PAPER.replace(g=preset.g)
+            changed = {
+                f.name
+                for f in dataclasses.fields(PAPER)
+                if getattr(preset, f.name) != getattr(base, f.name)
+            }
+            assert flags.startswith("--preset paper"), label
+            if module.EQ7_W_OF_D in label:
+                assert changed <= {"b"}, label
+            else:
+                assert len(changed) in (1, 2) and changed <= {"p", "b", "window", "v_max"}, label
+
+    def test_eq7_ablation_patch_uses_w_of_d_and_is_undone(self):
+        from hocnet.dpa import functional as F
+        from hocnet.dpa.matrices import probability_matrices, var_table
+
+        module = load("dpa-pd-snr")
+        w = probability_matrices(7, v_max=2.0).flip(-2, -1)
+        table = var_table()
+        paper = F._eq7_weights(w, table)
+        with module.eq7_with_w_of_d():
+            patched = F._eq7_weights(w, table)
+        assert F._eq7_weights(w, table).equal(paper)  # restored
+        # direction 9 (index 8) of the source: W(9) = W_basic, the same score as eq. (7)
+        assert torch.allclose(patched[8], paper[8])
+        # direction 1 of the source: W(1) * Var in place of W_basic * Var
+        ratio = patched[0] / paper[0].clamp_min(1e-30)
+        expected = w[0] / w[8].clamp_min(1e-30)
+        mask = paper[0] > 0
+        assert torch.allclose(ratio[mask], expected[mask], rtol=1e-5)
+        assert not torch.allclose(patched[0], paper[0])
+
     def test_fast_targets_are_sampled_from_a_longer_sequence(self):
         module = load("dpa-pd-snr")
         frames, truth = module.speed_data(2.5, [1, 2], (6, 40, 40))
