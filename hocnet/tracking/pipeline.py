@@ -309,7 +309,20 @@ class PDTrackerConfig:
             ``A = beta / (1 - alpha)`` of 24.40, :func:`~hocnet.tracking.sprt.sprt_thresholds`;
             0.01 / 0.01 as :func:`~hocnet.tracking.vsimm.vsimm_section_sprt`: ``B = 99``, the
             one-step ``junction_accept``).
-
+        junction_defer: with ``junction_test="sprt"`` (our addition, opt-in; ``0``: off, the
+            previous behaviour bit for bit): a branch hypothesis opened on a scan where the
+            constant-velocity prediction is less than this distance (m) past the junction is
+            *deferred*: it is not updated by that scan's report or miss (its likelihood is the
+            leaf's own, so 24.38 leaves its ``mu_h`` at the prior ``Omega`` and the test cannot
+            reject it), it keeps the leaf's pre-scan state and is predicted from it, past the
+            junction onto its branch, at the next scan. Why (issue 12, seed 2408, target 6,
+            t = 670 s): the prediction was 11 m past N1 but the target, 28 m before it, had not
+            turned yet; its range-rate (13.8 m/s, still northbound) was 22 m/s away from the
+            westbound branch's, 24.40 rejected the true branch on that one report, the next
+            reports (westbound, range-rate -6.8 m/s) fell outside the gate of the straight /
+            eastbound mixture and the track coasted into ``max_coast`` 385-478 m from the
+            target. Measured in ``experiments/results`` notes of the report (see the module
+            docstring of ``experiments/_pd_armse_diag.py``).
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
@@ -360,6 +373,7 @@ class PDTrackerConfig:
     junction_test: str = "sprt"
     junction_alpha: float = 0.01
     junction_beta: float = 0.01
+    junction_defer: float = 0.0
     section_distance: float | None = 500.0
     vsimm: VSIMMConfig = field(init=False)
 
@@ -368,6 +382,7 @@ class PDTrackerConfig:
         check_choice("too_old", self.too_old, ("raise", "drop"))
         check_choice("junction_test", self.junction_test, ("one-step", "sprt"))
         sprt_thresholds(self.junction_alpha, self.junction_beta)  # validates both
+        check_number("junction_defer", self.junction_defer, low=0.0)
         if self.max_coast is not None:
             check_number("max_coast", self.max_coast, low=0.0)
         object.__setattr__(
@@ -680,6 +695,8 @@ class VSIMMRoadFilter:
         if self._sprt:
             d["p_asec"] = torch.zeros(K, H, dtype=torch.int64)
             d["p_acbar"] = torch.zeros(K, H, r, dtype=DTYPE)
+            if self.cfg.junction_defer > 0.0:
+                d["p_adefer"] = torch.zeros(K, H, dtype=torch.bool)
             if "ja_valid" not in d:  # a new row: no pending section test
                 for k in _VS_DICT_KEYS:
                     v = d[k]
@@ -745,6 +762,7 @@ class VSIMMRoadFilter:
         over = ((p - self.net.nodes[ahead]) * w).sum(-1)
         deg = self.net.node_degree[ahead]
         near = (so >= 0) & (deg >= 3) & (over > -self.cfg.junction_margin) & (v.norm(dim=-1) > 0.5)
+        self._j_over = over
         sec_of = self.net.segment_section
         cls = self._road_class
         for b in torch.nonzero(near).flatten().tolist():
@@ -808,6 +826,9 @@ class VSIMMRoadFilter:
             s["p_asec"][grow, hh] = sub.section
             s["p_acbar"] = s["p_acbar"].clone()
             s["p_acbar"][grow, hh] = ap.cbar
+            if self.cfg.junction_defer > 0.0:  # opened before the target may have turned
+                s["p_adefer"] = s["p_adefer"].clone()
+                s["p_adefer"][grow, hh] = self._j_over[rows] < self.cfg.junction_defer
 
     def _predict_pending(self, s: dict[str, torch.Tensor], fwd: torch.Tensor) -> None:
         """Predictions of the pending section hypotheses (``junction_test="sprt"``) into ``p_a*``.
@@ -1071,6 +1092,14 @@ class VSIMMRoadFilter:
                 continue
             d_h, ll_h = step(self._alt_view(self._take(s, rows), h), rows)
             d_h = dict(d_h)
+            if "p_adefer" in s:  # junction_defer: not updated, the leaf's pre-scan state
+                dfr = s["p_adefer"][rows, h]
+                if bool(dfr.any()):
+                    rd = rows[dfr]
+                    ll_h = torch.where(dfr, ll[rows], ll_h)
+                    for k in _VS_DICT_KEYS:
+                        d_h[k] = d_h[k].clone()
+                        d_h[k][dfr] = s[k][rd]
             d_h["vs_section"] = s["p_asec"][rows, h]
             a[rows, h + 1] = ll_h + lw[rows, h + 1]
             alt[h] = (rows, d_h)

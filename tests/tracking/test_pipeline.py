@@ -387,3 +387,73 @@ def test_junction_test_bad_value():
         PDTrackerConfig(junction_test="wald")
     with pytest.raises(ValueError, match="alpha"):
         PDTrackerConfig(junction_test="sprt", junction_alpha=0.0)
+
+
+def _late_turn(junction_defer: float):
+    """A target northbound at 17 m/s slows to 14 m/s, is 20 m before the junction (0, 0) at the
+    scan of t = 0 (its constant-velocity prediction already 10 m past it) and turns west there.
+
+    Returns the gate distances ``d2`` of the reports after t = 0, the final combined estimate and
+    the filter (issue 12, seed 2408, target 6 at N1, t = 670 s, in small).
+    """
+    net = RoadNetwork(
+        [
+            [[0.0, -1000.0], [0.0, 0.0]],
+            [[0.0, 0.0], [0.0, 1000.0]],
+            [[0.0, 0.0], [-1000.0, 0.0]],
+            [[0.0, 0.0], [1000.0, 0.0]],
+        ],
+        [{"road_class": "byway"}] * 4,
+    )
+    gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
+    cfg = PDTrackerConfig(junction_defer=junction_defer)
+    f = VSIMMRoadFilter(
+        net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
+    )
+    truth = [(-30.0, [0.0, 0.0, -500.0, 17.0]), (-20.0, [0.0, 0.0, -330.0, 17.0])]
+    truth += [(-10.0, [0.0, 0.0, -160.0, 17.0]), (0.0, [0.0, 0.0, -20.0, 14.0])]
+    truth += [(t, [-14.0 * (t - 20 / 14), -14.0, 0.0, 0.0]) for t in (10.0, 20.0, 30.0)]
+    s, d2s = None, []
+    for t, x in truth:
+        z = gmti.measure(torch.tensor([x], dtype=torch.float64))
+        R = gmti.covariance(z)
+        f.set_scan("gmti", t)
+        if s is None:
+            s = f.initiate(z, R)
+            continue
+        pred = f.predict(s, 10.0)
+        zp, hph = f.innovation(pred)
+        nu = z[0] - zp[0]
+        d2 = float(nu @ torch.linalg.solve(hph[0] + R[0], nu))
+        if t > 0:
+            d2s.append(d2)
+        if d2 > 16.27:  # outside the 0.999 gate: the MHT would not associate it, a miss
+            s, _ = f.miss(pred, 0.9)
+        else:
+            s, _ = f.update(pred, z, R)
+    x, _ = f.mean_cov(s)
+    return d2s, x[0], f
+
+
+def test_junction_defer_keeps_a_turn_decided_before_the_target_turned():
+    # issue 12, seed 2408, target 6: at the scan where the prediction first passed N1 the target
+    # had not turned yet; its northbound range-rate rejected the westbound branch (24.40) on that
+    # one report, the westbound reports then fell outside the gate and the track coasted away
+    d2_off, _, _ = _late_turn(0.0)
+    d2_on, x_on, f_on = _late_turn(100.0)
+    assert min(d2_off[:2]) > 16.27  # the first two westbound reports missed without the option
+    assert max(d2_on) < 16.27  # every westbound report is gated with it
+    assert f_on.junction_switches == 1
+    truth = (-14.0 * (30.0 - 20 / 14), 0.0)
+    assert math.hypot(x_on[0] - truth[0], x_on[2] - truth[1]) < 30.0
+    assert x_on[1] < -10.0  # heading west
+
+
+def test_junction_defer_zero_is_the_default(short):
+    a = run_pd_tracker(short, type_tracking=False)
+    b = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_defer=0.0))
+    assert a.tracks.keys() == b.tracks.keys()
+    for k in a.tracks:
+        assert np.array_equal(np.asarray(a.tracks[k].positions), np.asarray(b.tracks[k].positions))
+    with pytest.raises(ValueError, match="junction_defer"):
+        PDTrackerConfig(junction_defer=-1.0)
