@@ -311,18 +311,21 @@ class PDTrackerConfig:
             one-step ``junction_accept``).
         junction_defer: with ``junction_test="sprt"`` (our addition, opt-in; ``0``: off, the
             previous behaviour bit for bit): a branch hypothesis opened on a scan where the
-            constant-velocity prediction is less than this distance (m) past the junction is
-            *deferred*: it is not updated by that scan's report or miss (its likelihood is the
-            leaf's own, so 24.38 leaves its ``mu_h`` at the prior ``Omega`` and the test cannot
-            reject it), it keeps the leaf's pre-scan state and is predicted from it, past the
+            constant-velocity prediction is less than this distance (m) past the junction, and
+            whose update explains that scan's report (or miss) worse than the leaf's own
+            hypothesis, is *deferred*: it is not updated by that scan (its likelihood is the
+            leaf's own, so 24.38 leaves its ``mu_h`` at the prior ``Omega`` and 24.40 cannot
+            reject it), keeps the leaf's pre-scan state and is predicted from it, past the
             junction onto its branch, at the next scan. Why (issue 12, seed 2408, target 6,
             t = 670 s): the prediction was 11 m past N1 but the target, 28 m before it, had not
             turned yet; its range-rate (13.8 m/s, still northbound) was 22 m/s away from the
             westbound branch's, 24.40 rejected the true branch on that one report, the next
-            reports (westbound, range-rate -6.8 m/s) fell outside the gate of the straight /
+            westbound reports (range-rate -6.8 m/s) fell outside the gate of the straight /
             eastbound mixture and the track coasted into ``max_coast`` 385-478 m from the
-            target. Measured in ``experiments/results`` notes of the report (see the module
-            docstring of ``experiments/_pd_armse_diag.py``).
+            target. Deferring every branch opened within the distance (tried first) also
+            delayed turns the report already showed (target 9, seeds 2400-2409: ARMSE 16.6 ->
+            19.3 m), hence the second condition. Measured numbers: the report of issue 12's
+            ARMSE helper (``experiments/_pd_armse_diag.py --set junction_defer=100.0``).
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
@@ -1093,7 +1096,7 @@ class VSIMMRoadFilter:
             d_h, ll_h = step(self._alt_view(self._take(s, rows), h), rows)
             d_h = dict(d_h)
             if "p_adefer" in s:  # junction_defer: not updated, the leaf's pre-scan state
-                dfr = s["p_adefer"][rows, h]
+                dfr = s["p_adefer"][rows, h] & (ll_h < ll[rows])
                 if bool(dfr.any()):
                     rd = rows[dfr]
                     ll_h = torch.where(dfr, ll[rows], ll_h)
