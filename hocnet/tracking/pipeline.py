@@ -324,8 +324,15 @@ class PDTrackerConfig:
             eastbound mixture and the track coasted into ``max_coast`` 385-478 m from the
             target. Deferring every branch opened within the distance (tried first) also
             delayed turns the report already showed (target 9, seeds 2400-2409: ARMSE 16.6 ->
-            19.3 m), hence the second condition. Measured numbers: the report of issue 12's
-            ARMSE helper (``experiments/_pd_armse_diag.py --set junction_defer=100.0``).
+            19.3 m), hence the second condition. Measured with 100 m against 0 (without PCR5,
+            ``experiments/_pd_armse_diag.py --set junction_defer=100.0``): seeds 2400-2409,
+            target 6 ARMSE 26.3 -> 23.0 m, length ratio 0.905 -> 0.954, samples > 300 m 14 ->
+            0, mean ARMSE 16.5 -> 16.1 m, GOSPA 85.0 -> 84.6 m, no target worse; seeds
+            2410-2429, target 6 22.9 -> 21.3 m, length ratio 0.935 -> 0.959, but mean ARMSE
+            23.0 -> 27.1 m and GOSPA 84.4 -> 85.3 m: target 1 57.3 -> 98.9 m, all from one
+            episode of seed 2424 that exists without the option (target 1's track takes target
+            10's first report as it leaves J3 at t = 730 s, see the issue-12 ARMSE report) and
+            now follows target 10 up B3-n for 160 s instead of 110 s. Hence off by default.
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
