@@ -449,11 +449,15 @@ def test_junction_defer_keeps_a_turn_decided_before_the_target_turned():
     assert x_on[1] < -10.0  # heading west
 
 
-def test_junction_defer_zero_is_the_default(short):
-    a = run_pd_tracker(short, type_tracking=False)
-    b = run_pd_tracker(short, type_tracking=False, config=PDTrackerConfig(junction_defer=0.0))
-    assert a.tracks.keys() == b.tracks.keys()
-    for k in a.tracks:
-        assert np.array_equal(np.asarray(a.tracks[k].positions), np.asarray(b.tracks[k].positions))
+def test_junction_defer_off_by_default_leaves_the_state_unchanged():
+    # the committed 24.6 results must stay valid: with the default (0) no deferral field exists
+    # and no code path of the option runs; a negative distance is refused
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]], [[1000.0, 0.0], [2000.0, 0.0]]])
+    z = torch.tensor([[500.0, 0.0, 0.0]], dtype=torch.float64)
+    R = torch.diag(torch.tensor([100.0, 100.0, 1.0], dtype=torch.float64))[None]
+    assert PDTrackerConfig().junction_defer == 0.0
+    assert "p_adefer" not in _filter(net, "gmti", 0.0).initiate(z, R)
+    on = _filter(net, "gmti", 0.0, PDTrackerConfig(junction_defer=100.0)).initiate(z, R)
+    assert "p_adefer" in on and not bool(on["p_adefer"].any())
     with pytest.raises(ValueError, match="junction_defer"):
         PDTrackerConfig(junction_defer=-1.0)
