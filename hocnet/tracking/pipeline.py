@@ -333,6 +333,14 @@ class PDTrackerConfig:
             episode of seed 2424 that exists without the option (target 1's track takes target
             10's first report as it leaves J3 at t = 730 s, see the issue-12 ARMSE report) and
             now follows target 10 up B3-n for 160 s instead of 110 s. Hence off by default.
+        junction_on_crossing: (our addition, opt-in; ``False``: the previous behaviour) also
+            open the junction hypotheses when the VS-IMM prediction of the row's most probable
+            road mode has moved onto another segment through the junction ahead, although the
+            constant-velocity test above says it is not past it. Why (issue 12, seed 2408,
+            target 4 at J3, t = 900 s): the mixed prediction was 4 m past J3 and took the
+            eastbound highway segment while the best mode's own extrapolation stopped 38 m
+            before J3; no hypothesis was opened, the leaf's segment was then past J3 and the
+            northbound turn was never tested.
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
@@ -384,6 +392,7 @@ class PDTrackerConfig:
     junction_alpha: float = 0.01
     junction_beta: float = 0.01
     junction_defer: float = 0.0
+    junction_on_crossing: bool = False
     section_distance: float | None = 500.0
     vsimm: VSIMMConfig = field(init=False)
 
@@ -772,6 +781,14 @@ class VSIMMRoadFilter:
         over = ((p - self.net.nodes[ahead]) * w).sum(-1)
         deg = self.net.node_degree[ahead]
         near = (so >= 0) & (deg >= 3) & (over > -self.cfg.junction_margin) & (v.norm(dim=-1) > 0.5)
+        if self.cfg.junction_on_crossing:  # the VS-IMM prediction itself crossed the node
+            ps = pred.segment[rows, best]
+            crossed = (
+                (ps >= 0)
+                & (ps != so)
+                & ((self.net.segment_nodes[ps.clamp(min=0)] == ahead[:, None]).any(-1))
+            )
+            near = near | ((so >= 0) & (deg >= 3) & crossed & (v.norm(dim=-1) > 0.5))
         self._j_over = over
         sec_of = self.net.segment_section
         cls = self._road_class

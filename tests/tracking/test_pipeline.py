@@ -461,3 +461,32 @@ def test_junction_defer_off_by_default_leaves_the_state_unchanged():
     assert "p_adefer" in on and not bool(on["p_adefer"].any())
     with pytest.raises(ValueError, match="junction_defer"):
         PDTrackerConfig(junction_defer=-1.0)
+
+
+def test_junction_on_crossing_opens_the_hypotheses_when_the_prediction_crossed():
+    # issue 12, seed 2408, target 4 at J3 (t = 900 s): the VS-IMM prediction took the segment
+    # past the junction while the best mode's constant-velocity extrapolation stopped before it;
+    # without the option no section hypothesis was opened and the turn was never tested
+    from hocnet.tracking.vsimm import vsimm_init, vsimm_predict
+
+    net = RoadNetwork(
+        [
+            [[0.0, 0.0], [1000.0, 0.0]],
+            [[1000.0, 0.0], [2000.0, 0.0]],
+            [[1000.0, 0.0], [1000.0, 1000.0]],
+            [[1000.0, 0.0], [1000.0, -1000.0]],
+        ],
+        [{"road_class": "byway"}] * 4,
+    )
+    out = {}
+    for on in (False, True):
+        f = _filter(net, "gmti", 5.0, PDTrackerConfig(junction_on_crossing=on))
+        x0 = torch.tensor([[900.0, 10.0, 0.0, 0.0]], dtype=torch.float64)
+        vs = vsimm_init(net, x0, torch.eye(4, dtype=torch.float64) * 25.0, f.vcfg, 0.0)
+        pred = vsimm_predict(vs, net, f.vcfg, 5.0)  # CV: 950 m, 50 m before the junction
+        assert int(pred.segment[0, 1]) == 0
+        crossed = pred._replace(segment=torch.ones_like(pred.segment))  # as the mixing did
+        out[on] = f._junction_sections(vs, crossed)[0][0]
+        assert f._junction_sections(vs, pred)[0][0] == []  # not crossed: none either way
+    assert out[False] == []
+    assert sorted(out[True]) == [2, 3]  # north and south, not the segment it came from
