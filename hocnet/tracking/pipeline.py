@@ -332,7 +332,9 @@ class PDTrackerConfig:
             23.0 -> 27.1 m and GOSPA 84.4 -> 85.3 m: target 1 57.3 -> 98.9 m, all from one
             episode of seed 2424 that exists without the option (target 1's track takes target
             10's first report as it leaves J3 at t = 730 s, see the issue-12 ARMSE report) and
-            now follows target 10 up B3-n for 160 s instead of 110 s. Hence off by default.
+            now follows target 10 up B3-n for 160 s instead of 110 s (without seed 2424: mean
+            ARMSE 15.9 -> 15.8 m, target 6 23.1 -> 21.5 m, GOSPA 83.2 -> 83.1 m, the other
+            targets unchanged). Hence off by default.
         junction_on_crossing: (our addition, opt-in; ``False``: the previous behaviour) also
             open the junction hypotheses when the VS-IMM prediction of the row's most probable
             road mode has moved onto another segment through the junction ahead, although the
@@ -340,7 +342,13 @@ class PDTrackerConfig:
             target 4 at J3, t = 900 s): the mixed prediction was 4 m past J3 and took the
             eastbound highway segment while the best mode's own extrapolation stopped 38 m
             before J3; no hypothesis was opened, the leaf's segment was then past J3 and the
-            northbound turn was never tested.
+            northbound turn was never tested. Measured with ``junction_defer=100`` (without
+            PCR5, ``experiments/_pd_armse_diag.py``), against ``junction_defer=100`` alone:
+            seeds 2400-2409, target 4 ARMSE 24.8 -> 19.5 m, length ratio 0.618 -> 0.637, mean
+            ARMSE 16.1 -> 15.6 m, GOSPA 84.6 -> 85.2 m, other targets unchanged; seeds
+            2410-2429 identical output (the case did not occur). ``junction_margin = 50``
+            instead (tried): target 4 19.6 m but target 6 23.0 -> 32.6 m, length ratio 0.954
+            -> 0.668.
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
