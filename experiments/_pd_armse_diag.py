@@ -6,6 +6,10 @@ since the last detection, the road section, the target of the current leaf's mea
 the final history. Writes a pickle of the samples and prints the worst contributors to the ARMSE.
 
 Run: ``python experiments/_pd_armse_diag.py --seeds 2400-2409 --jobs 2 [--pcr5] [--out F]``.
+``--trace SEED TARGET T0 T1`` (issue 12, ARMSE helper 2) prints, scan by scan between T0 and T1,
+the target's reports, the gate distances of the three nearest rows (with their junction
+hypotheses) and the confirmed tracks near the target with their leaves (score, mode
+probabilities, road section, pending section tests, last measurement).
 """
 
 from __future__ import annotations
@@ -273,6 +277,93 @@ def analyse(runs: list[dict], top: int = 40) -> None:
         )
 
 
+def trace(seed: int, target: int, t0: float, t1: float, overrides: dict[str, Any]) -> None:
+    """Scan-by-scan context of one target between ``t0`` and ``t1`` (``--trace``)."""
+    torch.set_num_threads(1)
+    cfg = PDTrackerConfig(**overrides)
+    sc = pd_scenario(seed=seed)
+    net = RoadNetwork.from_geojson(sc.network)
+    g = sc.gmti
+    gmti = GMTISensor(
+        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
+    )
+    video = VideoSensor(sc.video.sigma, pd=sc.video.pd, name="video")
+    ugs = VideoSensor(sc.ugs.sigma, pd=sc.ugs.pd, name="ugs")
+    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, sc.video.footprints)
+    mht = MHT(
+        filt,
+        pd=cfg.pd,
+        lambda_fa=cfg.lambda_fa,
+        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
+        gate_probability=cfg.gate_probability,
+        alpha=cfg.alpha,
+        beta=cfg.beta,
+        n_hypotheses=cfg.n_hypotheses,
+        hypothesis_ratio=cfg.hypothesis_ratio,
+        n_scan=cfg.n_scan,
+        merge_scans=cfg.merge_scans,
+        type_term=None,
+        section_distance=cfg.section_distance,
+    )
+    truth = sc.truth
+
+    def pos(i: int, t: float) -> tuple[float, float]:
+        tr = truth[i]
+        return (
+            float(np.interp(t, tr.times, tr.positions[:, 0])),
+            float(np.interp(t, tr.times, tr.positions[:, 1])),
+        )
+
+    seen: dict[str, Any] = {}
+    inner = filt.innovation
+
+    def innovation(states: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        zp, S = inner(states)
+        seen.update(zp=zp, S=S, st=states)
+        return zp, S
+
+    filt.innovation = innovation  # type: ignore[method-assign]
+    scans = report_scans(sc.reports, gmti)
+    mt = None
+    for k, scan in enumerate(scans):
+        t = scan.time if mt is None else max(mt, scan.time)
+        filt.set_scan(scan.kind, scan.time)
+        seen.clear()
+        conf = mht.step(scan.z, time=t, R=scan.R, bba=None)
+        mt = t
+        if not t0 <= scan.time <= t1:
+            continue
+        tx, ty = pos(target, scan.time)
+        rep = [j for j, r in enumerate(scan.reports) if r.target_id == target]
+        zs = [np.round(scan.reports[j].z, 1).tolist() for j in rep]
+        print(f"--- k={k} {scan.kind} t={scan.time:.0f} truth=({tx:.0f},{ty:.0f}) reports {zs}")
+        if "st" in seen and scan.kind == "gmti":
+            st, zp, S = seen["st"], seen["zp"], seen["S"]
+            for j in rep:
+                d = scan.z[j] - zp
+                m = torch.einsum("ki,kij,kj->k", d, torch.linalg.inv(S + scan.R[j]), d)
+                for i in torch.argsort(m)[:3].tolist():
+                    av = st["p_avalid"][i].tolist() if "p_avalid" in st else None
+                    print(
+                        f"   report {j} row {i}: d2 {float(m[i]):.1f} "
+                        f"zp {np.round(zp[i].tolist(), 1).tolist()} branches {av}"
+                    )
+        s = mht._states
+        for trk in conf:
+            x = trk.state
+            if math.hypot(x[0] - tx, x[2] - ty) > 600:
+                continue
+            print(f"  track {trk.id} ({x[0]:.0f},{x[2]:.0f}) v=({x[1]:.1f},{x[3]:.1f})", end="")
+            for i, lf in enumerate(mht._leaves):
+                if lf.family == trk.id:
+                    j = lf.history[-1] if lf.history else -1
+                    ja = s["ja_valid"][i].tolist() if "ja_valid" in s else None
+                    mu = np.round(s["mu"][i].tolist(), 2).tolist()
+                    sec = int(s["section"][i])
+                    print(f" [score {lf.score:.1f} mu {mu} sec {sec} ja {ja} h {j}]", end="")
+            print()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", default="2400-2409")
@@ -281,7 +372,12 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     ap.add_argument("--load", default=None)
     ap.add_argument("--set", nargs="*", default=[], help="PDTrackerConfig overrides key=value")
+    ap.add_argument("--trace", nargs=4, default=None, metavar=("SEED", "TARGET", "T0", "T1"))
     a = ap.parse_args()
+    if a.trace:
+        sd, tg, ta, tb = a.trace
+        trace(int(sd), int(tg), float(ta), float(tb), _parse(a.set))
+        return
     if a.load:
         runs = pickle.loads(pathlib.Path(a.load).read_bytes())
     else:

@@ -387,3 +387,106 @@ def test_junction_test_bad_value():
         PDTrackerConfig(junction_test="wald")
     with pytest.raises(ValueError, match="alpha"):
         PDTrackerConfig(junction_test="sprt", junction_alpha=0.0)
+
+
+def _late_turn(junction_defer: float):
+    """A target northbound at 17 m/s slows to 14 m/s, is 20 m before the junction (0, 0) at the
+    scan of t = 0 (its constant-velocity prediction already 10 m past it) and turns west there.
+
+    Returns the gate distances ``d2`` of the reports after t = 0, the final combined estimate and
+    the filter (issue 12, seed 2408, target 6 at N1, t = 670 s, in small).
+    """
+    net = RoadNetwork(
+        [
+            [[0.0, -1000.0], [0.0, 0.0]],
+            [[0.0, 0.0], [0.0, 1000.0]],
+            [[0.0, 0.0], [-1000.0, 0.0]],
+            [[0.0, 0.0], [1000.0, 0.0]],
+        ],
+        [{"road_class": "byway"}] * 4,
+    )
+    gmti = GMTISensor((-50_000.0, -60_000.0, 4000.0))
+    cfg = PDTrackerConfig(junction_defer=junction_defer)
+    f = VSIMMRoadFilter(
+        net, cfg, gmti, VideoSensor(10.0, name="video"), VideoSensor(10.0, name="ugs"), []
+    )
+    truth = [(-30.0, [0.0, 0.0, -500.0, 17.0]), (-20.0, [0.0, 0.0, -330.0, 17.0])]
+    truth += [(-10.0, [0.0, 0.0, -160.0, 17.0]), (0.0, [0.0, 0.0, -20.0, 14.0])]
+    truth += [(t, [-14.0 * (t - 20 / 14), -14.0, 0.0, 0.0]) for t in (10.0, 20.0, 30.0)]
+    s, d2s = None, []
+    for t, x in truth:
+        z = gmti.measure(torch.tensor([x], dtype=torch.float64))
+        R = gmti.covariance(z)
+        f.set_scan("gmti", t)
+        if s is None:
+            s = f.initiate(z, R)
+            continue
+        pred = f.predict(s, 10.0)
+        zp, hph = f.innovation(pred)
+        nu = z[0] - zp[0]
+        d2 = float(nu @ torch.linalg.solve(hph[0] + R[0], nu))
+        if t > 0:
+            d2s.append(d2)
+        if d2 > 16.27:  # outside the 0.999 gate: the MHT would not associate it, a miss
+            s, _ = f.miss(pred, 0.9)
+        else:
+            s, _ = f.update(pred, z, R)
+    x, _ = f.mean_cov(s)
+    return d2s, x[0], f
+
+
+def test_junction_defer_keeps_a_turn_decided_before_the_target_turned():
+    # issue 12, seed 2408, target 6: at the scan where the prediction first passed N1 the target
+    # had not turned yet; its northbound range-rate rejected the westbound branch (24.40) on that
+    # one report, the westbound reports then fell outside the gate and the track coasted away
+    d2_off, _, _ = _late_turn(0.0)
+    d2_on, x_on, f_on = _late_turn(100.0)
+    assert min(d2_off[:2]) > 16.27  # the first two westbound reports missed without the option
+    assert max(d2_on) < 16.27  # every westbound report is gated with it
+    assert f_on.junction_switches == 1
+    truth = (-14.0 * (30.0 - 20 / 14), 0.0)
+    assert math.hypot(x_on[0] - truth[0], x_on[2] - truth[1]) < 30.0
+    assert x_on[1] < -10.0  # heading west
+
+
+def test_junction_defer_off_by_default_leaves_the_state_unchanged():
+    # the committed 24.6 results must stay valid: with the default (0) no deferral field exists
+    # and no code path of the option runs; a negative distance is refused
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0]], [[1000.0, 0.0], [2000.0, 0.0]]])
+    z = torch.tensor([[500.0, 0.0, 0.0]], dtype=torch.float64)
+    R = torch.diag(torch.tensor([100.0, 100.0, 1.0], dtype=torch.float64))[None]
+    assert PDTrackerConfig().junction_defer == 0.0
+    assert "p_adefer" not in _filter(net, "gmti", 0.0).initiate(z, R)
+    on = _filter(net, "gmti", 0.0, PDTrackerConfig(junction_defer=100.0)).initiate(z, R)
+    assert "p_adefer" in on and not bool(on["p_adefer"].any())
+    with pytest.raises(ValueError, match="junction_defer"):
+        PDTrackerConfig(junction_defer=-1.0)
+
+
+def test_junction_on_crossing_opens_the_hypotheses_when_the_prediction_crossed():
+    # issue 12, seed 2408, target 4 at J3 (t = 900 s): the VS-IMM prediction took the segment
+    # past the junction while the best mode's constant-velocity extrapolation stopped before it;
+    # without the option no section hypothesis was opened and the turn was never tested
+    from hocnet.tracking.vsimm import vsimm_init, vsimm_predict
+
+    net = RoadNetwork(
+        [
+            [[0.0, 0.0], [1000.0, 0.0]],
+            [[1000.0, 0.0], [2000.0, 0.0]],
+            [[1000.0, 0.0], [1000.0, 1000.0]],
+            [[1000.0, 0.0], [1000.0, -1000.0]],
+        ],
+        [{"road_class": "byway"}] * 4,
+    )
+    out = {}
+    for on in (False, True):
+        f = _filter(net, "gmti", 5.0, PDTrackerConfig(junction_on_crossing=on))
+        x0 = torch.tensor([[900.0, 10.0, 0.0, 0.0]], dtype=torch.float64)
+        vs = vsimm_init(net, x0, torch.eye(4, dtype=torch.float64) * 25.0, f.vcfg, 0.0)
+        pred = vsimm_predict(vs, net, f.vcfg, 5.0)  # CV: 950 m, 50 m before the junction
+        assert int(pred.segment[0, 1]) == 0
+        crossed = pred._replace(segment=torch.ones_like(pred.segment))  # as the mixing did
+        out[on] = f._junction_sections(vs, crossed)[0][0]
+        assert f._junction_sections(vs, pred)[0][0] == []  # not crossed: none either way
+    assert out[False] == []
+    assert sorted(out[True]) == [2, 3]  # north and south, not the segment it came from
