@@ -208,9 +208,13 @@ class PDTrackerConfig:
 
     Attributes:
         road_sigmas: along / across acceleration deviations of M1, M2 (m/s^2; the chapter).
-        trans: ``(3, 3)`` mode transition matrix (M0, M1, M2), ``trans[i, j] = P(i -> j)``
-            per GMTI revisit (the chapter takes it from its ref. [14], not printed; our values).
-            A moving model enters the stop model with 0.01 (issue 12; was 0.05): a stop every
+        trans: ``(3, 3)`` mode transition matrix (M0, M1, M2), ``trans[i, j] = P(i -> j)``,
+            applied once per processed scan whatever its time step (GMTI revisits every 10 s,
+            and in-sequence video / UGS scans between them count too; not scaled by dt: our
+            reading). The chapter takes it from its ref. [14], not printed; our values.
+            A moving model enters the stop model with 0.01 (issue 12; was 0.05), the freed 0.04
+            going to the other moving model (M1 -> M2 0.05 -> 0.09, M2 -> M1 0.10 -> 0.14, so
+            the rows still sum to 1): a stop every
             1000 s of driving (the scenario's targets stop 4 times in 10 x 1200 s, 0.0033 per
             10 s), the stop model lasts 100 s on average (stay 0.9; the stops last 19-120 s).
             With 0.05 two consecutive misses of a moving target (probability 0.01 per scan at
@@ -410,6 +414,8 @@ class PDTrackerConfig:
         check_choice("junction_test", self.junction_test, ("one-step", "sprt"))
         sprt_thresholds(self.junction_alpha, self.junction_beta)  # validates both
         check_number("junction_defer", self.junction_defer, low=0.0)
+        if self.section_distance is not None:
+            check_number("section_distance", self.section_distance, low=0.0)
         if self.max_coast is not None:
             check_number("max_coast", self.max_coast, low=0.0)
         object.__setattr__(

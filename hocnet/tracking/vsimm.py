@@ -1598,6 +1598,18 @@ def _retro_junction(
     angle between the two segments (the distance travelled and the speed are kept), covariance
     ``T P T'`` and cross covariance ``C T'``; rows / modes not behind a node shared by the two
     segments are unchanged. ``config.junction != "rotate"`` keeps the former behaviour.
+
+    Limits (a review's measurements, not yet fixed): the segment at ``tau`` is *guessed* with
+    ``net.locate`` of the straight back-extrapolation, nearest segment of the whole network,
+    ties to the lowest index. That is right for the shallow bends it was measured on; at a
+    4-way crossroad or a T junction approached from the stem the extension lies on the
+    collinear arm, so the rotation is the identity and the stop-mode collapse stays; at bends of
+    90 degrees or more a tie can pick the current segment (no change) or, at a T junction
+    approached along the bar, the wrong arm (measured: 60 m error against 20 m without this
+    step). Only one node is undone (as :func:`junction_transition` passes one per step), and a
+    leaf whose pending section hypothesis masks the old section is not corrected. The sound fix
+    keeps each mode's segment and junction map of the last step in the state and inverts it.
+    The lag memory's one-step rows (``PDTrackerConfig(max_lag=N)``) do not use this step.
     """
     if config.junction != "rotate" or not state.mu.numel():
         return r0

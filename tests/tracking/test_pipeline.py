@@ -490,3 +490,11 @@ def test_junction_on_crossing_opens_the_hypotheses_when_the_prediction_crossed()
         assert f._junction_sections(vs, pred)[0][0] == []  # not crossed: none either way
     assert out[False] == []
     assert sorted(out[True]) == [2, 3]  # north and south, not the segment it came from
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf")])
+def test_section_distance_is_checked_in_the_config(bad):
+    # a review finding: -1 and nan were accepted and failed only later, inside MHT()
+    with pytest.raises(ValueError, match="section_distance"):
+        PDTrackerConfig(section_distance=bad)
+    assert PDTrackerConfig(section_distance=None).section_distance is None
