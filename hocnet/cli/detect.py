@@ -313,6 +313,20 @@ DETECTION_NMS_RADIUS = 2
 MIN_DPA_FRAMES = 2
 
 
+def first_plot_frame(params: dict[str, Any]) -> int:
+    """The first frame that can have DPA plots with these pre-processing options.
+
+    With background removal (``--background`` not ``none``) frame 0 has no past frames: it is
+    all zero after the removal, its ASF is constant and it has no plot (nor CFAR sample), so
+    the first is frame 1; without, frame 0.
+
+    Examples:
+        >>> first_plot_frame({"background": "median"}), first_plot_frame({"background": "none"})
+        (1, 0)
+    """
+    return int(params.get("background", "none") != "none")
+
+
 def _check_float32_range(cube: torch.Tensor, label: str) -> None:
     """Refuse finite values that would become infinite in float32, in which the DPA computes."""
     import torch
@@ -605,6 +619,19 @@ def dpa_setup(
     if target_free is not None:
         check_target_free(target_free, tuple(cube.shape[-2:]), label)
         _check_float32_range(target_free, "`target_free`")
+        # the CFAR samples are the last-frame ASF of each target-free sequence: that frame
+        # must be one that can have plots, i.e. after frame 0 with background removal (frame
+        # 0 has no past frames: all zero, a threshold of 0)
+        need = 1 + first_plot_frame(params)
+        got = int(target_free.shape[-3])
+        if got < need:
+            raise CLIError(
+                f"--target-free: expected at least {need} frames for these options "
+                f"(--background {params['background']}: frame 0 has no past frames, its "
+                f"scores are all 0 and give no CFAR sample), got {got}"
+                if need > 1
+                else f"--target-free: expected at least {need} frames, got {got}"
+            )
     if weights is None:
         weights = probability_matrices(
             window=params["window"],
