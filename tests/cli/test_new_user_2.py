@@ -59,3 +59,54 @@ def test_target_free_one_frame_without_background_accepted(tmp_path, background)
     out = tmp_path / "o"
     args = ["detect", x, "--method", "dpa", "--target-free", one, "--out", str(out)]
     assert main([*args, "--background", background, "--no-register"]) == 0
+
+
+@pytest.fixture(scope="module")
+def one_target(tmp_path_factory):
+    from hocnet.data.infrared import IRTarget, simulate_ir
+
+    scene = simulate_ir(
+        (20, 48, 48), [IRTarget(8, 8, 1.0, 0.8, snr_db=14.0)], clouds="clear", jitter=0.0, seed=0
+    )
+    path = tmp_path_factory.mktemp("one_target") / "seq.npy"
+    np.save(path, scene.frames.numpy())
+    return path
+
+
+class TestLambdaFaCountsOnlyFramesWithPlots:
+    def test_one_frame_estimate_skips_frame_0(self, tmp_path, one_target, capsys):
+        # measured on the old code: frame 0 (all zero after background removal) was the only
+        # counted frame, the estimate fell to its floor and 4 tracks were confirmed
+        out = tmp_path / "o"
+        args = ["track", str(one_target), "--detector", "dpa", "--no-plot", "--out", str(out)]
+        assert main([*args, "--lambda-fa-frames", "1"]) == 0
+        capsys.readouterr()
+        data = json.loads((out / "tracks.json").read_text())
+        mht = data["meta"]["mht_params"]
+        assert mht["lambda_fa_frames_counted"] == [1]
+        assert mht["lambda_fa_frames_skipped"] == [0]
+        assert "not counted: frame 0" in mht["lambda_fa_source"]
+        assert mht["lambda_fa"] > 0.1 / (48 * 48)
+        assert len(data["tracks"]) == 1
+
+    def test_flat_frames_skipped(self, tmp_path, one_target, capsys):
+        seq = np.load(one_target)
+        seq[2] = seq[3] = 7.0
+        path = tmp_path / "flat.npy"
+        np.save(path, seq)
+        out = tmp_path / "o"
+        args = ["track", str(path), "--detector", "dpa", "--no-plot", "--out", str(out)]
+        assert main([*args, "--lambda-fa-frames", "3", "--no-register"]) == 0
+        capsys.readouterr()
+        mht = json.loads((out / "tracks.json").read_text())["meta"]["mht_params"]
+        assert mht["lambda_fa_frames_counted"] == [1, 4, 5]
+        assert mht["lambda_fa_frames_skipped"] == [0, 2, 3]
+
+    def test_floor_warned(self, tmp_path, one_target, capsys):
+        out = tmp_path / "o"
+        args = ["track", str(one_target), "--detector", "dpa", "--no-plot", "--out", str(out)]
+        assert main([*args, "--asf-threshold", "1e9"]) == 0
+        err = capsys.readouterr().err
+        lines = [x for x in err.splitlines() if "--lambda-fa" in x]
+        assert len(lines) == 1 and lines[0].startswith("hocnet: warning: --lambda-fa: ")
+        assert "floor" in lines[0]
