@@ -37,9 +37,10 @@ as the detector's plots become final, ``mht.step(z, time=t)``):
 * The MHT's false-alarm density (a constructor constant) defaults to the mean number of plots
   per frame over the first ``K = --lambda-fa-frames`` frames that can have plots (5; at least
   0.1 per frame, warned about when at that floor; the DPA's frame 0 with background removal
-  and flat frames are not counted: they cannot have plots) divided by the frame area (an upper bound: targets are counted too; our choice), fixed
-  after them; the new-target density to a tenth of it. The MHT is built once those ``K``
-  frames' plots are known (they are buffered until then); with ``--lambda-fa`` at once.
+  and flat frames are not counted: they cannot have plots) divided by the frame area (an
+  upper bound: targets are counted too; our choice), fixed after them; the new-target
+  density to a tenth of it. The MHT is built once those ``K`` frames' plots are known (they
+  are buffered until then); with ``--lambda-fa`` at once.
 
 What is not online:
 
@@ -998,7 +999,8 @@ online (streaming; see the module hocnet.cli.track):
          background of frame n from its --background-window previous frames, whitening of n
     --lambda-fa (default): from the plots of the first --lambda-fa-frames frames only (not
          counting frames that cannot have plots: dpa frame 0 with background removal, flat
-         frames), fixed after them; the tracker starts once they are known (at once with --lambda-fa)
+         frames), fixed after them; the tracker starts once they are known (at once with
+         --lambda-fa)
   not online: SEQ is a file, read and checked whole before any work (its number of frames
   fixes the HOC's extra last window); --target-free is calibration data, processed whole
   first; warnings are said, and outputs written, at the end.
