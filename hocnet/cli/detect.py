@@ -225,7 +225,20 @@ def hoc_kwargs(params: dict[str, Any]) -> dict[str, Any]:
         "delta": math.radians(params["delta"]),
         "threshold": params["threshold"],
         "min_points": params["min_points"],
+        "support": params.get("support", "mhoc"),
     }
+
+
+def _support_name(params: dict[str, Any]) -> str:
+    """What ``support.npy`` holds, as the summary names it.
+
+    Examples:
+        >>> _support_name({"support": "mhoc"}), _support_name({"support": "chain"})
+        ('MHOC image', 'chain support')
+    """
+    if params.get("weights") is not None:
+        return "learned support"
+    return {"chain": "chain support"}.get(params.get("support", "mhoc"), "MHOC image")
 
 
 def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
@@ -842,7 +855,7 @@ _METHODS: dict[str, _Method] = {
 #: Options that --weights replaces with the checkpoint's learned values.
 _WEIGHTS_REPLACE = {
     "dpa": ("g", "b", "window", "v_max", "equal_gain", "direction_step"),
-    "hoc": ("order", "v", "delta"),
+    "hoc": ("order", "v", "delta", "support"),
 }
 
 
@@ -871,6 +884,7 @@ def _load_weights(args: argparse.Namespace, method: str, params: dict[str, Any])
     if method == "dpa":
         params["window"] = int(model.weights.shape[-1])
     if method == "hoc":
+        params["support"] = "learned"  # the learned network's own support
         hp = hoc_settings(model)
         delta = 180.0 if hp["delta"] is None else math.degrees(hp["delta"])
         params.update(order=hp["order"], v=hp["v"], delta=delta)
@@ -1046,10 +1060,15 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     if detection.summary is not None:
         print(f"{detection.summary} ({runtime:.2f} s)")
     else:
+        image = _support_name(detection.params)
+        brought = ""
+        if points_kept is not None and points_support is not None and points_kept > points_support:
+            brought = f" (identification brings back points the {image} misses)"
         print(
             f"{method.name}: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
             f"{' x '.join(map(str, scans.shape))} cube ({runtime:.2f} s); points in: "
-            f"{points_in}, in the support: {points_support}, kept on tracks: {points_kept}"
+            f"{points_in}, in the {image}: {points_support}, kept on tracks: {points_kept}"
+            f"{brought}"
         )
     for note in detection.notes:
         print(f"  {note}")

@@ -110,3 +110,62 @@ class TestLambdaFaCountsOnlyFramesWithPlots:
         lines = [x for x in err.splitlines() if "--lambda-fa" in x]
         assert len(lines) == 1 and lines[0].startswith("hocnet: warning: --lambda-fa: ")
         assert "floor" in lines[0]
+
+
+@pytest.fixture(scope="module")
+def ten_scans(tmp_path_factory):
+    from hocnet.data.binary import TargetSpec, simulate_binary
+
+    spec = TargetSpec(start=(5, 5), velocity=(1.5, 1.2), p_miss=0.0)
+    scene = simulate_binary((10, 48, 48), [spec], clutter_density=0.002, seed=0)
+    path = tmp_path_factory.mktemp("ten") / "bin.npy"
+    np.save(path, scene.cube.numpy())
+    return path
+
+
+class TestSupportOption:
+    def test_support_reaches_the_detector(self, tmp_path, ten_scans, capsys, monkeypatch):
+        import hocnet.hoc
+
+        seen = []
+        real = hocnet.hoc.detect
+
+        def spy(*a, **kw):
+            seen.append(kw.get("support"))
+            return real(*a, **kw)
+
+        monkeypatch.setattr(hocnet.hoc, "detect", spy)
+        for support in ("mhoc", "chain"):
+            out = tmp_path / support
+            args = ["detect", str(ten_scans), "--method", "hoc", "--order", "3"]
+            assert main([*args, "--support", support, "--out", str(out)]) == 0
+            meta = json.loads((out / "tracks.json").read_text())["meta"]
+            assert meta["support"] == support
+        assert seen == ["mhoc", "chain"]
+        out, err = capsys.readouterr()
+        # the uncovered-scan warning (mhoc only) names the command-line option
+        assert "--support chain covers every scan" in err and "support='chain'" not in err
+
+    def test_summary_names_the_image_and_why_more_points_are_kept(self, tmp_path, ten_scans):
+        out = tmp_path / "o"
+        args = ["detect", str(ten_scans), "--method", "hoc", "--order", "3", "--out", str(out)]
+        import contextlib
+        import io
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):
+            assert main(args) == 0
+        meta = json.loads((out / "tracks.json").read_text())["meta"]
+        line = buf.getvalue().splitlines()[0]
+        assert f"in the MHOC image: {meta['points_support']}" in line
+        assert f"kept on tracks: {meta['points_out']}" in line
+        assert meta["points_out"] > meta["points_support"]  # measured: 10 > 8
+        assert "identification brings back points the MHOC image misses" in line
+        assert "in the support:" not in line
+
+    def test_track_takes_support(self, tmp_path, ten_scans, capsys):
+        out = tmp_path / "o"
+        args = ["track", str(ten_scans), "--detector", "hoc", "--order", "3", "--no-plot"]
+        assert main([*args, "--support", "chain", "--out", str(out)]) == 0
+        meta = json.loads((out / "tracks.json").read_text())["meta"]
+        assert meta["detector_params"]["support"] == "chain"
