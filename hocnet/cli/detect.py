@@ -386,8 +386,8 @@ def _preprocess(
 
     try:
         if params["register"]:
-            # pairs without a significant correlation peak keep (0, 0) (no structure to
-            # register: noise, flat frames); counted, and said with the shifts
+            # pairs without a significant correlation peak keep (0, 0) (noise, flat or very
+            # smooth frames); counted, and said with the shifts
             shifts, rejected = estimate_shifts(x, return_rejected=True)
             if not bool(torch.isfinite(shifts).all()):
                 raise overflow("registration (--register)")
@@ -443,13 +443,16 @@ def _shifts_summary(
 ) -> str:
     """One line about the estimated camera motion; ``where``: the output that lists the shifts.
 
-    ``unregistered``: the frame pairs left at shift 0 for lack of structure (the rejected
-    pairs of :func:`hocnet.data.background.estimate_shifts`), said when there are any.
+    ``unregistered``: the frame pairs left at shift 0 without a significant phase-correlation
+    peak (the rejected pairs of :func:`hocnet.data.background.estimate_shifts`), said when
+    there are any. Such a pair need not lack structure: phase correlation whitens the
+    spectrum, so a very smooth texture (e.g. blurred with sigma 3 px) gives a peak below the
+    test's threshold too; the wording says so.
 
     Examples:
         >>> import torch
         >>> _shifts_summary(torch.zeros(4, 2), unregistered=3)  # doctest: +ELLIPSIS
-        'registration: no structure to register in 3 of 3 frame pairs ... (0, 0); ...'
+        'registration: no reliable registration peak in 3 of 3 frame pairs (noise, flat or ...'
     """
     from hocnet.data.background import REGISTRATION_PFA
 
@@ -460,13 +463,13 @@ def _shifts_summary(
     pairs = drift.shape[0] * max(shifts.shape[-2] - 1, 0)
     if unregistered and unregistered == pairs:  # nothing was registered: no motion measured
         return (
-            f"registration: no structure to register in {unregistered} of {pairs} frame pairs "
-            f"(no significant phase-correlation peak at pfa {REGISTRATION_PFA:g}: noise or "
-            f"flat frames), every shift kept at (0, 0); see {where}"
+            f"registration: no reliable registration peak in {unregistered} of {pairs} frame "
+            f"pairs (noise, flat or very smooth frames; shifts kept at 0; phase-correlation "
+            f"peak test at pfa {REGISTRATION_PFA:g}); see {where}"
         )
     weak = (
-        f"; {unregistered} of {pairs} frame pairs without structure to register (no "
-        "significant phase-correlation peak), kept at (0, 0)"
+        f"; no reliable registration peak in {unregistered} of {pairs} frame pairs (noise, "
+        "flat or very smooth frames; shifts kept at 0)"
         if unregistered
         else ""
     )
@@ -1119,9 +1122,9 @@ outputs of every method (in --out DIR):
                  0..n only); hoc: the HOC point score of the support points.
   shifts.csv     with registration: frame,dx,dy,offset_x,offset_y, the estimated camera shift of
                  each frame relative to the previous one and to frame 0, in pixels; a frame
-                 pair without structure to register (no significant phase-correlation peak:
-                 noise, flat frames) keeps (0, 0), counted on stdout and in
-                 meta["unregistered_pairs"]
+                 pair without a reliable registration peak (no significant phase-correlation
+                 peak: noise, flat or very smooth frames) keeps (0, 0), counted on stdout and
+                 in meta["unregistered_pairs"]
 
 outputs of --method hoc:
   cleaned.npy   bool cube of the points on the identified tracks, shaped like the input

@@ -169,3 +169,31 @@ class TestSupportOption:
         assert main([*args, "--support", "chain", "--out", str(out)]) == 0
         meta = json.loads((out / "tracks.json").read_text())["meta"]
         assert meta["detector_params"]["support"] == "chain"
+
+
+def test_registration_note_on_a_smooth_texture(tmp_path, capsys):
+    # a Gaussian-blurred texture (sigma 3 px): there is structure, but the phase-correlation
+    # peak is below the test's threshold; the note must not say "no structure"
+    import torch
+
+    from hocnet.cli.detect import _shifts_summary
+
+    line = _shifts_summary(torch.zeros(30, 2), unregistered=29)
+    assert line.startswith("registration: no reliable registration peak in 29 of 29 frame pairs")
+    assert "noise, flat or very smooth frames; shifts kept at 0" in line
+    assert "no structure" not in line
+    part = _shifts_summary(torch.ones(30, 2), unregistered=3)
+    assert "no reliable registration peak in 3 of 29 frame pairs" in part
+    rng = np.random.default_rng(0)
+    base = torch.from_numpy(rng.normal(0, 1, (1, 1, 96, 96))).float()
+    k = torch.exp(-0.5 * (torch.arange(-9, 10, dtype=torch.float32) / 3.0) ** 2)
+    k = k / k.sum()
+    smooth = torch.nn.functional.conv2d(base, k.view(1, 1, 1, -1), padding=(0, 9))
+    smooth = torch.nn.functional.conv2d(smooth, k.view(1, 1, -1, 1), padding=(9, 0))[0, 0]
+    frames = torch.stack([smooth[10:50, 10 + t : 50 + t] for t in range(6)]) * 50 + 100
+    frames = frames + torch.from_numpy(rng.normal(0, 0.5, frames.shape)).float()
+    path = tmp_path / "tex.npy"
+    np.save(path, frames.numpy())
+    assert main(["detect", str(path), "--method", "dpa", "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "registration:" in out and "no structure" not in out
