@@ -92,11 +92,18 @@ from hocnet.cli._common import (
 OUTPUT_NAMES = ("tracks.json", "tracks.png")
 
 #: ``hocnet detect``'s DPA options left out here: ``--max-targets`` and ``--nms-radius`` shape
-#: only the back-tracked tracks, not the plots; ``--window`` is the HOC's sliding window here
-#: (the DPA's matrix size follows ``--preset``).
-_DPA_SKIP = ("window", "max_targets", "nms_radius")
+#: only the back-tracked tracks, not the plots.
+_DPA_SKIP = ("max_targets", "nms_radius")
+#: ``--window`` is one flag for both detectors (added with the HOC's options): the HOC's
+#: sliding window (frames), or the DPA's probability-matrix size (pixels, as in ``hocnet
+#: detect``; default: the preset's).
+_DPA_NOT_ADDED = (*_DPA_SKIP, "window")
 _HOC_DESTS = (*_inputs.HOC_DESTS, "window", "stride")
-_DPA_DESTS = (*(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
+_DPA_DESTS = (
+    *(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP),
+    "direction_step",
+    "max_per_frame",
+)
 
 _LABEL, _SELECTOR = "SEQ", "--detector"
 
@@ -178,7 +185,9 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
         max_per_frame = _check_int("--max-per-frame", max_per_frame, minimum=1)
     params = {}
     with problems.check():
-        params = _inputs.prepare_dpa(dpa)
+        from hocnet.cli.detect import _prepare_dpa  # --direction-step as in `hocnet detect`
+
+        params = _prepare_dpa(dpa)
     problems.raise_all()
     params["max_per_frame"] = max_per_frame
     return params
@@ -445,10 +454,11 @@ def _dpa_setup(cube: Any, params: dict[str, Any]) -> dict[str, Any]:
             f"SEQ: expected at least {2 + background} frames for --detector dpa, got {n_t} (the "
             f"tracker needs plots in 2 frames to confirm a track{because})"
         )
-    if min(height, width) < size:  # `hocnet detect` would name its --window, not an option here
+    if min(height, width) < size:
         raise CLIError(
             f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
-            f"matrices of --preset {params['preset']}, got {height} x {width}"
+            f"matrices (--window, default of --preset {params['preset']}), got {height} x "
+            f"{width}"
         )
     setup = dpa_setup(cube, params, _LABEL, frame_names, cfar=True)
     b, threshold = setup["b"], setup["threshold"]
@@ -597,6 +607,7 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[Iterator[tuple[int, A
                     "g",
                     "b",
                     "window",
+                    "direction_step",
                     "v_max",
                     "equal_gain",
                     "pfa",
@@ -631,9 +642,9 @@ def _mht_params(
     ``counted``: the frames ``plots`` are of (the first ``K`` frames that can have plots,
     :func:`_run_mht`); ``skipped``: the frames before the last counted one that were left out
     (before the detector's first possible plot, or flat). Both are recorded
-    (``lambda_fa_frames_counted`` / ``lambda_fa_frames_skipped``), and with ``counted`` an
-    estimate at its floor (fewer than 0.1 plots per counted frame) is warned about
-    (:class:`RuntimeWarning`: the CLI's one ``hocnet: warning:`` line).
+    (``lambda_fa_frames_counted`` / ``lambda_fa_frames_skipped``), and so is an estimate at
+    its floor (``lambda_fa_at_floor``: fewer than 0.1 plots per counted frame), which
+    :func:`_run_mht` warns about when the whole sequence has more plots than that.
     """
     pd = _check_number(
         "--pd", args.pd, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False
@@ -669,16 +680,11 @@ def _mht_params(
                 "(no possible plot: before the detector's first plot frame, or flat)"
             )
         if counted is not None:
-            extra = {"lambda_fa_frames_counted": counted, "lambda_fa_frames_skipped": skipped or []}
-            if n_plots < 0.1 * max(len(plots), 1):
-                warnings.warn(
-                    f"--lambda-fa: the default estimate is at its floor (0.1 plots per frame; "
-                    f"{n_plots} plots in the {len(plots)} counted frame"
-                    f"{'s' * (len(plots) != 1)}): later frames with more plots will start false "
-                    "tracks; set --lambda-fa, or a larger --lambda-fa-frames",
-                    RuntimeWarning,
-                    stacklevel=2,
-                )
+            extra = {
+                "lambda_fa_frames_counted": counted,
+                "lambda_fa_frames_skipped": skipped or [],
+                "lambda_fa_at_floor": n_plots < 0.1 * max(len(plots), 1),
+            }
     else:
         lam = _check_number("--lambda-fa", args.lambda_fa, low=0.0, low_inclusive=False)
         source = "--lambda-fa"
@@ -776,7 +782,9 @@ def _run_mht(
     known, which fixes its false-alarm density (a constructor constant), and the buffered
     frames are stepped then. ``uncounted``: frames that cannot have plots (the DPA's frame 0
     with background removal, flat frames), buffered but not counted in the estimate (their
-    zero plots would pull it down, to its floor, and give false confirmed tracks).
+    zero plots would pull it down, to its floor, and give false confirmed tracks). An estimate
+    at its floor is warned about (:class:`RuntimeWarning`, the CLI's one ``hocnet: warning:``
+    line) when the sequence's frames that can have plots have more than 0.1 plots per frame.
     """
     frames = LAMBDA_FA_FRAMES if args.lambda_fa_frames is None else args.lambda_fa_frames
     fixed = args.lambda_fa is not None
@@ -812,6 +820,20 @@ def _run_mht(
             mht = build()
     if mht is None:  # the stream ended early
         mht = build()
+    if params.get("lambda_fa_at_floor"):
+        later = [int(z.shape[0]) for t, z in enumerate(plots) if t not in skip]
+        mean = sum(later) / max(len(later), 1)
+        if mean > 0.1:  # the floor was too low for this sequence: false tracks likely
+            n = len(params["lambda_fa_frames_counted"])
+            warnings.warn(
+                f"--lambda-fa: the default estimate is at its floor (0.1 plots per frame: "
+                f"{sum(int(plots[i].shape[0]) for i in params['lambda_fa_frames_counted'])} "
+                f"plots in the {n} counted frame{'s' * (n != 1)}) while the sequence has "
+                f"{mean:.2g} plots per frame: confirmed tracks may be false; set --lambda-fa, "
+                "or a larger --lambda-fa-frames",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     return mht.all_tracks(), plots, params
 
 
@@ -1074,7 +1096,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="frames per window, >= 2 * order + 1 (default: 10, or 2 * order + 1 if larger)",
+        help="hoc: frames per window, >= 2 * order + 1 (default: 10, or 2 * order + 1 if "
+        "larger); dpa: probability-matrix size in pixels, odd, at most the frame size, as "
+        "--window of 'hocnet detect' (default: the --preset's)",
     )
     hoc.add_argument(
         "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"
@@ -1082,8 +1106,13 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     dpa = p.add_argument_group("dpa options (--detector dpa; as in 'hocnet detect')")
     _inputs.add_dpa_options(
         dpa,
-        skip=_DPA_SKIP,
+        skip=_DPA_NOT_ADDED,
         helps={"asf_threshold": "keep the plots whose ASF is above S (default: no threshold)"},
+    )
+    from hocnet.cli.detect import _DIRECTION_STEP_HELP
+
+    dpa.add_argument(
+        "--direction-step", choices=("paper", "source"), default=None, help=_DIRECTION_STEP_HELP
     )
     dpa.add_argument(
         "--max-per-frame",

@@ -102,14 +102,43 @@ class TestLambdaFaCountsOnlyFramesWithPlots:
         assert mht["lambda_fa_frames_counted"] == [1, 4, 5]
         assert mht["lambda_fa_frames_skipped"] == [0, 2, 3]
 
-    def test_floor_warned(self, tmp_path, one_target, capsys):
+    def test_floor_warned(self):
+        import warnings
+
+        import torch
+
+        from hocnet.cli import build_parser
+        from hocnet.cli.track import _run_mht
+
+        def stream(counts):
+            for t, c in enumerate(counts):
+                yield t, torch.rand(c, 2, dtype=torch.float64) * 32
+
+        args = build_parser().parse_args(["track", "x.npy", "--detector", "dpa"])
+        # frames 0-4 without plots, then 3 per frame: the estimate is at its floor, warned
+        with pytest.warns(RuntimeWarning, match=r"--lambda-fa: .* at its floor") as said:
+            _, _, p = _run_mht(stream([0] * 5 + [3] * 15), args, 20, 1024.0)
+        assert len(said) == 1 and p["lambda_fa_at_floor"] and p["lambda_fa"] == 0.1 / 1024
+        # no plots anywhere: nothing to be misled by, no warning
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _, _, p = _run_mht(stream([0] * 20), args, 20, 1024.0)
+            assert p["lambda_fa_at_floor"]
+            _, _, p = _run_mht(stream([2] * 20), args, 20, 1024.0)
+            assert not p["lambda_fa_at_floor"]
+        # frames that cannot have plots are not what puts it at its floor
+        _, _, p = _run_mht(stream([0] + [3] * 19), args, 20, 1024.0, uncounted=[0])
+        assert not p["lambda_fa_at_floor"] and p["lambda_fa"] == 3 / 1024
+
+    def test_floor_warned_once_on_the_command_line(self, tmp_path, one_target, capsys):
         out = tmp_path / "o"
         args = ["track", str(one_target), "--detector", "dpa", "--no-plot", "--out", str(out)]
-        assert main([*args, "--asf-threshold", "1e9"]) == 0
+        # measured: the ASF maximum of frame 1 (the one counted) is 4.48, of later frames up
+        # to 8.54: no plot counted, plots later
+        assert main([*args, "--lambda-fa-frames", "1", "--asf-threshold", "6.5"]) == 0
         err = capsys.readouterr().err
         lines = [x for x in err.splitlines() if "--lambda-fa" in x]
         assert len(lines) == 1 and lines[0].startswith("hocnet: warning: --lambda-fa: ")
-        assert "floor" in lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -197,3 +226,37 @@ def test_registration_note_on_a_smooth_texture(tmp_path, capsys):
     assert main(["detect", str(path), "--method", "dpa", "--out", str(tmp_path / "o")]) == 0
     out = capsys.readouterr().out
     assert "registration:" in out and "no structure" not in out
+
+
+class TestTrackDPAOptions:
+    def test_direction_step_and_window_reach_the_dpa(self, tmp_path, one_target, monkeypatch):
+        import hocnet.dpa
+
+        seen = []
+        real = hocnet.dpa.accumulate
+
+        def spy(frames, weights, *a, **kw):
+            seen.append((tuple(weights.shape[-2:]), kw.get("direction_step")))
+            return real(frames, weights, *a, **kw)
+
+        monkeypatch.setattr(hocnet.dpa, "accumulate", spy)
+        out = tmp_path / "o"
+        args = ["track", str(one_target), "--detector", "dpa", "--no-plot", "--out", str(out)]
+        assert main([*args, "--direction-step", "source", "--window", "3", "--g", "1"]) == 0
+        assert seen and set(seen) == {((3, 3), "source")}
+        meta = json.loads((out / "tracks.json").read_text())["meta"]["detector_params"]
+        assert meta["window"] == 3 and meta["direction_step"] == "source"
+
+    def test_bad_window_and_hoc_only_flags(self, tmp_path, one_target, capsys):
+        args = ["track", str(one_target), "--detector", "dpa", "--out", str(tmp_path / "o")]
+        one_line_error(capsys, main([*args, "--window", "4"]), r"--window: expected an odd")
+        one_line_error(
+            capsys,
+            main([*args, "--window", "49"]),
+            r"SEQ: expected frames of at least 49 x 49 .*--window",
+        )
+        one_line_error(
+            capsys,
+            main(["track", str(one_target), "--direction-step", "source"]),
+            r"--direction-step: does not apply to --detector hoc",
+        )
