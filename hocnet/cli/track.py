@@ -174,6 +174,14 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
         stride = 2 if args.stride is None else args.stride
         with problems.check():
             stride = _check_int("--stride", stride, minimum=1)
+            if isinstance(window, int) and stride > window:
+                # never useful: the frames between windows would get no plots at all (the
+                # tracker would take them as missed detections); refused, not warned
+                raise CLIError(
+                    f"--stride: expected at most --window = {window} (a larger stride leaves "
+                    f"the {stride - window} frame{'s' * (stride - window != 1)} between two "
+                    f"windows in no window: no plots there), got {stride}"
+                )
         params["stride"] = stride
         problems.raise_all()
         return params
@@ -231,6 +239,8 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Iterable[Any], dict[s
     info: dict[str, Any] = {"notes": [], "shifts": None}
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
+    # one window then holds every frame: a stride beyond it skips nothing (no library warning)
+    params["stride"] = min(params["stride"], params["window"])
     if params.get("threshold_pfa") is None:
         return cube, info
     _check_float32_range(cube, "`frames`")
@@ -1101,7 +1111,11 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "--window of 'hocnet detect' (default: the --preset's)",
     )
     hoc.add_argument(
-        "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"
+        "--stride",
+        type=int,
+        default=None,
+        metavar="N",
+        help="frames between windows, at most --window (default: 2)",
     )
     dpa = p.add_argument_group("dpa options (--detector dpa; as in 'hocnet detect')")
     _inputs.add_dpa_options(

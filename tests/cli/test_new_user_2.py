@@ -260,3 +260,13 @@ class TestTrackDPAOptions:
             main(["track", str(one_target), "--direction-step", "source"]),
             r"--direction-step: does not apply to --detector hoc",
         )
+
+
+def test_track_refuses_a_stride_larger_than_the_window(tmp_path, ten_scans, capsys):
+    args = ["track", str(ten_scans), "--detector", "hoc", "--out", str(tmp_path / "o")]
+    one_line_error(
+        capsys,
+        main([*args, "--window", "5", "--stride", "7"]),
+        r"--stride: expected at most --window = 5 \(.*the 2 frames between two windows.*got 7",
+    )
+    assert main([*args, "--window", "5", "--stride", "5", "--no-plot"]) == 0
