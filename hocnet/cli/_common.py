@@ -463,7 +463,8 @@ def _reported_warnings(messages: list[str]) -> Any:
         warnings.simplefilter("always")
         yield messages
     new = [
-        _one_line(str(w.message))
+        # the library's keyword, as the command line sets it (hocnet detect / track --support)
+        _one_line(str(w.message)).replace("support='chain'", "--support chain")
         for w in caught
         if issubclass(w.category, (UserWarning, RuntimeWarning))
     ]

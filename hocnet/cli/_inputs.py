@@ -28,7 +28,16 @@ if TYPE_CHECKING:
     import torch
 
 #: Options of the HOC (``add_hoc_options``).
-HOC_DESTS = ("order", "v", "delta", "threshold", "min_points", "min_speed", "threshold_pfa")
+HOC_DESTS = (
+    "order",
+    "v",
+    "delta",
+    "threshold",
+    "min_points",
+    "min_speed",
+    "threshold_pfa",
+    "support",
+)
 
 #: Options of the pre-processing of intensity frames (shared by dpa and hoc --threshold-pfa).
 PRE_DESTS = ("register", "background", "background_window", "whiten")
@@ -100,6 +109,15 @@ def add_hoc_options(
         ">= 0; our addition against stationary clutter, not in [LA98] (default: 0, keep all)",
     )
     group.add_argument(
+        "--support",
+        choices=("mhoc", "chain"),
+        default=None,
+        help="the points identification starts from: 'mhoc' = the MHOC image of [LA98] "
+        "(forward OR backward Y^(k); it cannot cover every scan when T < 4k, identification "
+        "brings those points back), 'chain' = every point on an accepted 2k + 1-point chain "
+        "(our addition; covers every scan) (default: mhoc)",
+    )
+    group.add_argument(
         "--threshold-pfa",
         type=float,
         default=None,
@@ -150,6 +168,7 @@ def prepare_hoc(args: argparse.Namespace, selector: str = "--method") -> dict[st
         "threshold": threshold,
         "min_points": min_points,
         "min_speed": min_speed,
+        "support": "mhoc" if getattr(args, "support", None) is None else args.support,
     }
     if args.threshold_pfa is None:
         for dest in PRE_DESTS:

@@ -225,7 +225,20 @@ def hoc_kwargs(params: dict[str, Any]) -> dict[str, Any]:
         "delta": math.radians(params["delta"]),
         "threshold": params["threshold"],
         "min_points": params["min_points"],
+        "support": params.get("support", "mhoc"),
     }
+
+
+def _support_name(params: dict[str, Any]) -> str:
+    """What ``support.npy`` holds, as the summary names it.
+
+    Examples:
+        >>> _support_name({"support": "mhoc"}), _support_name({"support": "chain"})
+        ('MHOC image', 'chain support')
+    """
+    if params.get("weights") is not None:
+        return "learned support"
+    return {"chain": "chain support"}.get(params.get("support", "mhoc"), "MHOC image")
 
 
 def _run_hoc(cube: torch.Tensor, params: dict[str, Any]) -> Detection:
@@ -313,6 +326,20 @@ DETECTION_NMS_RADIUS = 2
 MIN_DPA_FRAMES = 2
 
 
+def first_plot_frame(params: dict[str, Any]) -> int:
+    """The first frame that can have DPA plots with these pre-processing options.
+
+    With background removal (``--background`` not ``none``) frame 0 has no past frames: it is
+    all zero after the removal, its ASF is constant and it has no plot (nor CFAR sample), so
+    the first is frame 1; without, frame 0.
+
+    Examples:
+        >>> first_plot_frame({"background": "median"}), first_plot_frame({"background": "none"})
+        (1, 0)
+    """
+    return int(params.get("background", "none") != "none")
+
+
 def _check_float32_range(cube: torch.Tensor, label: str) -> None:
     """Refuse finite values that would become infinite in float32, in which the DPA computes."""
     import torch
@@ -359,8 +386,8 @@ def _preprocess(
 
     try:
         if params["register"]:
-            # pairs without a significant correlation peak keep (0, 0) (no structure to
-            # register: noise, flat frames); counted, and said with the shifts
+            # pairs without a significant correlation peak keep (0, 0) (noise, flat or very
+            # smooth frames); counted, and said with the shifts
             shifts, rejected = estimate_shifts(x, return_rejected=True)
             if not bool(torch.isfinite(shifts).all()):
                 raise overflow("registration (--register)")
@@ -416,13 +443,16 @@ def _shifts_summary(
 ) -> str:
     """One line about the estimated camera motion; ``where``: the output that lists the shifts.
 
-    ``unregistered``: the frame pairs left at shift 0 for lack of structure (the rejected
-    pairs of :func:`hocnet.data.background.estimate_shifts`), said when there are any.
+    ``unregistered``: the frame pairs left at shift 0 without a significant phase-correlation
+    peak (the rejected pairs of :func:`hocnet.data.background.estimate_shifts`), said when
+    there are any. Such a pair need not lack structure: phase correlation whitens the
+    spectrum, so a very smooth texture (e.g. blurred with sigma 3 px) gives a peak below the
+    test's threshold too; the wording says so.
 
     Examples:
         >>> import torch
         >>> _shifts_summary(torch.zeros(4, 2), unregistered=3)  # doctest: +ELLIPSIS
-        'registration: no structure to register in 3 of 3 frame pairs ... (0, 0); ...'
+        'registration: no reliable registration peak in 3 of 3 frame pairs (noise, flat or ...'
     """
     from hocnet.data.background import REGISTRATION_PFA
 
@@ -433,13 +463,13 @@ def _shifts_summary(
     pairs = drift.shape[0] * max(shifts.shape[-2] - 1, 0)
     if unregistered and unregistered == pairs:  # nothing was registered: no motion measured
         return (
-            f"registration: no structure to register in {unregistered} of {pairs} frame pairs "
-            f"(no significant phase-correlation peak at pfa {REGISTRATION_PFA:g}: noise or "
-            f"flat frames), every shift kept at (0, 0); see {where}"
+            f"registration: no reliable registration peak in {unregistered} of {pairs} frame "
+            f"pairs (noise, flat or very smooth frames; shifts kept at 0; phase-correlation "
+            f"peak test at pfa {REGISTRATION_PFA:g}); see {where}"
         )
     weak = (
-        f"; {unregistered} of {pairs} frame pairs without structure to register (no "
-        "significant phase-correlation peak), kept at (0, 0)"
+        f"; no reliable registration peak in {unregistered} of {pairs} frame pairs (noise, "
+        "flat or very smooth frames; shifts kept at 0)"
         if unregistered
         else ""
     )
@@ -605,6 +635,19 @@ def dpa_setup(
     if target_free is not None:
         check_target_free(target_free, tuple(cube.shape[-2:]), label)
         _check_float32_range(target_free, "`target_free`")
+        # the CFAR samples are the last-frame ASF of each target-free sequence: that frame
+        # must be one that can have plots, i.e. after frame 0 with background removal (frame
+        # 0 has no past frames: all zero, a threshold of 0)
+        need = 1 + first_plot_frame(params)
+        got = int(target_free.shape[-3])
+        if got < need:
+            raise CLIError(
+                f"--target-free: expected at least {need} frames for these options "
+                f"(--background {params['background']}: frame 0 has no past frames, its "
+                f"scores are all 0 and give no CFAR sample), got {got}"
+                if need > 1
+                else f"--target-free: expected at least {need} frames, got {got}"
+            )
     if weights is None:
         weights = probability_matrices(
             window=params["window"],
@@ -815,7 +858,7 @@ _METHODS: dict[str, _Method] = {
 #: Options that --weights replaces with the checkpoint's learned values.
 _WEIGHTS_REPLACE = {
     "dpa": ("g", "b", "window", "v_max", "equal_gain", "direction_step"),
-    "hoc": ("order", "v", "delta"),
+    "hoc": ("order", "v", "delta", "support"),
 }
 
 
@@ -844,6 +887,7 @@ def _load_weights(args: argparse.Namespace, method: str, params: dict[str, Any])
     if method == "dpa":
         params["window"] = int(model.weights.shape[-1])
     if method == "hoc":
+        params["support"] = "learned"  # the learned network's own support
         hp = hoc_settings(model)
         delta = 180.0 if hp["delta"] is None else math.degrees(hp["delta"])
         params.update(order=hp["order"], v=hp["v"], delta=delta)
@@ -1019,10 +1063,15 @@ def _cmd_detect(args: argparse.Namespace) -> int:
     if detection.summary is not None:
         print(f"{detection.summary} ({runtime:.2f} s)")
     else:
+        image = _support_name(detection.params)
+        brought = ""
+        if points_kept is not None and points_support is not None and points_kept > points_support:
+            brought = f" (identification brings back points the {image} misses)"
         print(
             f"{method.name}: {len(tracks)} track{'s' * (len(tracks) != 1)} in "
             f"{' x '.join(map(str, scans.shape))} cube ({runtime:.2f} s); points in: "
-            f"{points_in}, in the support: {points_support}, kept on tracks: {points_kept}"
+            f"{points_in}, in the {image}: {points_support}, kept on tracks: {points_kept}"
+            f"{brought}"
         )
     for note in detection.notes:
         print(f"  {note}")
@@ -1073,9 +1122,9 @@ outputs of every method (in --out DIR):
                  0..n only); hoc: the HOC point score of the support points.
   shifts.csv     with registration: frame,dx,dy,offset_x,offset_y, the estimated camera shift of
                  each frame relative to the previous one and to frame 0, in pixels; a frame
-                 pair without structure to register (no significant phase-correlation peak:
-                 noise, flat frames) keeps (0, 0), counted on stdout and in
-                 meta["unregistered_pairs"]
+                 pair without a reliable registration peak (no significant phase-correlation
+                 peak: noise, flat or very smooth frames) keeps (0, 0), counted on stdout and
+                 in meta["unregistered_pairs"]
 
 outputs of --method hoc:
   cleaned.npy   bool cube of the points on the identified tracks, shaped like the input

@@ -35,10 +35,12 @@ as the detector's plots become final, ``mht.step(z, time=t)``):
   temporal background of frame ``n`` from its ``--background-window`` previous frames,
   whitening of frame ``n``: causal, a history of ``--background-window`` frames.
 * The MHT's false-alarm density (a constructor constant) defaults to the mean number of plots
-  per frame over the first ``K = --lambda-fa-frames`` frames (5; at least 0.1 per frame)
-  divided by the frame area (an upper bound: targets are counted too; our choice), fixed
-  after them; the new-target density to a tenth of it. The MHT is built once those ``K``
-  frames' plots are known (they are buffered until then); with ``--lambda-fa`` at once.
+  per frame over the first ``K = --lambda-fa-frames`` frames that can have plots (5; at least
+  0.1 per frame, warned about when at that floor; the DPA's frame 0 with background removal
+  and flat frames are not counted: they cannot have plots) divided by the frame area (an
+  upper bound: targets are counted too; our choice), fixed after them; the new-target
+  density to a tenth of it. The MHT is built once those ``K`` frames' plots are known (they
+  are buffered until then); with ``--lambda-fa`` at once.
 
 What is not online:
 
@@ -90,11 +92,18 @@ from hocnet.cli._common import (
 OUTPUT_NAMES = ("tracks.json", "tracks.png")
 
 #: ``hocnet detect``'s DPA options left out here: ``--max-targets`` and ``--nms-radius`` shape
-#: only the back-tracked tracks, not the plots; ``--window`` is the HOC's sliding window here
-#: (the DPA's matrix size follows ``--preset``).
-_DPA_SKIP = ("window", "max_targets", "nms_radius")
+#: only the back-tracked tracks, not the plots.
+_DPA_SKIP = ("max_targets", "nms_radius")
+#: ``--window`` is one flag for both detectors (added with the HOC's options): the HOC's
+#: sliding window (frames), or the DPA's probability-matrix size (pixels, as in ``hocnet
+#: detect``; default: the preset's).
+_DPA_NOT_ADDED = (*_DPA_SKIP, "window")
 _HOC_DESTS = (*_inputs.HOC_DESTS, "window", "stride")
-_DPA_DESTS = (*(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP), "max_per_frame")
+_DPA_DESTS = (
+    *(d for d in _inputs.DPA_DESTS if d not in _DPA_SKIP),
+    "direction_step",
+    "max_per_frame",
+)
 
 _LABEL, _SELECTOR = "SEQ", "--detector"
 
@@ -165,6 +174,14 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
         stride = 2 if args.stride is None else args.stride
         with problems.check():
             stride = _check_int("--stride", stride, minimum=1)
+            if isinstance(window, int) and stride > window:
+                # never useful: the frames between windows would get no plots at all (the
+                # tracker would take them as missed detections); refused, not warned
+                raise CLIError(
+                    f"--stride: expected at most --window = {window} (a larger stride leaves "
+                    f"the {stride - window} frame{'s' * (stride - window != 1)} between two "
+                    f"windows in no window: no plots there), got {stride}"
+                )
         params["stride"] = stride
         problems.raise_all()
         return params
@@ -176,7 +193,9 @@ def _prepare(args: argparse.Namespace) -> dict[str, Any]:
         max_per_frame = _check_int("--max-per-frame", max_per_frame, minimum=1)
     params = {}
     with problems.check():
-        params = _inputs.prepare_dpa(dpa)
+        from hocnet.cli.detect import _prepare_dpa  # --direction-step as in `hocnet detect`
+
+        params = _prepare_dpa(dpa)
     problems.raise_all()
     params["max_per_frame"] = max_per_frame
     return params
@@ -220,6 +239,8 @@ def _hoc_input(cube: Any, params: dict[str, Any]) -> tuple[Iterable[Any], dict[s
     info: dict[str, Any] = {"notes": [], "shifts": None}
     _bound_hoc(cube, params)
     params["window"] = min(params["window"], n_frames)
+    # one window then holds every frame: a stride beyond it skips nothing (no library warning)
+    params["stride"] = min(params["stride"], params["window"])
     if params.get("threshold_pfa") is None:
         return cube, info
     _check_float32_range(cube, "`frames`")
@@ -443,10 +464,11 @@ def _dpa_setup(cube: Any, params: dict[str, Any]) -> dict[str, Any]:
             f"SEQ: expected at least {2 + background} frames for --detector dpa, got {n_t} (the "
             f"tracker needs plots in 2 frames to confirm a track{because})"
         )
-    if min(height, width) < size:  # `hocnet detect` would name its --window, not an option here
+    if min(height, width) < size:
         raise CLIError(
             f"SEQ: expected frames of at least {size} x {size} for the {size} x {size} DPA "
-            f"matrices of --preset {params['preset']}, got {height} x {width}"
+            f"matrices (--window, default of --preset {params['preset']}), got {height} x "
+            f"{width}"
         )
     setup = dpa_setup(cube, params, _LABEL, frame_names, cfar=True)
     b, threshold = setup["b"], setup["threshold"]
@@ -595,6 +617,7 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[Iterator[tuple[int, A
                     "g",
                     "b",
                     "window",
+                    "direction_step",
                     "v_max",
                     "equal_gain",
                     "pfa",
@@ -612,12 +635,26 @@ def _dpa_plots(cube: Any, params: dict[str, Any]) -> tuple[Iterator[tuple[int, A
 LAMBDA_FA_FRAMES = 5
 
 
-def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict[str, Any]:
+def _mht_params(
+    args: argparse.Namespace,
+    plots: list[Any],
+    area: float,
+    *,
+    counted: list[int] | None = None,
+    skipped: list[int] | None = None,
+) -> dict[str, Any]:
     """The tracker's parameters; the default densities from ``plots``, the first K frames' plots.
 
     ``--lambda-fa`` defaults to the mean number of plots per frame over ``plots`` (at least 0.1
     per frame) divided by the frame ``area``; ``--lambda-nt`` to a tenth of ``--lambda-fa``.
     ``lambda_fa_source`` / ``lambda_nt_source`` say where each value came from.
+
+    ``counted``: the frames ``plots`` are of (the first ``K`` frames that can have plots,
+    :func:`_run_mht`); ``skipped``: the frames before the last counted one that were left out
+    (before the detector's first possible plot, or flat). Both are recorded
+    (``lambda_fa_frames_counted`` / ``lambda_fa_frames_skipped``), and so is an estimate at
+    its floor (``lambda_fa_at_floor``: fewer than 0.1 plots per counted frame), which
+    :func:`_run_mht` warns about when the whole sequence has more plots than that.
     """
     pd = _check_number(
         "--pd", args.pd, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False
@@ -632,14 +669,32 @@ def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict
                 "the frames that give the default --lambda-fa), got both"
             )
     n_plots = sum(int(p.shape[0]) for p in plots)
+    extra: dict[str, Any] = {}
     if args.lambda_fa is None:
         lam = max(n_plots / max(len(plots), 1), 0.1) / area
-        source = (
-            f"default: mean plots per frame over the first {len(plots)} frame"
-            f"{'s' * (len(plots) != 1)} ({n_plots} plots; at least 0.1 per frame) / frame area "
-            f"{area:g} px, fixed from frame {len(plots) - 1} on (--lambda-fa-frames "
-            f"{LAMBDA_FA_FRAMES if frames is None else frames})"
+        k = LAMBDA_FA_FRAMES if frames is None else frames
+        which = (
+            f"the first {len(plots)} frame{'s' * (len(plots) != 1)}"
+            if counted is None or counted == list(range(len(counted)))
+            else f"{len(plots)} frame{'s' * (len(plots) != 1)} ({_frame_list(counted)})"
         )
+        last = len(plots) - 1 if counted is None else (counted[-1] if counted else 0)
+        source = (
+            f"default: mean plots per frame over {which} ({n_plots} plots; at least 0.1 per "
+            f"frame) / frame area {area:g} px, fixed from frame {last} on (--lambda-fa-frames "
+            f"{k})"
+        )
+        if skipped:
+            source += (
+                f"; not counted: frame{'s' * (len(skipped) != 1)} {_frame_list(skipped)} "
+                "(no possible plot: before the detector's first plot frame, or flat)"
+            )
+        if counted is not None:
+            extra = {
+                "lambda_fa_frames_counted": counted,
+                "lambda_fa_frames_skipped": skipped or [],
+                "lambda_fa_at_floor": n_plots < 0.1 * max(len(plots), 1),
+            }
     else:
         lam = _check_number("--lambda-fa", args.lambda_fa, low=0.0, low_inclusive=False)
         source = "--lambda-fa"
@@ -658,6 +713,7 @@ def _mht_params(args: argparse.Namespace, plots: list[Any], area: float) -> dict
         ),
         "lambda_fa": lam,
         "lambda_fa_source": source,
+        **extra,
         "lambda_nt": lam_nt,
         "lambda_nt_source": "--lambda-nt" if args.lambda_nt is not None else "lambda_fa / 10",
         "n_hypotheses": _check_int("--n-hypotheses", args.n_hypotheses, minimum=1),
@@ -708,30 +764,86 @@ def _build_mht(p: dict[str, Any]) -> Any:
         raise CLIError(str(err).replace("`alpha`", "--alpha").replace("`beta`", "--beta")) from None
 
 
+def _frame_list(frames: list[int]) -> str:
+    """Frame numbers as said in messages: ``0-4`` for a run, else ``0, 2, 5`` (at most 8).
+
+    Examples:
+        >>> _frame_list([1, 2, 3]), _frame_list([0, 2, 5]), _frame_list([])
+        ('1-3', '0, 2, 5', 'none')
+    """
+    if not frames:
+        return "none"
+    if len(frames) > 2 and frames == list(range(frames[0], frames[-1] + 1)):
+        return f"{frames[0]}-{frames[-1]}"
+    return ", ".join(map(str, frames[:8])) + (", ..." if len(frames) > 8 else "")
+
+
 def _run_mht(
-    stream: Iterable[tuple[int, Any]], args: argparse.Namespace, n_frames: int, area: float
+    stream: Iterable[tuple[int, Any]],
+    args: argparse.Namespace,
+    n_frames: int,
+    area: float,
+    uncounted: Iterable[int] = (),
 ) -> tuple[list[Any], list[Any], dict[str, Any]]:
     """Feed the plots to the MHT as they arrive: ``(tracks, plots, mht_params)``.
 
     With ``--lambda-fa`` the MHT is built before the first frame; else once the plots of the
-    first ``K = --lambda-fa-frames`` frames (all of them if fewer) are known, which fixes its
-    false-alarm density (a constructor constant), and those frames are stepped then.
+    first ``K = --lambda-fa-frames`` frames that can have plots (all of them if fewer) are
+    known, which fixes its false-alarm density (a constructor constant), and the buffered
+    frames are stepped then. ``uncounted``: frames that cannot have plots (the DPA's frame 0
+    with background removal, flat frames), buffered but not counted in the estimate (their
+    zero plots would pull it down, to its floor, and give false confirmed tracks). An estimate
+    at its floor is warned about (:class:`RuntimeWarning`, the CLI's one ``hocnet: warning:``
+    line) when the sequence's frames that can have plots have more than 0.1 plots per frame.
     """
     frames = LAMBDA_FA_FRAMES if args.lambda_fa_frames is None else args.lambda_fa_frames
-    wait = 0 if args.lambda_fa is not None else min(frames, n_frames)
+    fixed = args.lambda_fa is not None
+    skip = set(uncounted)
     plots: list[Any] = []
+    counted: list[int] = []
     mht: Any = None
     params: dict[str, Any] = {}
+
+    def build() -> Any:
+        nonlocal params
+        if fixed:
+            params = _mht_params(args, [], area)
+        else:
+            skipped = [i for i in range(len(plots)) if i in skip]
+            params = _mht_params(
+                args, [plots[i] for i in counted], area, counted=counted, skipped=skipped
+            )
+        built = _build_mht(params)
+        for i, zi in enumerate(plots):  # the buffered frames
+            built.step(zi, time=float(i))
+        return built
+
     for t, z in stream:
         assert t == len(plots)
         plots.append(z)
-        if mht is None and len(plots) >= wait:
-            params = _mht_params(args, plots[:wait], area)
-            mht = _build_mht(params)
-            for i, zi in enumerate(plots):  # the buffered frames
-                mht.step(zi, time=float(i))
-        elif mht is not None:
+        if mht is not None:
             mht.step(z, time=float(t))
+            continue
+        if t not in skip:
+            counted.append(t)
+        if fixed or len(counted) >= frames or t >= n_frames - 1:
+            mht = build()
+    if mht is None:  # the stream ended early
+        mht = build()
+    if params.get("lambda_fa_at_floor"):
+        later = [int(z.shape[0]) for t, z in enumerate(plots) if t not in skip]
+        mean = sum(later) / max(len(later), 1)
+        if mean > 0.1:  # the floor was too low for this sequence: false tracks likely
+            n = len(params["lambda_fa_frames_counted"])
+            warnings.warn(
+                f"--lambda-fa: the default estimate is at its floor (0.1 plots per frame: "
+                f"{sum(int(plots[i].shape[0]) for i in params['lambda_fa_frames_counted'])} "
+                f"plots in the {n} counted frame{'s' * (n != 1)}) while the sequence has "
+                f"{mean:.2g} plots per frame: confirmed tracks may be false; set --lambda-fa, "
+                "or a larger --lambda-fa-frames",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     return mht.all_tracks(), plots, params
 
 
@@ -823,7 +935,14 @@ def _cmd_track(args: argparse.Namespace) -> int:
             names = {"frame_names": [file.name for file in files]}  # said about flat frames
             stream, info = _dpa_plots(cube, {**det_params, **names})
         bar = _progress(stream, desc="track", total=n_t, enabled=_show_progress(args))
-        tracks, plots, params = _run_mht(bar, args, n_t, float(h * w))
+        uncounted: list[int] = []
+        if det == "dpa":  # frames that cannot have plots: not in the default --lambda-fa
+            from hocnet.cli.detect import first_plot_frame
+
+            flat = (cube.amax(dim=(-2, -1)) == cube.amin(dim=(-2, -1))).tolist()
+            first = first_plot_frame(det_params)
+            uncounted = [t for t in range(n_t) if t < first or flat[t]]
+        tracks, plots, params = _run_mht(bar, args, n_t, float(h * w), uncounted)
         notes: list[str] = list(info.get("notes", []))
         shifts = info["shifts"]
         if det == "dpa":
@@ -910,8 +1029,10 @@ online (streaming; see the module hocnet.cli.track):
     dpa  pre-processing, ASF step and plots of frame t at frame t (no delay)
     pre-processing (dpa, hoc --threshold-pfa): causal, registration on frames n - 1 and n,
          background of frame n from its --background-window previous frames, whitening of n
-    --lambda-fa (default): from the plots of the first --lambda-fa-frames frames only, fixed
-         after them; the tracker starts once they are known (at once with --lambda-fa)
+    --lambda-fa (default): from the plots of the first --lambda-fa-frames frames only (not
+         counting frames that cannot have plots: dpa frame 0 with background removal, flat
+         frames), fixed after them; the tracker starts once they are known (at once with
+         --lambda-fa)
   not online: SEQ is a file, read and checked whole before any work (its number of frames
   fixes the HOC's extra last window); --target-free is calibration data, processed whole
   first; warnings are said, and outputs written, at the end.
@@ -985,16 +1106,27 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         type=int,
         default=None,
         metavar="N",
-        help="frames per window, >= 2 * order + 1 (default: 10, or 2 * order + 1 if larger)",
+        help="hoc: frames per window, >= 2 * order + 1 (default: 10, or 2 * order + 1 if "
+        "larger); dpa: probability-matrix size in pixels, odd, at most the frame size, as "
+        "--window of 'hocnet detect' (default: the --preset's)",
     )
     hoc.add_argument(
-        "--stride", type=int, default=None, metavar="N", help="frames between windows (default: 2)"
+        "--stride",
+        type=int,
+        default=None,
+        metavar="N",
+        help="frames between windows, at most --window (default: 2)",
     )
     dpa = p.add_argument_group("dpa options (--detector dpa; as in 'hocnet detect')")
     _inputs.add_dpa_options(
         dpa,
-        skip=_DPA_SKIP,
+        skip=_DPA_NOT_ADDED,
         helps={"asf_threshold": "keep the plots whose ASF is above S (default: no threshold)"},
+    )
+    from hocnet.cli.detect import _DIRECTION_STEP_HELP
+
+    dpa.add_argument(
+        "--direction-step", choices=("paper", "source"), default=None, help=_DIRECTION_STEP_HELP
     )
     dpa.add_argument(
         "--max-per-frame",
@@ -1045,7 +1177,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         default=None,
         metavar="D",
         help="false-alarm density per pixel (default: mean plots per frame over the first "
-        "--lambda-fa-frames frames, at least 0.1, / frame area; fixed after them)",
+        "--lambda-fa-frames frames that can have plots, at least 0.1, / frame area; fixed "
+        "after them)",
     )
     mht.add_argument(
         "--lambda-fa-frames",

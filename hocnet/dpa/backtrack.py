@@ -422,8 +422,11 @@ def cfar_threshold(
     Raises:
         TypeError: wrong argument types.
         ValueError: out-of-range arguments, ``pfa < 1 / N`` (the message says how many
-            samples would be needed), ``b`` above the memory range of eq. (12)-(14), or an ASF
-            that overflowed in the recursion (both raised by ``accumulate``, naming ``b``).
+            samples would be needed), no sequence of ``target_free`` whose last-frame ASF
+            varies (sequences where :func:`detect` would find no peak -- a constant last-frame
+            ASF, or frames that are each constant -- give no sample and are left out), ``b``
+            above the memory range of eq. (12)-(14), or an ASF that overflowed in the
+            recursion (both raised by ``accumulate``, naming ``b``).
 
     Examples:
         >>> noise = torch.randn(4, 3, 16, 16, generator=torch.Generator().manual_seed(0))
@@ -437,8 +440,25 @@ def cfar_threshold(
     pfa = check_number("pfa", pfa, low=0.0, high=1.0, low_inclusive=False, high_inclusive=False)
     nms_radius = check_int("nms_radius", nms_radius, minimum=0)
     samples = check_choice("samples", samples, ("pixels", "peaks"))
+    if not cube.is_floating_point():  # bool / integer frames, as accumulate takes them
+        cube = cube.to(torch.get_default_dtype())
     state = accumulate(cube, weights, b, g, var_table=var_table, smooth=smooth, **options)
     last = state.asf[:, -1].detach()
+    # only sequences whose last frame can have a peak in detect (the same rule): a constant
+    # last-frame ASF, or frames that are each constant, give no candidate, so no sample
+    flat_last = last.flatten(1)
+    usable = flat_last.amax(dim=1) != flat_last.amin(dim=1)
+    frame_range = cube.flatten(2).amax(dim=2) - cube.flatten(2).amin(dim=2)  # (B, T)
+    usable &= ~(frame_range == 0).all(dim=1).to(usable.device)
+    if cube.shape[0] and not bool(usable.any()):
+        raise ValueError(
+            "`target_free`: expected at least one sequence whose last-frame scores vary (the "
+            "CFAR samples are the last-frame ASF of each sequence; a constant one, e.g. a frame "
+            "0 after background removal or flat frames, can have no detection), got "
+            f"{cube.shape[0]} sequence{'s' * (cube.shape[0] != 1)} of {cube.shape[1]} frame"
+            f"{'s' * (cube.shape[1] != 1)}, none usable"
+        )
+    last = last[usable]
     if samples == "pixels":
         values = last.reshape(-1)
         what = "last-frame pixels of `target_free` (B * H * W)"
@@ -793,7 +813,8 @@ def detect(
         empty batch (``B = 0``) gives an empty result.
 
     Args:
-        frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``.
+        frames: whitened frames ``(B, T, H, W)`` or ``(T, H, W)``; bool or integer frames
+            are converted to the default float dtype (as ``accumulate`` does).
         weights: probability matrices ``(D, k, k)``, as for ``accumulate``.
         b: memory factor in ``[0, b_limit(weights, g)]`` (eq. (12)-(14)).
         g: sum/max mixing in ``[0, 1]``.
@@ -821,7 +842,8 @@ def detect(
     Raises:
         TypeError: wrong argument types (``exclusive`` neither a bool nor a string).
         ValueError: out-of-range arguments, an unknown ``exclusive`` method, both
-            ``threshold`` and ``target_free``, ``b`` above the memory range of eq. (12)-(14),
+            ``threshold`` and ``target_free``, ``target_free`` frames of another size
+            ``(H, W)`` than ``frames``, ``b`` above the memory range of eq. (12)-(14),
             or an accumulated score that overflowed in the recursion (both raised by
             ``accumulate``, naming ``b``).
 
@@ -853,6 +875,15 @@ def detect(
             )
         threshold = check_number("threshold", threshold)
     cube, _ = as_cube("frames", frames)
+    if not cube.is_floating_point():  # bool / integer frames, as accumulate takes them
+        cube = cube.to(torch.get_default_dtype())
+    if target_free is not None:
+        free, _ = as_cube("target_free", target_free)
+        if tuple(free.shape[-2:]) != tuple(cube.shape[-2:]):
+            raise ValueError(
+                "`target_free`: expected frames of the size of `frames`, (H, W) = "
+                f"{tuple(cube.shape[-2:])}, got {tuple(free.shape[-2:])}"
+            )
     if cube.shape[0] == 0:
         if target_free is not None:
             threshold = cfar_threshold(

@@ -2234,7 +2234,8 @@ def detect(
     Args:
         frames: ``(B, T, H, W)`` or ``(T, H, W)`` binary cube (bool or 0/1); ``B = 0`` gives an
             empty result.
-        order: HOC order ``k >= 1``.
+        order: HOC order ``k >= 1``; a chain needs ``2k + 1`` scans: with ``T < 2k + 1``
+            no track can be found, and ``detect`` warns (``UserWarning`` naming ``order``).
         v: velocity window half-width (pixels per scan).
         delta: curvature limit in radians, ``(0, pi]``.
         threshold: smallest accepted track score (2.5 in [LA98] section IV-C).
@@ -2409,8 +2410,23 @@ def _warn_uncovered(n_scans: int, order: int, support: str) -> None:
     """Warn when the MHOC image of ``n_scans`` scans at ``order`` leaves scans uncovered.
 
     Only when a chain fits at all (``n_scans >= 2 * order + 1``): then ``support="chain"``
-    covers every scan, while the MHOC image leaves :func:`_uncovered_scans` out.
+    covers every scan, while the MHOC image leaves :func:`_uncovered_scans` out. With fewer
+    scans than a chain of ``order`` needs, no chain fits and no track can be found: warned
+    about too, naming ``order``, ``T`` and the minimum ``2 * order + 1``.
     """
+    if 0 < n_scans < 2 * order + 1:
+        warnings.warn(
+            f"`order`: order {order} needs chains of 2 * order + 1 = {2 * order + 1} scans "
+            f"(Proposition 1 of [LA98]), got T = {n_scans} scans: no chain fits, no track can "
+            f"be found; use order <= {(n_scans - 1) // 2}"
+            if n_scans >= 3
+            else f"`order`: order {order} needs chains of 2 * order + 1 = {2 * order + 1} "
+            f"scans (Proposition 1 of [LA98]), got T = {n_scans} scans: no chain fits, no "
+            "track can be found (order 1 needs 3 scans)",
+            UserWarning,
+            stacklevel=3,
+        )
+        return
     gap = _uncovered_scans(n_scans, order)
     if support != "mhoc" or not gap or n_scans < 2 * order + 1:
         return

@@ -399,7 +399,9 @@ class StreamingDetector:
 
     Args:
         window: scans per window (``>= 2 * order + 1``); 10 in [LA98] Fig. 5.
-        stride: scans between two returned windows (``>= 1``); 2 in [LA98] Fig. 5.
+        stride: scans between two returned windows (``>= 1``); 2 in [LA98] Fig. 5. A
+            stride larger than ``window`` leaves the ``stride - window`` scans between two
+            windows in no window (never detected on): a :class:`UserWarning` says so.
         order: HOC order ``k >= 1``.
         v: velocity window half-width in pixels per scan (``>= 1``).
         delta: curvature limit in radians, in ``(0, pi]``.
@@ -479,6 +481,15 @@ class StreamingDetector:
         self.order = check_int("order", order, minimum=1)
         self.window = check_int("window", window, minimum=2 * self.order + 1)
         self.stride = check_int("stride", stride, minimum=1)
+        if self.stride > self.window:
+            skipped = self.stride - self.window
+            warnings.warn(
+                f"`stride`: {self.stride} is larger than `window` = {self.window}: the "
+                f"{skipped} scan{'s' * (skipped != 1)} between two windows are in no window "
+                "(never detected on); use stride <= window",
+                UserWarning,
+                stacklevel=2,
+            )
         self.v = check_int("v", v, minimum=1)
         self.delta = check_number("delta", delta, low=0.0, high=math.pi, low_inclusive=False)
         self.method = check_choice("method", method, ("auto", "conv", "sparse"))

@@ -117,7 +117,7 @@ class TestTrack:
         ("extra", "match"),
         [
             (["--detector", "sonar"], r"--detector.*invalid choice"),
-            (["--detector", "dpa", "--window", "5"], r"--window: does not apply"),
+            (["--detector", "dpa", "--stride", "5"], r"--stride: does not apply"),
             (["--pd", "1.5"], r"--pd"),
             (["--alpha", "0.6", "--beta", "0.6"], r"--beta"),
         ],

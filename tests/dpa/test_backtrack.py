@@ -847,3 +847,42 @@ def test_cfar_threshold_overflow_names_b():
     noise = torch.randn(300, 12, 12, generator=torch.Generator().manual_seed(0))
     with pytest.raises(ValueError, match=r"`b`: the accumulated score overflowed"):
         cfar_threshold(noise, W5, b_limit(W5, 0.0), 0.0)
+
+
+def test_cfar_threshold_leaves_out_sequences_without_usable_last_frame():
+    noise = torch.randn(3, 4, 12, 12, generator=torch.Generator().manual_seed(1))
+    good = cfar_threshold(noise, W5, 0.5, 0.0, pfa=0.01)
+    # a sequence whose last frame is all zero (frame 0 after background removal) gives no
+    # sample: the old code mixed its zeros in and lowered the threshold
+    padded = torch.cat([noise, torch.zeros(3, 4, 12, 12)])
+    padded[3:, :-1] = 0.0
+    assert cfar_threshold(padded, W5, 0.5, 0.0, pfa=0.01) == good
+    with pytest.raises(ValueError, match=r"`target_free`: expected at least one sequence"):
+        cfar_threshold(torch.zeros(1, 12, 12), W5, 0.5, 0.0, pfa=0.01)
+    with pytest.raises(ValueError, match=r"`target_free`: .*none usable"):
+        detect(noise, W5, 0.5, 0.0, target_free=torch.zeros(2, 12, 12))
+
+
+def test_detect_accepts_bool_frames_like_accumulate():
+    frames = torch.zeros(4, 16, 16, dtype=torch.bool)
+    for t in range(4):
+        frames[t, 5, 3 + t] = True
+    as_float = detect(frames.float(), W5, 0.5, 0.0, threshold=0.5)
+    found = detect(frames, W5, 0.5, 0.0, threshold=0.5)
+    assert len(found.tracks) == len(as_float.tracks) >= 1
+    for a, b in zip(found.tracks, as_float.tracks, strict=True):
+        assert torch.equal(a.positions, b.positions)
+    assert detect(frames[None][:0], W5, 0.5, 0.0).tracks == []
+
+
+def test_detect_target_free_of_another_size_names_target_free():
+    frames = torch.randn(4, 16, 16, generator=torch.Generator().manual_seed(0))
+    for size in ((20, 20), (12, 16), (16, 8)):
+        free = torch.randn(4, *size, generator=torch.Generator().manual_seed(1))
+        with pytest.raises(
+            ValueError, match=r"`target_free`: expected frames of .*\(16, 16\), got "
+        ):
+            detect(frames, W5, 0.5, 0.0, target_free=free)
+    free = torch.randn(4, 20, 20)
+    with pytest.raises(ValueError, match=r"`target_free`"):
+        detect(frames[None][:0], W5, 0.5, 0.0, target_free=free)

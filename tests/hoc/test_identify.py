@@ -1285,7 +1285,10 @@ class TestUncoveredScans:
             warnings.simplefilter("error")
             detect(cube, order=2)  # 10 >= 4 * 2: covered
             detect(cube, order=3, support="chain")  # the remedy: no warning
-            detect(cube[:4], order=2)  # no chain fits at all: nothing to remedy
+        # no chain fits at all: not the uncovered-scan warning, the order one
+        with pytest.warns(UserWarning, match=r"`order`") as said:
+            detect(cube[:4], order=2)
+        assert not any("cannot cover" in str(w.message) for w in said)
 
     def test_order_three_loses_the_gap_only_with_the_image(self):
         # a lone straight track over 10 scans: order 3's MHOC image misses scans 4-5 (0-based)
@@ -1580,3 +1583,18 @@ class TestTable3GapReadings:
         cube, _, eligible = _partial_scene(seed, eligible=True)
         result = detect(cube, near_duplicate="score-ends")
         assert not (eligible & ~result.cleaned).any()
+
+
+def test_detect_warns_when_no_chain_of_the_order_fits():
+    cube = torch.zeros(4, 16, 16, dtype=torch.bool)
+    for t in range(4):
+        cube[t, 4, 3 + t] = True
+    with pytest.warns(UserWarning, match=r"`order`: order 2 needs .* = 5 scans.*got T = 4"):
+        result = detect(cube, order=2)
+    assert result.tracks == []
+    with pytest.warns(UserWarning, match=r"`order`: .*= 3 scans.*got T = 2"):
+        detect(cube[:2], order=1)
+    with warnings.catch_warnings():  # T = 2k + 1: a chain fits, no such warning
+        warnings.simplefilter("error", UserWarning)
+        warnings.filterwarnings("ignore", message=".*cannot cover every scan")
+        detect(cube[:3], order=1)

@@ -670,3 +670,13 @@ class TestLatencyPathsEqualBatch:
         with pytest.raises(ValueError, match="scan"):
             det.push(torch.zeros(9, 9, dtype=torch.bool))
         assert gc.isenabled()
+
+
+def test_stride_larger_than_window_warns():
+    with pytest.warns(UserWarning, match=r"`stride`: 20 is larger than `window` = 10: the 10 "):
+        StreamingDetector(window=10, stride=20)
+    import warnings as _warnings
+
+    with _warnings.catch_warnings():
+        _warnings.simplefilter("error", UserWarning)
+        StreamingDetector(window=10, stride=10)  # adjacent windows: every scan in one
