@@ -35,13 +35,10 @@ from hocnet.tracking.evaluation import (
 from hocnet.tracking.mht import MHT
 from hocnet.tracking.pipeline import (
     PDTrackerConfig,
-    VSIMMRoadFilter,
     _declared_type,
-    report_scans,
+    _pd_tracker,
 )
-from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.scenario import pd_scenario
-from hocnet.tracking.sensors import GMTISensor, VideoSensor
 
 
 def _confirmed_rows(mht: MHT) -> list[tuple[int, int]]:
@@ -63,31 +60,8 @@ def run_seed(seed: int, type_tracking: bool, config: PDTrackerConfig | None = No
     torch.set_num_threads(1)
     cfg = PDTrackerConfig() if config is None else config
     sc = pd_scenario(seed=seed)
-    net = RoadNetwork.from_geojson(sc.network)
-    g = sc.gmti
-    gmti = GMTISensor(
-        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
-    )
-    video = VideoSensor(sc.video.sigma, pd=sc.video.pd, name="video")
-    ugs = VideoSensor(sc.ugs.sigma, pd=sc.ugs.pd, name="ugs")
-    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, sc.video.footprints)
-    mht = MHT(
-        filt,
-        pd=cfg.pd,
-        lambda_fa=cfg.lambda_fa,
-        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
-        gate_probability=cfg.gate_probability,
-        alpha=cfg.alpha,
-        beta=cfg.beta,
-        n_hypotheses=cfg.n_hypotheses,
-        hypothesis_ratio=cfg.hypothesis_ratio,
-        n_scan=cfg.n_scan,
-        merge_scans=cfg.merge_scans,
-        type_term=cfg.type_term if type_tracking else None,
-        section_distance=cfg.section_distance,
-    )
+    filt, mht, scans = _pd_tracker(sc, cfg, type_tracking=type_tracking)
     rng = np.random.default_rng(seed)
-    scans = report_scans(sc.reports, gmti)
     samples: dict[int, list[dict[str, Any]]] = {}
     last: dict[int, Any] = {}
     mht_time = None
@@ -282,29 +256,7 @@ def trace(seed: int, target: int, t0: float, t1: float, overrides: dict[str, Any
     torch.set_num_threads(1)
     cfg = PDTrackerConfig(**overrides)
     sc = pd_scenario(seed=seed)
-    net = RoadNetwork.from_geojson(sc.network)
-    g = sc.gmti
-    gmti = GMTISensor(
-        g.position, g.sigma_range, g.sigma_azimuth, g.sigma_range_rate, pd=g.pd, mdv=g.mdv
-    )
-    video = VideoSensor(sc.video.sigma, pd=sc.video.pd, name="video")
-    ugs = VideoSensor(sc.ugs.sigma, pd=sc.ugs.pd, name="ugs")
-    filt = VSIMMRoadFilter(net, cfg, gmti, video, ugs, sc.video.footprints)
-    mht = MHT(
-        filt,
-        pd=cfg.pd,
-        lambda_fa=cfg.lambda_fa,
-        lambda_nt=cfg.lambda_nt / cfg.fa_range_rate_span,
-        gate_probability=cfg.gate_probability,
-        alpha=cfg.alpha,
-        beta=cfg.beta,
-        n_hypotheses=cfg.n_hypotheses,
-        hypothesis_ratio=cfg.hypothesis_ratio,
-        n_scan=cfg.n_scan,
-        merge_scans=cfg.merge_scans,
-        type_term=None,
-        section_distance=cfg.section_distance,
-    )
+    filt, mht, scans = _pd_tracker(sc, cfg, type_tracking=False)
     truth = sc.truth
 
     def pos(i: int, t: float) -> tuple[float, float]:
@@ -323,7 +275,6 @@ def trace(seed: int, target: int, t0: float, t1: float, overrides: dict[str, Any
         return zp, S
 
     filt.innovation = innovation  # type: ignore[method-assign]
-    scans = report_scans(sc.reports, gmti)
     mt = None
     for k, scan in enumerate(scans):
         t = scan.time if mt is None else max(mt, scan.time)
