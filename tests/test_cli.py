@@ -1013,8 +1013,9 @@ class TestClearMessages:
     def test_api_names_become_flags(self, tmp_path, capsys, frames_file):
         # the library says `pfa` and `target_free`; the command line says --pfa, --target-free
         free = tmp_path / "free.npy"
-        # frames of the input's size (24 x 28): too few pixels for --pfa 1e-3
-        np.save(free, np.random.default_rng(0).normal(size=(1, 24, 28)).astype(np.float32))
+        # frames of the input's size (24 x 28), two of them (the fewest the median background
+        # allows): too few pixels for --pfa 1e-3
+        np.save(free, np.random.default_rng(0).normal(size=(2, 24, 28)).astype(np.float32))
         args = ["detect", str(frames_file), "--method", "dpa", "--target-free", str(free)]
         code = main([*args, "--window", "5", "--out", str(tmp_path / "o")])
         line = assert_one_line_error(capsys, code, r"^hocnet: error: --pfa: ")
