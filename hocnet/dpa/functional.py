@@ -673,9 +673,11 @@ def accumulate(
         * **Eq. (7) favours short moves.** The paper step scores each source by
           ``ASF_{n-1}(q) * w_basic * Var``; ``w_basic`` (a standing target's spread) is about
           0.17 in place, 0.10 one pixel out and 0.02 two pixels out (7 x 7), so a source 2 px
-          away wins only if its ASF is 6-9 times that of the pixel itself. A difference from
+          away along an axis wins only if its ASF is 6-9 times that of the pixel itself (10-15
+          times at (2, 1)). A difference from
           [NR08] (which finds the algorithm effective near 1 px/frame and better for faster
-          targets, section 3.2.1(2)-(3)): in our clear-sky scenes at 17 dB (7 x the noise;
+          targets, section 3.2.1(2)-(3), but sampled targets only up to about 1.5 px/frame,
+          NA23 at s_n = 5): in our clear-sky scenes at 17 dB (7 x the noise;
           ``dpa-pd-snr`` speed table and its ablation rows, 20 scenes) faster targets are
           back-tracked with a lag, and the measured causes differ with ``g``. At ``g = 1`` it
           is this ``w_basic``: eq. (7) with the source's own ``W(d)`` instead (not the paper's)
