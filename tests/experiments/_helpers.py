@@ -37,3 +37,20 @@ def check_outputs(name: str, md: pathlib.Path, out: pathlib.Path) -> list[dict]:
     rows = read_rows(out / f"{name}.csv")
     assert rows
     return rows
+
+
+def results_snapshot(folder: pathlib.Path) -> dict[str, tuple[int, int]]:
+    """``{file name: (mtime_ns, size)}`` of ``folder``: equal before and after = nothing written."""
+    return {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.iterdir()}
+
+
+def quick_run_watched(script, out: pathlib.Path) -> tuple:
+    """``script.main(--quick --out out)`` with the committed results folder watched.
+
+    Returns ``(md, out, before, after)``: the run's markdown text, ``out`` and the snapshots
+    (:func:`results_snapshot`) of ``experiments/results`` before and after the run.
+    """
+    results = sys.modules["_expkit"].RESULTS_DIR
+    before = results_snapshot(results)
+    md = script.main(["--quick", "--no-progress", "--out", str(out)])
+    return md, out, before, results_snapshot(results)

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _helpers import load_script, read_rows
+from _helpers import load_script, quick_run_watched, read_rows, results_snapshot
 
 
 @pytest.fixture(scope="module")
@@ -16,18 +16,10 @@ def crossing():
     return load_script("dpa_crossing.py")
 
 
-def _results_snapshot(folder: pathlib.Path) -> dict[str, tuple[int, int]]:
-    return {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.iterdir()}
-
-
 @pytest.fixture(scope="module")
 def quick_run(crossing, tmp_path_factory):
     """One ``--quick`` run into a temporary ``--out``, with the results folder watched."""
-    results = sys.modules["_expkit"].RESULTS_DIR
-    before = _results_snapshot(results)
-    out = tmp_path_factory.mktemp("dpa-crossing")
-    md = crossing.main(["--quick", "--no-progress", "--out", str(out)])
-    return md, out, before, _results_snapshot(results)
+    return quick_run_watched(crossing, tmp_path_factory.mktemp("dpa-crossing"))
 
 
 def test_interface(crossing):
@@ -116,13 +108,13 @@ def test_quick_run_writes_md_and_csv_only_into_out(crossing, quick_run):
 
 def test_quick_without_out_uses_a_temporary_folder(crossing, monkeypatch):
     results = sys.modules["_expkit"].RESULTS_DIR
-    before = _results_snapshot(results)
+    before = results_snapshot(results)
     monkeypatch.setattr(crossing, "QUICK_SCENES", ("overtake",))
     monkeypatch.setattr(crossing, "GS", (1.0,))
     md = crossing.main(["--quick", "--no-progress", "--seeds", "1"])
     try:
         assert results not in md.parents and md.is_file()
-        assert _results_snapshot(results) == before
+        assert results_snapshot(results) == before
         assert len(read_rows(md.with_suffix(".csv"))) == len(crossing.STEPS)
     finally:
         shutil.rmtree(md.parent)

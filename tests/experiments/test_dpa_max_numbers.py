@@ -9,7 +9,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _helpers import load_script, read_rows
+from _helpers import load_script, quick_run_watched, read_rows, results_snapshot
 
 
 @pytest.fixture(scope="module")
@@ -17,18 +17,10 @@ def mn():
     return load_script("dpa_max_numbers.py")
 
 
-def _results_snapshot(folder: pathlib.Path) -> dict[str, tuple[int, int]]:
-    return {p.name: (p.stat().st_mtime_ns, p.stat().st_size) for p in folder.iterdir()}
-
-
 @pytest.fixture(scope="module")
 def quick_run(mn, tmp_path_factory):
     """One ``--quick`` run into a temporary ``--out``, with the results folder watched."""
-    results = sys.modules["_expkit"].RESULTS_DIR
-    before = _results_snapshot(results)
-    out = tmp_path_factory.mktemp("dpa-max-numbers")
-    md = mn.main(["--quick", "--no-progress", "--out", str(out)])
-    return md, out, before, _results_snapshot(results)
+    return quick_run_watched(mn, tmp_path_factory.mktemp("dpa-max-numbers"))
 
 
 def test_interface(mn):
@@ -114,12 +106,12 @@ def test_quick_run_writes_md_and_csv_only_into_out(mn, quick_run):
 
 def test_quick_without_out_uses_a_temporary_folder(mn, monkeypatch):
     results = sys.modules["_expkit"].RESULTS_DIR
-    before = _results_snapshot(results)
+    before = results_snapshot(results)
     monkeypatch.setattr(mn, "settings", lambda quick: [mn.Setting("pixel", 13.0, 1.0)])
     md = mn.main(["--quick", "--no-progress", "--seeds", "1"])
     try:
         assert results not in md.parents and md.is_file()
-        assert _results_snapshot(results) == before
+        assert results_snapshot(results) == before
         assert len(read_rows(md.with_suffix(".csv"))) == 1
     finally:
         shutil.rmtree(md.parent)
