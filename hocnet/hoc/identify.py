@@ -1476,7 +1476,7 @@ def _straight_run(
 
     Examples:
         >>> xy = [[t, y, x] for t, (y, x) in enumerate([(0, 0), (1, 3), (2, 4), (3, 6), (4, 7)])]
-        >>> _straight_run([0, 1, 2, 3, 4], [4, 3, 2, 1, 0], xy)  # moves (1, 1) (1, 2) (1, 1) (1, 3)
+        >>> _straight_run([0, 1, 2, 3, 4], [4, 3, 2, 1, 0], xy)  # back from 4: x moves 1, 2, 1, 3
         [4, 3, 2, 1]
     """
     run = [side[0], side[1]]
