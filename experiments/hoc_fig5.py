@@ -408,7 +408,7 @@ def run(
             f"- Streaming result == batch `detect` on the same window (support, cleaned, track "
             f"points and scores): {equal}/{len(rows)} windows.",
             "- Target points lost over all windows, on the evaluated tracks (>= 5 points in the "
-            f"window, the ones Proposition 1 covers): {lost_hoc_eligible} in the candidates "
+            f"window): {lost_hoc_eligible} in the candidates "
             "handed to identification (MHOC image + the points its top-layer moves name), "
             f"{lost_id_eligible} after track identification, {lost_id_exact} of them on track "
             "pieces of exactly 2k + 1 = 5 scans in the window (a track starting or ending there: "
