@@ -1193,9 +1193,10 @@ class TestPartialTracks:
     does not hold out of sample yet (issue 7).
     Not yet a property of every such scene (measured, module notes of ``hocnet.hoc.identify``,
     ``RESCUE_SHORT``): on 200 fresh scenes of the same kind (``partial_track_scene(seed,
-    ends=False)``, seeds 0-199) 15 points in 8 scenes are still lost (20 in 12 before), and
-    with early ends too (``ends=True``) 209 in 55 (217 in 57 before), mostly of 5-6-point
-    tracks.
+    ends=False)``, seeds 0-199) 8 points in 6 scenes are still lost (20 in 12, then 15 in 8
+    before ``RESCUE_END`` and ``ALONE_EXTEND``), and with early ends too (``ends=True``) 182 in
+    45 (217 in 57, then 209 in 55), 100 of them on tracks of exactly 2k + 1 = 5 points
+    (:class:`TestFig5ExactPieces`).
     """
 
     @pytest.mark.parametrize("seed", [9, 49])
@@ -1207,14 +1208,15 @@ class TestPartialTracks:
 
     def test_fresh_seeds_lost_points(self):
         # NOT the property (issue 7, open): on 40 fresh seeds (2000-2039, not used to build
-        # any rule) the defaults lose eligible points; measured 5 points in 3 scenes (2008: 3,
-        # 2017: 1, 2026: 1). The bound catches a regression; lower it when a fix lands.
+        # any rule) the defaults lose eligible points; measured 2 points in 2 scenes (2017: 1,
+        # 2026: 1; 5 in 3 before ``RESCUE_END``, which keeps scene 2008's 3). The bound
+        # catches a regression; lower it when a fix lands.
         lost = []
         for seed in range(2000, 2040):
             cube, _, eligible = _partial_scene(seed, eligible=True)
             lost.append(int((eligible & ~detect(cube).cleaned).sum()))
-        assert sum(lost) <= 5, lost
-        assert sum(n > 0 for n in lost) <= 3, lost
+        assert sum(lost) <= 2, lost
+        assert sum(n > 0 for n in lost) <= 2, lost
 
     def test_branch_rules(self):
         root = [True] * 6
@@ -1698,3 +1700,172 @@ def test_detect_warns_when_no_chain_of_the_order_fits():
         warnings.simplefilter("error", UserWarning)
         warnings.filterwarnings("ignore", message=".*cannot cover every scan")
         detect(cube[:3], order=1)
+
+
+def _fig5_window(seed, start):
+    """Scans ``start .. start + 9`` of ``paper_scene("fig5", 0.01, seed)`` (as ``hoc-fig5``).
+
+    Returns ``(frames, evaluated, image)``: the points of the true tracks with at least 2k + 1
+    = 5 points in the window (the experiment's evaluated tracks), and the order-2 MHOC image.
+    """
+    scene = paper_scene("fig5", 0.01, seed=seed)
+    frames = scene.cube[start : start + 10]
+    evaluated = torch.zeros_like(frames)
+    for tr in scene.tracks:
+        q = tr[(tr[:, 0] >= start) & (tr[:, 0] < start + 10)]
+        if q.shape[0] >= 5:
+            evaluated[q[:, 0] - start, q[:, 1], q[:, 2]] = True
+    image, _ = mhoc_candidates(frames, order=2)
+    return frames, evaluated, image
+
+
+def _lost(cube, eligible, **kw):
+    return (eligible & ~detect(cube, **kw).cleaned).nonzero().tolist()
+
+
+class TestOwnEnds:
+    """Step 5, ``RESCUE_END`` (issue 7, task h7part): a track's own end point, replaced on the
+    accepted tracks by a clutter point (or another track's), is kept when the proposed track
+    through it scores higher than every accepted track it shares points with."""
+
+    @pytest.mark.parametrize(("start", "point"), [(0, [3, 30, 10]), (2, [1, 30, 10])])
+    def test_fig5_turning_track_keeps_its_first_point(self, monkeypatch, start, point):
+        # ``fig5`` seed 5002, windows 1-10 and 3-12: the turning track T6 starts at scan 3
+        # (absolute) at (30, 10); both accepted copies of it start on clutter instead, (29, 9)
+        # at that scan (one after (26, 6) the scan before, so the scan is inside the accepted
+        # tracks' scans and the extension rule rejected the true track). These were 2 of the 52
+        # points hoc-fig5 lost on evaluated tracks; the other 50 are TestFig5ExactPieces'
+        frames, evaluated, _ = _fig5_window(5002, start)
+        monkeypatch.setattr(identify_module, "RESCUE_END", False)
+        assert _lost(frames, evaluated) == [point]
+        monkeypatch.undo()
+        assert _lost(frames, evaluated) == []
+
+    @pytest.mark.parametrize(
+        ("seed", "points"),
+        [(5019, [[3, 31, 33]]), (5079, [[3, 28, 25], [4, 28, 27]]), (5151, [[1, 28, 36]])],
+    )
+    def test_partial_scenes_keep_their_start(self, monkeypatch, seed, points):
+        # ``partial_track_scene(seed, ends=False)``: measured with the rule off, these start
+        # points (a run of one or two) were the scene's only eligible points lost
+        cube, _, eligible = partial_track_scene(seed, ends=False)
+        monkeypatch.setattr(identify_module, "RESCUE_END", False)
+        assert _lost(cube, eligible) == points
+        monkeypatch.undo()
+        assert _lost(cube, eligible) == []
+
+    def test_cut_before_the_new_point(self, monkeypatch):
+        # ``partial_track_scene(67, ends=False)``: the best whole track through the lost start
+        # (3, 31, 30) begins one scan earlier on another track's point (2, 31, 30), so its new
+        # point is not at an end; cut before it, it is the true track, scoring above the
+        # accepted copy that starts on clutter (3, 30, 33)
+        cube, _, eligible = partial_track_scene(67, ends=False)
+        monkeypatch.setattr(identify_module, "RESCUE_END", False)
+        assert _lost(cube, eligible) == [[3, 31, 30]]
+        monkeypatch.undo()
+        assert _lost(cube, eligible) == []
+
+    def test_own_ends(self):
+        own = identify_module._own_ends
+        root = [True] * 10
+        assert own([0, 1, 2, 3, 4, 5], [0, 1], root, 5) == [range(6)]  # new start run
+        assert own([0, 1, 2, 3, 4, 5], [5], root, 5) == [range(6)]  # new last point
+        # a new point inside: cut before it (6 points left) or after it (2: too short)
+        assert own([0, 1, 2, 3, 4, 5, 6, 7], [2], root, 5) == [range(2, 8)]
+        assert own(list(range(10)), [4], root, 5) == [range(4, 10), range(5)]  # both
+        assert own([0, 1, 2, 3, 4, 5], [1, 3], root, 5) == []  # not one run
+        assert own([0, 1, 2, 3, 4, 5], list(range(6)), root, 5) == []  # no accepted point
+        assert own([0, 1, 2, 3, 4, 5], [], root, 5) == []
+        root[0] = False
+        assert own([0, 1, 2, 3, 4, 5], [0, 1], root, 5) == []  # not an image point
+
+    def test_beats_is_the_track_score(self):
+        # ``_beats`` compares the score ``_select_tracks`` gives the track (span 2, min)
+        cube, _ = _partial_scene(6)
+        flat, p0, p1, p2 = _sparse_triples(cube[None], _allowed_cached(4, math.pi / 4, "cpu"), 4, 1)
+        h, w = cube.shape[1:]
+        coords = torch.stack([flat // (h * w), (flat // w) % h, flat % w], dim=1)
+        kw = identify_module._score_kwargs(9.0, 0.5, 2.356, 1.91, "min")
+        s = identify_module._triple_scores(coords, p0, p1, p2, kw)
+        track_kw = identify_module._track_kwargs(kw, 2, None)
+        path = [0]
+        (score, _, _), *_ = identify_module._score_paths([path], p0, p1, p2, s, coords, 0, track_kw)
+        beats = identify_module._beats
+        assert beats(path, [score - 1e-9], p0, p1, p2, s, coords, track_kw)
+        assert not beats(path, [score], p0, p1, p2, s, coords, track_kw)
+
+
+class TestLoneExtension:
+    """Step 5, ``ALONE_EXTEND`` (issue 7, task h7part): a 6-point track of its own whose
+    maximal chain another point extends below the threshold, and whose best whole tracks on
+    one-scan scores are its two 5-point pieces (too short for ``RESCUE_ALONE`` alone)."""
+
+    @pytest.mark.parametrize("seed", [176, 5050])
+    def test_six_point_track_is_kept(self, monkeypatch, seed):
+        cube, _, eligible = partial_track_scene(seed, ends=False)
+        monkeypatch.setattr(identify_module, "ALONE_EXTEND", False)
+        lost = _lost(cube, eligible)
+        assert len(lost) == 6 and {t for t, _, _ in lost} == set(range(4, 10))
+        monkeypatch.undo()
+        assert _lost(cube, eligible) == []
+
+    def test_extend_alone(self):
+        # triples k: points (k, k + 1, k + 2), edges e(k, k + 1) = k
+        a0, a2 = [0, 1, 2, 3], [2, 3, 4, 5]
+        a_in, a_out = [0, 1, 2, 3], [1, 2, 3, 4]
+        root = [True] * 6
+        links = identify_module._accepted_links(a_in, a_out, [True] * 4)
+        extend = identify_module._extend_alone
+        assert extend([1], links, a0, a2, root, {}) == [0, 1, 2, 3]
+        assert extend([1], links, a0, a2, root, {5: [0]}) == [0, 1, 2]  # 5 on a track
+        assert extend([1], links, a0, a2, [False] + [True] * 5, {}) == [1, 2, 3]  # 0 not image
+        links = identify_module._accepted_links(a_in, a_out, [True, True, True, False])
+        assert extend([1], links, a0, a2, root, {}) == [0, 1, 2]  # triple 3 not accepted
+        # a second accepted triple (3, 4, 6) on the out-edge of triple 2: ambiguous, not followed
+        links = identify_module._accepted_links([*a_in, 3], [*a_out, 5], [True] * 5)
+        assert extend([1], links, [*a0, 3], [*a2, 6], [*root, True], {}) == [0, 1, 2]
+
+
+class TestFig5ExactPieces:
+    """The other 50 of the 52 points ``hoc-fig5`` lost on ``fig5`` (issue 7, task h7part).
+
+    All 50: T4 (scans 1-8) in window 5-14, where it has exactly 2k + 1 = 5 points (window
+    scans 0-4), in the 10 of 20 seeds (5000-5019) where no clutter point extends it. The
+    order-2 forward image marks a point only with four scans after it and the backward image
+    only with four before, so just its first and last point are MHOC image points: Case 1 of
+    section III-B holds at none of its scans, and the paper's retention statement (section III,
+    after Proposition 1) is for tracks over *more than* 2k + 1 scans. Their sequences (the
+    forward triple at scan 0, the backward triple at scan 4) meet at one point, which no
+    association step of ours links. ``RESCUE_JOINED`` (off) keeps them, at a measured cost of
+    up to 0.48 points of clutter rejection on Table III.
+    """
+
+    T4: typing.ClassVar = [[0, 41, 45], [1, 38, 45], [2, 35, 45], [3, 32, 45], [4, 29, 45]]
+
+    def test_only_the_ends_are_image_points(self):
+        frames, evaluated, image = _fig5_window(5003, 4)
+        assert [bool(image[tuple(p)]) for p in self.T4] == [True, False, False, False, True]
+        assert _lost(frames, evaluated) == self.T4
+
+    def test_joined_option_keeps_them(self, monkeypatch):
+        frames, evaluated, _ = _fig5_window(5003, 4)
+        monkeypatch.setattr(identify_module, "RESCUE_JOINED", True)
+        assert _lost(frames, evaluated) == []
+
+    def test_kept_when_clutter_extends_it(self):
+        # seed 5000: a clutter point extends the piece, (1, 38, 45) is an image point too
+        frames, evaluated, image = _fig5_window(5000, 4)
+        assert bool(image[1, 38, 45])
+        assert _lost(frames, evaluated) == []
+
+
+@pytest.mark.slow
+def test_partial_track_scenes_bound():
+    # issue 7, open: the eligible points ``partial_track_scene(seed, ends=False)`` seeds 0-199
+    # lose with the defaults (measured 8 in 6 scenes; 15 in 8 before ``RESCUE_END`` and
+    # ``ALONE_EXTEND``); the bound catches a regression
+    lost = []
+    for seed in range(200):
+        cube, _, eligible = partial_track_scene(seed, ends=False)
+        lost.append(len(_lost(cube, eligible)))
+    assert sum(lost) <= 8 and sum(n > 0 for n in lost) <= 6, lost
