@@ -571,28 +571,63 @@ class TestLatencyPathsEqualBatch:
             else:
                 assert got[1]
 
-    @pytest.mark.parametrize("seed", range(5))
-    def test_rank_order_packed_and_column_sorts(self, seed):
-        """Both orderings of `_rank_order` (one packed key; column sorts) are lexicographic."""
-        from hocnet.hoc._incremental import _rank_order
+    @pytest.mark.parametrize("seed", range(20))
+    def test_enumerate_paths_vectorised_at_the_exact_cap(self, seed):
+        """``None`` exactly when the loop caps: caps just below, at and above the chain count."""
+        from hocnet.hoc._incremental import enumerate_paths_vectorised
+        from hocnet.hoc.identify import _enumerate_paths_loop
+
+        gen = torch.Generator().manual_seed(100 + seed)
+        k = int(torch.randint(1, 40, (1,), generator=gen))  # small: a few hundred chains
+        a_in = torch.randint(0, 30, (k,), generator=gen)
+        a_out = a_in + torch.randint(1, 4, (k,), generator=gen)
+        s = torch.randint(0, 3, (k,), generator=gen).double()
+        accepted = torch.rand(k, generator=gen) < 0.9
+        every, capped = _enumerate_paths_loop(accepted, a_in, a_out, s, 10**5)
+        assert not capped
+        total = len(every)
+        for cap in {max(1, total - 1), max(1, total), total + 1}:
+            want, capped = _enumerate_paths_loop(accepted, a_in, a_out, s, cap)
+            fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, cap)
+            assert (fast is None) == capped == (total >= cap)
+            if fast is not None:
+                assert fast == want
+
+    @pytest.mark.parametrize("seed", range(20))
+    def test_chain_counts_against_recursion(self, seed):
+        """Chains from each triple, capped: against a memoised recursion over the continuations."""
+        from functools import cache
+
+        from hocnet.hoc._incremental import _chain_counts
 
         gen = torch.Generator().manual_seed(seed)
-        seen: set[tuple[int, ...]] = set()
-        groups = []
-        for width in range(1, 6):
-            rows = torch.randint(0, 3, (40, width), generator=gen)
-            rows[:, 0] = torch.randint(0, 7, (40,), generator=gen)
-            keep = []
-            for row in rows.tolist():  # no row may be a prefix of another
-                if not any(tuple(row[:j]) in seen for j in range(1, width + 1)):
-                    keep.append(row)
-                    seen.add(tuple(row))
-            if keep:
-                groups.append(torch.tensor(keep))
-        flat = [tuple(r) for g in groups for r in g.tolist()]
-        want = sorted(range(len(flat)), key=lambda i: flat[i])
-        assert _rank_order(groups, 7, 3).tolist() == want  # packed key
-        assert _rank_order(groups, 2**62, 3).tolist() == want  # key would overflow: columns
+        k = int(torch.randint(1, 200, (1,), generator=gen))
+        a_in = torch.randint(0, 40, (k,), generator=gen).numpy()
+        a_out = a_in + torch.randint(1, 3, (k,), generator=gen).numpy()
+        n_e = int(max(a_in.max(), a_out.max())) + 1
+        fan = np.bincount(a_in, minlength=n_e)[a_out]
+
+        @cache
+        def chains(j: int) -> int:
+            nxt = [i for i in range(k) if a_in[i] == a_out[j]]
+            return sum(chains(i) for i in nxt) if nxt else 1
+
+        want = [chains(j) for j in range(k)]
+        for cap in (1, 3, 50, 10**12):
+            got = _chain_counts(a_in, a_out, fan, n_e, cap).tolist()
+            assert got == [min(w, cap) for w in want]
+
+    @pytest.mark.parametrize("distinct", [1, 9, 70000])
+    def test_stable_argsort_values_equals_numpy(self, distinct):
+        from hocnet.hoc._incremental import _stable_argsort_values
+
+        gen = torch.Generator().manual_seed(distinct)
+        x = (torch.randint(0, distinct, (90000,), generator=gen).double() - 4) / 2
+        x[::7] = -0.0  # -0.0 and 0.0 tie in both sorts
+        x[::11] = 0.0
+        x[::13] = math.nan
+        x = x.numpy()
+        assert np.array_equal(_stable_argsort_values(x), np.argsort(x, kind="stable"))
 
     @pytest.mark.parametrize("span", [1, 2, 3])
     @pytest.mark.parametrize("combine", ["min", "mean"])
