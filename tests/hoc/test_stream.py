@@ -282,6 +282,33 @@ class TestIncremental:
             # one look-up of the new scan, 2k new layer entries, one new tree per direction
             assert set(per_push) == {(1, 2 * order, 2)}
 
+    @pytest.mark.parametrize("seed", range(6))
+    @pytest.mark.parametrize("v", [1, 2, 4])
+    def test_local_points_against_a_window_loop(self, seed, v):
+        """Block-count pre-check + frame pass = every window counted one by one."""
+        from hocnet.hoc.identify import LOCAL_SATURATION
+
+        gen = torch.Generator().manual_seed(seed)
+        h, w = 23 + seed, 31 - seed  # not multiples of the block side
+        scan = torch.rand(h, w, generator=gen) < 0.04
+        side = 2 * v + 1
+        if seed % 3:  # a dense patch, at the border for some seeds
+            y, x = (0, w - side) if seed % 3 == 1 else (h // 2, w // 3)
+            scan[y : y + side, x : x + side] = torch.rand(side, side, generator=gen) < 0.6
+        want = torch.zeros(h, w, dtype=torch.bool)
+        limit = LOCAL_SATURATION * side * side
+        for cy in range(h):
+            for cx in range(w):  # the window centred on (cy, cx), zero padded
+                count = int(scan[max(cy - v, 0) : cy + v + 1, max(cx - v, 0) : cx + v + 1].sum())
+                if count > limit:
+                    want[max(cy - v, 0) : cy + v + 1, max(cx - v, 0) : cx + v + 1] = True
+        det = StreamingDetector(window=5, order=1, v=v)
+        det.push(scan)
+        got = det._local_points(scan.flatten().nonzero().squeeze(1))
+        assert got.tolist() == want.flatten().nonzero().squeeze(1).tolist()
+        if seed % 3:
+            assert got.numel() > 0  # the patch is saturated: the frame pass ran
+
     def test_memory_stays_flat(self):
         det = StreamingDetector(window=10, stride=100, order=2, v=2)
         gen = torch.Generator().manual_seed(0)
