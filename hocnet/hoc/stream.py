@@ -959,7 +959,9 @@ class StreamingDetector:
         if tracks:
             pts = torch.cat([tr.points for tr in tracks]).numpy()
             keys = ((pts[:, 0] + start) * h + pts[:, 1]) * w + pts[:, 2]
-            sizes = np.fromiter(map(len, tracks), dtype=np.int64, count=len(tracks))
+            sizes = np.fromiter(
+                (tr.points.shape[0] for tr in tracks), dtype=np.int64, count=len(tracks)
+            )
             labels = np.repeat(np.arange(len(tracks)), sizes)
         else:
             keys = labels = np.zeros(0, dtype=np.int64)
@@ -984,17 +986,29 @@ class StreamingDetector:
             # candidates of each track: largest overlap first, then the earlier previous track
             most = int(overlap.max()) if overlap.size else 0
             order = np.argsort((cur * (most + 1) + most - overlap) * n_prev + prev)
-            candidates: dict[int, list[int]] = {}
-            for i, j in zip(cur[order].tolist(), prev[order].tolist(), strict=True):
-                candidates.setdefault(i, []).append(j)
-            taken: set[int] = set()
-            for i in range(len(tracks)):
-                j = next((j for j in candidates.get(i, ()) if j not in taken), None)
-                if j is None:
-                    ids.append(self._new_id())
-                else:
-                    taken.add(j)
-                    ids.append(prev_ids[j])
+            cur, prev = cur[order], prev[order]
+            head = np.empty(cur.size, dtype=bool)  # each track's first candidate
+            head[:1] = True
+            np.not_equal(cur[1:], cur[:-1], out=head[1:])
+            best = prev[head]
+            if np.unique(best).size == best.size:
+                # no two tracks want the same previous track first: taken in order, each
+                # takes its first candidate (the loop below gives the same ids)
+                choice = np.full(len(tracks), -1, dtype=np.int64)
+                choice[cur[head]] = best
+                ids = [prev_ids[j] if j >= 0 else self._new_id() for j in choice.tolist()]
+            else:
+                candidates: dict[int, list[int]] = {}
+                for i, j in zip(cur.tolist(), prev.tolist(), strict=True):
+                    candidates.setdefault(i, []).append(j)
+                taken: set[int] = set()
+                for i in range(len(tracks)):
+                    j = next((j for j in candidates.get(i, ()) if j not in taken), None)
+                    if j is None:
+                        ids.append(self._new_id())
+                    else:
+                        taken.add(j)
+                        ids.append(prev_ids[j])
         else:
             ids = [self._new_id() for _ in tracks]
         for tr, i in zip(tracks, ids, strict=True):

@@ -387,6 +387,47 @@ class TestStreamingDetector:
             n_tracks += len(current)
         assert n_tracks > 3 * len(outs) and 0 < inherited < n_tracks
 
+    @pytest.mark.parametrize("seed", range(30))
+    def test_associate_against_a_loop_reference(self, seed):
+        """Crafted overlaps, some tracks wanting the same previous track first (both paths)."""
+        from hocnet.hoc.identify import Track
+
+        gen = torch.Generator().manual_seed(seed)
+        det = StreamingDetector(window=5, order=1)
+        det.push(torch.zeros(4, 40, dtype=torch.bool))
+
+        def tracks(n, pool):  # n tracks of 3-5 points drawn from a small pool of pixels
+            out = []
+            for _ in range(n):
+                size = int(torch.randint(3, 6, (1,), generator=gen))
+                xs = torch.randperm(pool, generator=gen)[:size].sort().values
+                pts = torch.stack([torch.arange(size), torch.zeros(size).long(), xs], 1)
+                out.append(Track(points=pts, id=0, score=3.0, point_scores=torch.ones(size)))
+            return out
+
+        previous, next_id, conflicts = [], 1, 0
+        for _ in range(4):  # start 0 each time: the windows overlap completely
+            current = tracks(int(torch.randint(0, 7, (1,), generator=gen)), 12)
+            det._associate(current, 0)
+            taken, firsts = set(), []
+            for tr in current:  # in order: the not yet taken previous track with most points
+                pts = {tuple(p) for p in tr.points.tolist()}
+                overlap = [len(pts & pp) for _, pp in previous]
+                if overlap and max(overlap) > 0:
+                    firsts.append(previous[overlap.index(max(overlap))][0])
+                best, most = None, 0
+                for (pid, _), n in zip(previous, overlap, strict=True):
+                    if pid not in taken and n > most:
+                        best, most = pid, n
+                if best is None:
+                    best, next_id = next_id, next_id + 1
+                taken.add(best)
+                assert tr.id == best
+            conflicts += len(firsts) > len(set(firsts))
+            previous = [(tr.id, {tuple(p) for p in tr.points.tolist()}) for tr in current]
+        if seed == 0:
+            assert conflicts > 0  # the loop path ran
+
     def test_absolute_scan_numbers(self):
         cube = torch.zeros(10, 8, 30, dtype=torch.bool)
         for t in range(10):
