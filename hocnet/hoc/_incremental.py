@@ -95,13 +95,12 @@ def enumerate_paths_vectorised(
         if leaf.any():
             done_paths.append(paths[leaf])
             done_place.append(place[leaf])
-            grow = ~leaf
-            cnt, paths, place, last = cnt[grow], paths[grow], place[grow], last[grow]
-            if not paths.shape[0]:
-                break
-        rep = np.repeat(np.arange(cnt.size), cnt)
-        first = lo[last[rep]]
-        at = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep] + first  # rows of `order`
+        rep = np.repeat(np.arange(cnt.size), cnt)  # the leaves repeat 0 times: dropped
+        if not rep.size:
+            break
+        # rows of `order`: the continuations of each open chain, in their order
+        first = lo[last][rep]
+        at = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep] + first
         paths = np.concatenate([paths[rep], order[at][:, None]], axis=1)
         place = place[rep] + before[at] - before[first]
     if not done_paths:
