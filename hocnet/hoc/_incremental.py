@@ -9,6 +9,8 @@ same order (each tested against the loop it replaces, ``tests/hoc/test_stream.py
 
 from __future__ import annotations
 
+from operator import itemgetter
+
 import numpy as np
 import torch
 
@@ -26,24 +28,32 @@ def enumerate_paths_vectorised(
 ) -> PathList | None:
     """Maximal chains of accepted triples, in the order of the depth-first loop, or ``None``.
 
-    The same chains as ``identify._enumerate_paths`` (a triple ``k`` continues a chain ending
-    with triple ``j`` when ``a_in[k] == a_out[j]``; chains start at the accepted triples whose
-    in-edge ends no accepted triple), in the same order: starts by descending score (ties: lower
-    index first), and below each chain its continuations likewise; a chain is listed once it
-    has no continuation. The loop visits the chains depth first; here they grow all at once,
-    one triple per step, and are ordered at the end by their sequence of ranks (position of the
-    start among the starts, of each continuation among its siblings; no listed chain is a prefix
-    of another, so the order is total).
+    The same chains as ``identify._enumerate_paths_loop`` (a triple ``k`` continues a chain
+    ending with triple ``j`` when ``a_in[k] == a_out[j]``; chains start at the accepted triples
+    whose in-edge ends no accepted triple), in the same order: starts by descending score (ties:
+    lower index first), and below each chain its continuations likewise; a chain is listed once
+    it has no continuation.
+
+    How: the chains from each triple are counted first (:func:`_chain_counts`; 1 for a triple
+    without continuation, else the sum over its continuations). Their total decides the cap at
+    once, before any chain is listed. Below it the counts give every chain its place in the
+    loop's order directly: a start's chains follow those of the starts before it, and a
+    continuation's chains follow those of its siblings before it. The chains then grow all at
+    once, one triple per step, each carrying that place, and are listed in it (no sort of the
+    chains).
 
     Returns ``None`` when ``max_candidates`` or more chains exist: the loop then caps the
     enumeration (its ``capped`` rule), which this function does not reproduce. Below that count
     the loop's cap never applies (its stack holds disjoint open chains, each ending in at least
-    one listed chain), so the result is the loop's.
+    one listed chain, so it never holds more than the chains left), so the result is the
+    loop's; at or above it the loop caps (its stack or its list reaches the count), so ``None``
+    is returned exactly when the loop's ``capped`` is true.
 
     Args:
         accepted: ``(K,)`` bool, the accepted triples.
-        a_in: ``(K,)`` int64 in-edge id of each triple.
-        a_out: ``(K,)`` int64 out-edge id of each triple.
+        a_in: ``(K,)`` int64 in-edge id of each triple (``>= 0``).
+        a_out: ``(K,)`` int64 out-edge id of each triple (``>= 0``); the chains must form a
+            directed acyclic graph (edge ids of later scans: the case of every caller).
         s: ``(K,)`` float64 score of each triple.
         max_candidates: the cap of the loop.
 
@@ -56,58 +66,82 @@ def enumerate_paths_vectorised(
         return PathList([], [])
     ai, ao, sc = a_in.numpy()[idx], a_out.numpy()[idx], s.numpy()[idx]
     n_e = int(max(ai.max(), ao.max())) + 1  # edge ids are small (torch.unique)
-    # continuations grouped by in-edge, each group by descending score, then index
-    order = np.argsort(-sc, kind="stable")
-    order = order[_stable_argsort(ai[order], n_e)]
     count = np.bincount(ai, minlength=n_e)  # triples starting with each edge
-    lo = (np.cumsum(count) - count)[ao]  # first continuation of each triple in `order`
-    fan = count[ao]
+    fan = count[ao]  # continuations of each triple
     ends_one = np.zeros(n_e, dtype=bool)
     ends_one[ao] = True
-    starts = np.flatnonzero(~ends_one[ai])
-    starts = starts[np.argsort(-sc[starts], kind="stable")]
+    is_start = ~ends_one[ai]
+    chains = _chain_counts(ai, ao, fan, n_e, max_candidates)
+    if int(chains[is_start].sum()) >= max_candidates:
+        return None  # at least this many chains: the loop's cap decides
+    # starts and continuations by descending score, then index (one stable sort for both)
+    by_score = _stable_argsort_values(-sc)
+    starts = by_score[is_start[by_score]]
+    per_start = chains[starts]
+    # continuations grouped by in-edge, each group by descending score, then index
+    order = by_score[_stable_argsort(ai[by_score], n_e)]
+    lo = (np.cumsum(count) - count)[ao]  # first continuation of each triple in `order`
+    # place of a continuation's chains after its siblings before it: before[i] - before[lo]
+    below = chains[order]
+    before = np.cumsum(below) - below
     paths = starts[:, None]
-    ranks = np.arange(starts.size)[:, None]
+    place = np.cumsum(per_start) - per_start
     done_paths: list[np.ndarray] = []
-    done_ranks: list[np.ndarray] = []
-    n_done = 0
+    done_place: list[np.ndarray] = []
     while paths.shape[0]:
         last = paths[:, -1]
         cnt = fan[last]
         leaf = cnt == 0
-        n_leaf = int(np.count_nonzero(leaf))
-        if n_leaf:
+        if leaf.any():
             done_paths.append(paths[leaf])
-            done_ranks.append(ranks[leaf])
-            n_done += n_leaf
-            grow = ~leaf
-            cnt, paths, ranks, last = cnt[grow], paths[grow], ranks[grow], last[grow]
-        if n_done + paths.shape[0] >= max_candidates:
-            return None  # at least this many chains: the loop's cap decides
-        if not paths.shape[0]:
+            done_place.append(place[leaf])
+        rep = np.repeat(np.arange(cnt.size), cnt)  # the leaves repeat 0 times: dropped
+        if not rep.size:
             break
-        rep = np.repeat(np.arange(cnt.size), cnt)
-        within = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep]
-        child = order[lo[last[rep]] + within]
-        paths = np.concatenate([paths[rep], child[:, None]], axis=1)
-        ranks = np.concatenate([ranks[rep], within[:, None]], axis=1)
+        # rows of `order`: the continuations of each open chain, in their order
+        first = lo[last][rep]
+        at = np.arange(rep.size) - (np.cumsum(cnt) - cnt)[rep] + first
+        paths = np.concatenate([paths[rep], order[at][:, None]], axis=1)
+        place = place[rep] + before[at] - before[first]
     if not done_paths:
         return PathList([], [])
-    perm = _rank_order(done_ranks, starts.size, int(fan.max()) + 1)
     rows: list[list[int]] = []
-    for p in done_paths:  # one list per chain, its length that of its group
-        rows.extend(idx[p].tolist())
-    # the same chains as arrays, per length, for the scoring (``PathList.groups``)
-    rank = np.empty_like(perm)
-    rank[perm] = np.arange(perm.size)
     groups = []
-    base = 0
-    for p in done_paths:
-        at = rank[base : base + p.shape[0]]
+    for p, at in zip(done_paths, done_place, strict=True):
+        rows.extend(idx[p].tolist())  # one list per chain, its length that of its group
         sort = np.argsort(at)
         groups.append((at[sort], idx[p[sort]]))
-        base += p.shape[0]
-    return PathList([rows[i] for i in perm.tolist()], groups)
+    perm = np.empty(len(rows), dtype=np.int64)  # the chain listed at each place
+    perm[np.concatenate(done_place)] = np.arange(len(rows))
+    if len(rows) == 1:
+        return PathList(rows, groups)
+    return PathList(list(itemgetter(*perm.tolist())(rows)), groups)
+
+
+def _chain_counts(
+    a_in: np.ndarray, a_out: np.ndarray, fan: np.ndarray, n_e: int, cap: int
+) -> np.ndarray:
+    """Maximal chains from each triple (``(K,)`` int64), each count capped at ``cap``.
+
+    ``chains[j] = 1`` when no triple continues ``j`` (``fan[j] == 0``), else the sum of
+    ``chains[k]`` over its continuations ``k`` (``a_in[k] == a_out[j]``), capped at ``cap``:
+    iterated from all ones to the fixed point (at most the longest chain's length + 1 rounds,
+    over the triples with continuations only). Capping keeps the sums exact in float64 and
+    loses nothing the caller needs: a capped sum is ``cap`` or more either way, and below
+    ``cap`` every count is exact.
+    """
+    chains = np.ones(a_in.size, dtype=np.int64)
+    inner = np.flatnonzero(fan > 0)
+    out_inner = a_out[inner]
+    weights = np.ones(a_in.size, dtype=np.float64)
+    for _ in range(a_in.size + 1):
+        per_edge = np.bincount(a_in, weights=weights, minlength=n_e)
+        new = np.minimum(per_edge[out_inner], cap)
+        if np.array_equal(new, weights[inner]):
+            break
+        weights[inner] = new
+    chains[inner] = weights[inner].astype(np.int64)
+    return chains
 
 
 def _stable_argsort(ids: np.ndarray, n_ids: int) -> np.ndarray:
@@ -117,26 +151,14 @@ def _stable_argsort(ids: np.ndarray, n_ids: int) -> np.ndarray:
     return np.argsort(ids, kind="stable")
 
 
-def _rank_order(ranks: list[np.ndarray], n_start: int, n_sib: int) -> np.ndarray:
-    """Permutation sorting the chains (groups of equal length) lexicographically by rank.
+def _stable_argsort_values(x: np.ndarray) -> np.ndarray:
+    """``np.argsort(x, kind="stable")`` of float values, by their ranks when few are distinct.
 
-    ``ranks``: per group an ``(R, w)`` int64 array (or tensor) of ranks (column 0 below
-    ``n_start``, the others below ``n_sib``); no row is a prefix of another. Rows are packed
-    into one int64 key (mixed radix, rank + 1 so that a shorter row pads with 0) and sorted
-    once (the keys are distinct); when the key could overflow, stable sorts column by column
-    (last column first) over the padded rows.
+    Triple scores take few distinct values (one per pair of moves): their ranks among the
+    distinct values (``np.unique``, which groups equal values as the sort does, NaN last) are
+    sorted as 16-bit keys by NumPy's radix sort, about 3x faster than the float sort.
     """
-    ranks = [np.asarray(r, dtype=np.int64) for r in ranks]
-    width = max(r.shape[1] for r in ranks)
-    base = n_sib + 1
-    if (n_start + 1) * base ** (width - 1) < 2**62:
-        weights = base ** np.arange(width - 1, -1, -1, dtype=np.int64)
-        key = np.concatenate([((r + 1) * weights[: r.shape[1]]).sum(1) for r in ranks])
-        return np.argsort(key, kind="stable")
-    pad_r = np.concatenate(
-        [np.pad(r, ((0, 0), (0, width - r.shape[1])), constant_values=-1) for r in ranks]
-    )
-    perm = np.arange(pad_r.shape[0])
-    for col in range(width - 1, -1, -1):  # lexicographic: stable sorts, last column first
-        perm = perm[np.argsort(pad_r[perm, col], kind="stable")]
-    return perm
+    distinct, rank = np.unique(x, return_inverse=True)
+    if distinct.size <= 1 << 16:
+        return np.argsort(rank.reshape(-1).astype(np.uint16), kind="stable")
+    return np.argsort(x, kind="stable")

@@ -282,6 +282,33 @@ class TestIncremental:
             # one look-up of the new scan, 2k new layer entries, one new tree per direction
             assert set(per_push) == {(1, 2 * order, 2)}
 
+    @pytest.mark.parametrize("seed", range(6))
+    @pytest.mark.parametrize("v", [1, 2, 4])
+    def test_local_points_against_a_window_loop(self, seed, v):
+        """Block-count pre-check + frame pass = every window counted one by one."""
+        from hocnet.hoc.identify import LOCAL_SATURATION
+
+        gen = torch.Generator().manual_seed(seed)
+        h, w = 23 + seed, 31 - seed  # not multiples of the block side
+        scan = torch.rand(h, w, generator=gen) < 0.04
+        side = 2 * v + 1
+        if seed % 3:  # a dense patch, at the border for some seeds
+            y, x = (0, w - side) if seed % 3 == 1 else (h // 2, w // 3)
+            scan[y : y + side, x : x + side] = torch.rand(side, side, generator=gen) < 0.6
+        want = torch.zeros(h, w, dtype=torch.bool)
+        limit = LOCAL_SATURATION * side * side
+        for cy in range(h):
+            for cx in range(w):  # the window centred on (cy, cx), zero padded
+                count = int(scan[max(cy - v, 0) : cy + v + 1, max(cx - v, 0) : cx + v + 1].sum())
+                if count > limit:
+                    want[max(cy - v, 0) : cy + v + 1, max(cx - v, 0) : cx + v + 1] = True
+        det = StreamingDetector(window=5, order=1, v=v)
+        det.push(scan)
+        got = det._local_points(scan.flatten().nonzero().squeeze(1))
+        assert got.tolist() == want.flatten().nonzero().squeeze(1).tolist()
+        if seed % 3:
+            assert got.numel() > 0  # the patch is saturated: the frame pass ran
+
     def test_memory_stays_flat(self):
         det = StreamingDetector(window=10, stride=100, order=2, v=2)
         gen = torch.Generator().manual_seed(0)
@@ -359,6 +386,47 @@ class TestStreamingDetector:
             previous = current
             n_tracks += len(current)
         assert n_tracks > 3 * len(outs) and 0 < inherited < n_tracks
+
+    @pytest.mark.parametrize("seed", range(30))
+    def test_associate_against_a_loop_reference(self, seed):
+        """Crafted overlaps, some tracks wanting the same previous track first (both paths)."""
+        from hocnet.hoc.identify import Track
+
+        gen = torch.Generator().manual_seed(seed)
+        det = StreamingDetector(window=5, order=1)
+        det.push(torch.zeros(4, 40, dtype=torch.bool))
+
+        def tracks(n, pool):  # n tracks of 3-5 points drawn from a small pool of pixels
+            out = []
+            for _ in range(n):
+                size = int(torch.randint(3, 6, (1,), generator=gen))
+                xs = torch.randperm(pool, generator=gen)[:size].sort().values
+                pts = torch.stack([torch.arange(size), torch.zeros(size).long(), xs], 1)
+                out.append(Track(points=pts, id=0, score=3.0, point_scores=torch.ones(size)))
+            return out
+
+        previous, next_id, conflicts = [], 1, 0
+        for _ in range(4):  # start 0 each time: the windows overlap completely
+            current = tracks(int(torch.randint(0, 7, (1,), generator=gen)), 12)
+            det._associate(current, 0)
+            taken, firsts = set(), []
+            for tr in current:  # in order: the not yet taken previous track with most points
+                pts = {tuple(p) for p in tr.points.tolist()}
+                overlap = [len(pts & pp) for _, pp in previous]
+                if overlap and max(overlap) > 0:
+                    firsts.append(previous[overlap.index(max(overlap))][0])
+                best, most = None, 0
+                for (pid, _), n in zip(previous, overlap, strict=True):
+                    if pid not in taken and n > most:
+                        best, most = pid, n
+                if best is None:
+                    best, next_id = next_id, next_id + 1
+                taken.add(best)
+                assert tr.id == best
+            conflicts += len(firsts) > len(set(firsts))
+            previous = [(tr.id, {tuple(p) for p in tr.points.tolist()}) for tr in current]
+        if seed == 0:
+            assert conflicts > 0  # the loop path ran
 
     def test_absolute_scan_numbers(self):
         cube = torch.zeros(10, 8, 30, dtype=torch.bool)
@@ -571,28 +639,63 @@ class TestLatencyPathsEqualBatch:
             else:
                 assert got[1]
 
-    @pytest.mark.parametrize("seed", range(5))
-    def test_rank_order_packed_and_column_sorts(self, seed):
-        """Both orderings of `_rank_order` (one packed key; column sorts) are lexicographic."""
-        from hocnet.hoc._incremental import _rank_order
+    @pytest.mark.parametrize("seed", range(20))
+    def test_enumerate_paths_vectorised_at_the_exact_cap(self, seed):
+        """``None`` exactly when the loop caps: caps just below, at and above the chain count."""
+        from hocnet.hoc._incremental import enumerate_paths_vectorised
+        from hocnet.hoc.identify import _enumerate_paths_loop
+
+        gen = torch.Generator().manual_seed(100 + seed)
+        k = int(torch.randint(1, 40, (1,), generator=gen))  # small: a few hundred chains
+        a_in = torch.randint(0, 30, (k,), generator=gen)
+        a_out = a_in + torch.randint(1, 4, (k,), generator=gen)
+        s = torch.randint(0, 3, (k,), generator=gen).double()
+        accepted = torch.rand(k, generator=gen) < 0.9
+        every, capped = _enumerate_paths_loop(accepted, a_in, a_out, s, 10**5)
+        assert not capped
+        total = len(every)
+        for cap in {max(1, total - 1), max(1, total), total + 1}:
+            want, capped = _enumerate_paths_loop(accepted, a_in, a_out, s, cap)
+            fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, cap)
+            assert (fast is None) == capped == (total >= cap)
+            if fast is not None:
+                assert fast == want
+
+    @pytest.mark.parametrize("seed", range(20))
+    def test_chain_counts_against_recursion(self, seed):
+        """Chains from each triple, capped: against a memoised recursion over the continuations."""
+        from functools import cache
+
+        from hocnet.hoc._incremental import _chain_counts
 
         gen = torch.Generator().manual_seed(seed)
-        seen: set[tuple[int, ...]] = set()
-        groups = []
-        for width in range(1, 6):
-            rows = torch.randint(0, 3, (40, width), generator=gen)
-            rows[:, 0] = torch.randint(0, 7, (40,), generator=gen)
-            keep = []
-            for row in rows.tolist():  # no row may be a prefix of another
-                if not any(tuple(row[:j]) in seen for j in range(1, width + 1)):
-                    keep.append(row)
-                    seen.add(tuple(row))
-            if keep:
-                groups.append(torch.tensor(keep))
-        flat = [tuple(r) for g in groups for r in g.tolist()]
-        want = sorted(range(len(flat)), key=lambda i: flat[i])
-        assert _rank_order(groups, 7, 3).tolist() == want  # packed key
-        assert _rank_order(groups, 2**62, 3).tolist() == want  # key would overflow: columns
+        k = int(torch.randint(1, 200, (1,), generator=gen))
+        a_in = torch.randint(0, 40, (k,), generator=gen).numpy()
+        a_out = a_in + torch.randint(1, 3, (k,), generator=gen).numpy()
+        n_e = int(max(a_in.max(), a_out.max())) + 1
+        fan = np.bincount(a_in, minlength=n_e)[a_out]
+
+        @cache
+        def chains(j: int) -> int:
+            nxt = [i for i in range(k) if a_in[i] == a_out[j]]
+            return sum(chains(i) for i in nxt) if nxt else 1
+
+        want = [chains(j) for j in range(k)]
+        for cap in (1, 3, 50, 10**12):
+            got = _chain_counts(a_in, a_out, fan, n_e, cap).tolist()
+            assert got == [min(w, cap) for w in want]
+
+    @pytest.mark.parametrize("distinct", [1, 9, 70000])
+    def test_stable_argsort_values_equals_numpy(self, distinct):
+        from hocnet.hoc._incremental import _stable_argsort_values
+
+        gen = torch.Generator().manual_seed(distinct)
+        x = (torch.randint(0, distinct, (90000,), generator=gen).double() - 4) / 2
+        x[::7] = -0.0  # -0.0 and 0.0 tie in both sorts
+        x[::11] = 0.0
+        x[::13] = math.nan
+        x = x.numpy()
+        assert np.array_equal(_stable_argsort_values(x), np.argsort(x, kind="stable"))
 
     @pytest.mark.parametrize("span", [1, 2, 3])
     @pytest.mark.parametrize("combine", ["min", "mean"])
