@@ -909,8 +909,10 @@ def report_type_likelihood(m: Any, report: Any) -> torch.Tensor:
     Why (issue 12, ours): ``max BetP`` of the updated bba (``type_likelihood(m)``, the chapter's
     text) measures how *certain* the track's type is, not whether the report *agrees* with it: a
     track whose bba is concentrated on a wrong class scores higher on a GMTI "wheeled" report
-    than the right track whose bba is spread over the six wheeled classes, and took a convoy
-    target's reports (seed 2424, target 4's track on target 3 from t = 990 s).
+    than the right track whose bba is spread over two wheeled classes (seed 2424 of the
+    chapter's scenario, t = 940 s: target 4's track, left behind at a junction beside target 3's
+    track, 1.00 against 0.57). Measured (``experiments/results/pd-pcr5-diag.md``): not better
+    than ``max BetP`` on the scenario's runs, so the MHT's default stays the chapter's reading.
 
     Args:
         m: updated bbas ``(..., 2**n)`` (e.g. ``pcr5(track, report)``).

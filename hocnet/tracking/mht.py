@@ -85,6 +85,8 @@ Popoli, *Design and Analysis of Modern Tracking Systems*, 1999, ch. 6 and 16, it
   on a GMTI "wheeled" report a track sure of a wrong wheeled class scores ``ln 1 = 0`` and the
   right track with its mass spread over two classes ``ln 0.57`` (seed 2424 of the chapter's
   scenario, t = 940 s: target 4's track left behind at a junction beside target 3's track).
+  Measured on seeds 2400-2409 and 2420-2429 (``experiments/results/pd-pcr5-diag.md``): no
+  better than ``"estimate"`` overall, which stays the default of the experiment.
 
 Numbers are float64 torch tensors; the tree (histories, families, hypotheses) is Python
 bookkeeping. The motion model is pluggable (:class:`MotionFilter`): :class:`CVKalmanFilter`
