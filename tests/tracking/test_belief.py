@@ -17,6 +17,7 @@ from hocnet.tracking.belief import (
     pignistic,
     pignistic_coarse,
     refine,
+    report_type_likelihood,
     to_dict,
     type_likelihood,
     vacuous,
@@ -616,3 +617,73 @@ class TestRefinementCommutesWithPCR5:
                 rtol=0,
                 atol=1e-14,
             )
+
+
+class TestReportTypeLikelihood:
+    def test_against_dict_reference(self):
+        rng = np.random.default_rng(51)
+        m = torch.stack([random_normal(rng, 8, 9) for _ in range(6)])
+        declared = [1, 0, 2]  # GMTI classes, refined to the video frame
+        reports = [refine(gmti_obs(c), VIDEO_TO_GMTI, 8) for c in declared]
+        reports += [video_obs(3), video_obs(6, 0.5), vacuous(8)]
+        rep = torch.stack(reports)
+        got = report_type_likelihood(m, rep)
+        for i in range(6):
+            d = to_dict(m[i], VIDEO_CLASSES)
+            focal = {x: v for x, v in to_dict(rep[i], VIDEO_CLASSES).items() if len(x) < 8}
+            a = max(focal, key=focal.get) if focal else frozenset(VIDEO_CLASSES)
+            expected = sum(len(x & a) / len(x) * v for x, v in d.items())  # 24.47
+            assert float(got[i]) == pytest.approx(expected, abs=1e-12)
+        # = the "declared" reading with the sensor's class and mapping
+        torch.testing.assert_close(
+            got[:3], type_likelihood(m[:3], torch.tensor(declared), VIDEO_TO_GMTI)
+        )
+        torch.testing.assert_close(got[3], pignistic(m[3])[3])
+        assert float(got[5]) == pytest.approx(1.0)
+        # broadcast and empty batch
+        assert report_type_likelihood(m, rep[0]).shape == (6,)
+        assert report_type_likelihood(m[:0], rep[:0]).shape == (0,)
+
+    def test_errors(self):
+        with pytest.raises(ValueError, match="`report`"):
+            report_type_likelihood(vacuous(8), vacuous(3))
+        with pytest.raises(ValueError, match="`m`"):
+            report_type_likelihood(torch.tensor([0.5, 0.6, 0.0, 0.0]), vacuous(2))
+
+    @staticmethod
+    def _winner(type_term):
+        """Which track takes target T's GMTI "wheeled" report (issue 12, seed 2424, t = 940 s).
+
+        Scan 0: T (a military armoured truck, video class 4) is seen with a spread type belief
+        (0.5 on its class, 0.4 on the armoured wheeled vehicle 5) and starts track 0; 1 m away
+        track 1 starts on another vehicle's report, sure it is class 5 (0.95). Scan 1: T's GMTI
+        report at T's position declares "wheeled" (0.7), true for both classes.
+        """
+        from hocnet.tracking.mht import MHT, CVKalmanFilter
+        from hocnet.tracking.pipeline import gmti_bba_on_video_frame
+
+        def two(i, p, j=None, q=0.0):
+            m = torch.zeros(256, dtype=torch.float64)
+            m[1 << i] += p
+            if j is not None:
+                m[1 << j] += q
+            m[-1] += 1.0 - p - q
+            return m
+
+        kw = dict(R=torch.eye(2), pd=0.9, lambda_fa=1e-3, lambda_nt=1e-2, merge_scans=0)
+        mht = MHT(CVKalmanFilter(0.0, 1.0), type_term=type_term, **kw)
+        z0 = torch.tensor([[0.0, 0.0], [1.0, 0.0]])
+        mht.step(z0, bba=torch.stack([two(4, 0.5, 5, 0.4), two(5, 0.95)]))
+        mht.step(torch.zeros(1, 2), bba=gmti_bba_on_video_frame(1, 0.7)[None])
+        best = mht.hypotheses()[0][0][1]
+        (fam,) = [f for f, h in best if h[1:] == (0,)]
+        return fam
+
+    def test_declared_set_gives_the_report_to_the_right_track(self):
+        # kinematics alone (no type term) pick T's own track 0, nearer the report
+        assert self._winner(None) == 0
+        # the chapter's max BetP rewards track 1 for being sure of a class the GMTI cannot tell
+        # apart: it takes T's report (the old default's failure)
+        assert self._winner("estimate") == 1
+        # BetP of the updated bba on the declared set: 1 for both tracks, kinematics decide
+        assert self._winner("declared_set") == 0
