@@ -353,6 +353,13 @@ class PDTrackerConfig:
             2410-2429 identical output (the case did not occur). ``junction_margin = 50``
             instead (tried): target 4 19.6 m but target 6 23.0 -> 32.6 m, length ratio 0.954
             -> 0.668.
+        junction_retro: ``VSIMMConfig.junction_retro`` of the filter: how a one-step OOSM
+            retrodiction is carried back across the junction a mode passed in its last step.
+            ``"state"`` (default): from the segment and the crossed node of each mode's last
+            step kept in the state (``segment_prev``, ``junction_node``, carried by every row
+            operation of :class:`VSIMMRoadFilter`), also for the lag memory's one-step rows;
+            ``"locate"``: the former guess by the nearest segment; ``"off"``. See
+            :func:`hocnet.tracking.vsimm._retro_junction`.
         section_distance: the MHT's ``section_distance`` (m): the road-section exception of
             the N-scan pruning keeps another section's best leaf of a family only within this
             distance of the family's leaf in the best hypothesis (``None``: any distance, the
@@ -405,6 +412,7 @@ class PDTrackerConfig:
     junction_beta: float = 0.01
     junction_defer: float = 0.0
     junction_on_crossing: bool = False
+    junction_retro: str = "state"
     section_distance: float | None = 500.0
     vsimm: VSIMMConfig = field(init=False)
 
@@ -419,7 +427,11 @@ class PDTrackerConfig:
         if self.max_coast is not None:
             check_number("max_coast", self.max_coast, low=0.0)
         object.__setattr__(
-            self, "vsimm", VSIMMConfig(road_sigmas=self.road_sigmas, trans=self.trans)
+            self,
+            "vsimm",
+            VSIMMConfig(
+                road_sigmas=self.road_sigmas, trans=self.trans, junction_retro=self.junction_retro
+            ),
         )
 
     @property

@@ -6,7 +6,9 @@ at once (``B`` rows, ``r`` modes, state ``[x, vx, y, vy]`` in m and m/s, float64
 - mode probabilities ``mu`` ``(B, r)``, mode-matched states ``x`` ``(B, r, 4)``, covariances
   ``P`` ``(B, r, 4, 4)``, the active segment of each mode ``segment`` ``(B, r)`` (``-1`` for an
   off-road mode), the section hypothesis ``section`` ``(B,)`` (``-1``: the whole network), the
-  track id ``track`` ``(B,)`` and the section probability ``mu_section`` ``(B,)`` (24.38).
+  track id ``track`` ``(B,)`` and the section probability ``mu_section`` ``(B,)`` (24.38); the
+  segment of each mode before its last step and the junction node it crossed then
+  (``segment_prev``, ``junction_node`` ``(B, r)``, for the OOSM retrodiction across a junction).
 
 **Mode set** (:class:`VSIMMConfig`): the stop model M0 (24.31; ``F0 = diag(1, 0, 1, 0)``,
 ``Q0 = 0``), ``r'`` road-constrained constant-velocity models ``M_i^s`` with along / across
@@ -87,6 +89,7 @@ __all__ = [
     "VSIMMPrediction",
     "VSIMMState",
     "VSIMMUpdate",
+    "crossed_node",
     "follow_section",
     "junction_transition",
     "node_ahead",
@@ -166,6 +169,25 @@ class VSIMMConfig:
             behaviour: at a turn the velocity mismatch, read as an estimation error, moved the
             position along the new road through the position-velocity correlation, 120 m at an
             11 degree turn in the [PD] 24.6 scenario, seed 2402, target 1, t = 810 s).
+        junction_retro: how a one-step OOSM retrodiction (A1, a straight back-extrapolation
+            along the mode's current segment) is carried back across the junction the mode
+            passed in its last step (:func:`_retro_junction`; with ``junction="rotate"`` only;
+            our addition). ``"state"`` (default): from the state, the segment of each mode
+            before its last step (``VSIMMState.segment_prev``) and the node it crossed
+            (``VSIMMState.junction_node``): the inverse of the rotation of
+            :func:`junction_transition` about that node, for the modes whose retrodiction lies
+            behind it; also for the one-step rows of a lag memory. ``"locate"`` (the former
+            behaviour, kept for side-by-side measurement): the old segment *guessed* as the
+            segment nearest to the straight back-extrapolation (wrong at 4-way crossroads, at
+            T junctions from the stem and at some bends of 90 degrees or more), not for the
+            lag memory's one-step rows. ``"off"``: no correction. Measured in the [PD] 24.6
+            scenario (``experiments/_pd_armse_diag.py``, without PCR5), "state" against
+            "locate": the step ran on 4 and 6 of 1984 and 3722 OOSM road-mode rows (seeds
+            2408, 2400), every time 5 m or more from the guess; per-target ARMSE within 0.4 m
+            on 29 of the seeds 2400-2429, and on seed 2408 target 9 13 -> 321 m: a video report
+            from 5 s before the junction at (3000, 0) no longer penalises (through the wrong
+            guess) the leaf of the branch the target did not take, the two branch leaves tie
+            (scores 490.0 / 490.6) and the MHT keeps the wrong one for 150 s.
 
     Examples:
         >>> VSIMMConfig().kinds
@@ -180,11 +202,13 @@ class VSIMMConfig:
     use_mdv: bool = True
     noise: str = "discrete"
     junction: str = "rotate"
+    junction_retro: str = "state"
     kinds: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
         check_choice("noise", self.noise, ("discrete", "continuous"))
         check_choice("junction", self.junction, ("rotate", "none"))
+        check_choice("junction_retro", self.junction_retro, ("state", "locate", "off"))
         for i, pair in enumerate(self.road_sigmas):
             if len(pair) != 2:
                 raise ValueError(
@@ -258,6 +282,14 @@ class VSIMMState(NamedTuple):
             perfect pseudo-measurement (see ``_oosm_memory``).
         G: ``(B, r, 4, 4)`` ``H' S^-1 H`` of the last update, likewise.
         accel_cov: ``(B, r, 2, 2)`` acceleration covariance (m/s^2)^2 used in the last step.
+        segment_prev: ``(B, r)`` int64 active segment of each mode before its last step (at
+            ``t_prev``; ``-1`` off-road), or ``None`` (a state built without it: the OOSM
+            junction step of ``VSIMMConfig(junction_retro="state")`` is then skipped).
+        junction_node: ``(B, r)`` int64 the node shared by ``segment_prev`` and ``segment``
+            that the mode crossed in its last step (``-1``: none, the segment did not change
+            or the two segments do not touch), or ``None`` as ``segment_prev``. With
+            ``segment_prev`` it is the junction map of the last step (:func:`junction_transition`
+            rotates about that node), inverted by the OOSM retrodiction (:func:`_retro_junction`).
     """
 
     mu: torch.Tensor
@@ -273,6 +305,8 @@ class VSIMMState(NamedTuple):
     g: torch.Tensor
     G: torch.Tensor
     accel_cov: torch.Tensor
+    segment_prev: torch.Tensor | None = None
+    junction_node: torch.Tensor | None = None
 
     def combined(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Combined estimate (24.37) and covariance: ``(B, 4)``, ``(B, 4, 4)``."""
@@ -280,7 +314,7 @@ class VSIMMState(NamedTuple):
 
     def select(self, rows: Any) -> VSIMMState:
         """The rows ``rows`` (index or bool mask) of every field."""
-        return VSIMMState(*(f[rows] for f in self))
+        return VSIMMState(*(None if f is None else f[rows] for f in self))
 
 
 class VSIMMPrediction(NamedTuple):
@@ -477,6 +511,8 @@ def vsimm_init(
         z4,
         torch.zeros(N, r, 4, 4, dtype=DTYPE),
         torch.zeros(N, r, 2, 2, dtype=DTYPE),
+        seg.clone(),
+        torch.full((N, r), -1, dtype=torch.int64),
     )
 
 
@@ -657,6 +693,45 @@ def node_ahead(
     w = torch.where(fwd.unsqueeze(-1), d, -d)
     ahead = torch.where(fwd, net.segment_nodes[so, 1], net.segment_nodes[so, 0])
     return ahead, w
+
+
+def crossed_node(
+    net: RoadNetwork, old: torch.Tensor, new: torch.Tensor, velocity: torch.Tensor
+) -> torch.Tensor:
+    """The node shared by each mode's segment before and after a step (the junction crossed).
+
+    ``-1`` where the segment did not change, a mode is off-road (``-1``) or the two segments
+    share no node; where they share both ends (two segments between the same nodes) the node
+    ahead of ``velocity`` on ``old`` (:func:`node_ahead`). Stored in
+    :attr:`VSIMMState.junction_node` by :func:`vsimm_update` (our addition, for the OOSM
+    retrodiction across the junction, :func:`_retro_junction`).
+
+    Args:
+        net: road network.
+        old: ``(...)`` int64 segments before the step (``-1`` off-road).
+        new: ``(...)`` int64 segments after the step.
+        velocity: ``(..., 2)`` velocities ``[vx, vy]`` (m/s) before the step.
+
+    Returns:
+        ``(...)`` int64 node indices, ``-1`` for none.
+
+    Examples:
+        >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+        >>> crossed_node(net, torch.tensor([0, 0, 1]), torch.tensor([1, 0, 0]),
+        ...              torch.tensor([[5.0, 0.0], [5.0, 0.0], [0.0, -5.0]])).tolist()
+        [1, -1, 1]
+    """
+    old = torch.as_tensor(old).to(torch.int64)
+    new = torch.as_tensor(new).to(torch.int64)
+    so, sn = old.clamp(min=0), new.clamp(min=0)
+    a0, a1 = net.segment_nodes[so, 0], net.segment_nodes[so, 1]
+    b0, b1 = net.segment_nodes[sn, 0], net.segment_nodes[sn, 1]
+    sh0 = (a0 == b0) | (a0 == b1)
+    sh1 = (a1 == b0) | (a1 == b1)
+    ahead, _ = node_ahead(net, old, velocity)
+    none = torch.full_like(old, -1)
+    node = torch.where(sh0 & sh1, ahead, torch.where(sh0, a0, torch.where(sh1, a1, none)))
+    return torch.where((old >= 0) & (new >= 0) & (old != new), node, none)
 
 
 _NEXT_CACHE: dict[int, tuple[RoadNetwork, torch.Tensor]] = {}
@@ -928,6 +1003,8 @@ def vsimm_update(
         g,
         G,
         pred.accel_cov,
+        state.segment,
+        crossed_node(net, state.segment, pred.segment, state.x[..., [1, 3]]),
     )
     return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
 
@@ -1360,7 +1437,9 @@ def vsimm_expand_sections(
     idx = first[new_tr, sec]
     add = state.select(idx)
     add = add._replace(section=sec, mu_section=torch.zeros(sec.numel(), dtype=DTYPE))
-    return VSIMMState(*(torch.cat([a, b_]) for a, b_ in zip(state, add, strict=True)))
+    return VSIMMState(
+        *(None if a is None else torch.cat([a, b_]) for a, b_ in zip(state, add, strict=True))
+    )
 
 
 # ------------------------------------------------------------------------------------------
@@ -1420,7 +1499,8 @@ def vsimm_oosm(
     covariance, the A1 retrodiction (:mod:`hocnet.tracking.oosm`), the retrodiction projected on
     the segment of the section nearest to the retrodicted position (24.14-24.16, "retrodiction
     done on the road"; a retrodiction behind the junction the mode passed after ``tau`` is first
-    carried back onto the segment it came from, :func:`_retro_junction`), the A1 update of
+    carried back onto the segment it came from, by the inverse of the junction map of the last
+    step kept in the state, ``config.junction_retro``, :func:`_retro_junction`), the A1 update of
     ``x(k|k)``, the projection of the result on the mode's
     current segment, and the mode probabilities ``mu_i ∝ mu_i Lambda_i(tau)`` with the
     PD-aware likelihoods of 24.30-24.31 (the IMM-OOSM of Bar-Shalom and Chen, the chapter's [3],
@@ -1501,6 +1581,21 @@ def vsimm_oosm(
         det = det & ~dropped
         tau = torch.where(dropped, state.t_prev.expand(B), tau)  # any in-lag time: unused
     zt = _measurement(z, sensor, det)
+    r0 = _a1_retrodiction(state, tau, config)
+    new, ll_out, mode_ll = _oosm_finish(
+        state, r0, zt, det, sensor, net, config, back_across_junction=True
+    )
+    return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
+
+
+def _a1_retrodiction(state: VSIMMState, tau: torch.Tensor, config: VSIMMConfig) -> Retrodiction:
+    """One-step A1 retrodiction of every mode to ``tau (B,)`` (:func:`vsimm_oosm`), off-road.
+
+    ``F(tau, k)``, ``Q(k, tau)`` with the mode's last acceleration covariance and, for
+    ``config.noise="discrete"``, the cross covariance ``Gamma(dt) S Gamma(lag)'`` of one
+    acceleration over the whole interval (:func:`hocnet.tracking.oosm._retrodict`).
+    """
+    B = state.mu.shape[0]
     lag = state.t - tau
     Fb, _ = _mode_F(config.kinds, -lag)
     _, Gm = _mode_F(config.kinds, lag)
@@ -1510,11 +1605,7 @@ def vsimm_oosm(
         # one acceleration over the whole interval: cov(x(k), w(k, tau)) = Gamma(dt) S Gamma(lag)'
         _, Gd = _mode_F(config.kinds, (state.t - state.t_prev).expand(B))
         C0 = Gd @ state.accel_cov @ Gm.transpose(-1, -2)
-    r0 = _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
-    new, ll_out, mode_ll = _oosm_finish(
-        state, r0, zt, det, sensor, net, config, back_across_junction=True
-    )
-    return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
+    return _retrodict(state.x, state.P, state.P_pred, state.g, state.G, Fb, Q, C0)
 
 
 #: Attributes the VS-IMM uses on a sensor model (``GMTISensor``, ``VideoSensor`` have them).
@@ -1582,7 +1673,8 @@ def _retro_junction(
     seg_tau: torch.Tensor,
     net: RoadNetwork,
     config: VSIMMConfig,
-) -> Retrodiction:
+    rows: torch.Tensor | None = None,
+) -> tuple[Retrodiction, torch.Tensor]:
     """Carry a retrodiction back across the junction the mode passed after ``tau`` (ours).
 
     The A1 retrodiction extrapolates ``x(k|k)`` backwards with the constant velocity of the
@@ -1597,34 +1689,153 @@ def _retro_junction(
     :func:`junction_transition`: positions rotate about the shared node and velocities by the
     angle between the two segments (the distance travelled and the speed are kept), covariance
     ``T P T'`` and cross covariance ``C T'``; rows / modes not behind a node shared by the two
-    segments are unchanged. ``config.junction != "rotate"`` keeps the former behaviour.
+    segments are unchanged.
 
-    Limits (a review's measurements, not yet fixed): the segment at ``tau`` is *guessed* with
-    ``net.locate`` of the straight back-extrapolation, nearest segment of the whole network,
-    ties to the lowest index. That is right for the shallow bends it was measured on; at a
-    4-way crossroad or a T junction approached from the stem the extension lies on the
-    collinear arm, so the rotation is the identity and the stop-mode collapse stays; at bends of
-    90 degrees or more a tie can pick the current segment (no change) or, at a T junction
-    approached along the bar, the wrong arm (measured: 60 m error against 20 m without this
-    step). Only one node is undone (as :func:`junction_transition` passes one per step), and a
-    leaf whose pending section hypothesis masks the old section is not corrected. The sound fix
-    keeps each mode's segment and junction map of the last step in the state and inverts it.
-    The lag memory's one-step rows (``PDTrackerConfig(max_lag=N)``) do not use this step.
+    ``config.junction_retro`` (only with ``config.junction == "rotate"``):
+
+    - ``"state"`` (default): the inverse of the last step's junction map, kept in the state:
+      for a moving road mode whose segment changed in its last step
+      (``state.segment_prev != state.segment``, crossed node ``J = state.junction_node``) and
+      whose retrodicted position lies behind ``J`` on the current segment's line
+      (``(p - J) . u < 0``, ``u`` the direction leaving ``J`` along the current segment), the
+      rotation about ``J`` taking ``u`` to the direction of travel on ``segment_prev`` into
+      ``J``; that mode's segment at ``tau`` is ``segment_prev``. The old segment is known, not
+      guessed, at any junction shape (crossroads, T junctions from the stem or along the bar,
+      bends of 90 degrees or more) and whatever the row's section hypothesis. A retrodiction
+      ahead of ``J`` (the target had crossed it by ``tau``) is unchanged.
+    - ``"locate"`` (the former behaviour, for side-by-side measurement): the segment at ``tau``
+      is *guessed* with ``net.locate`` of the straight back-extrapolation (``seg_tau``),
+      nearest segment of the row's section, ties to the lowest index. Right for shallow bends;
+      at a 4-way crossroad or a T junction approached from the stem the extension lies on the
+      collinear arm, so the rotation is the identity and the stop-mode collapse stays; at bends
+      of 90 degrees or more a tie can pick the current segment (no change) or, at a T junction
+      approached along the bar, the wrong arm (a review measured 60 m error against 20 m
+      without this step); a leaf whose pending section hypothesis masks the old section is not
+      corrected.
+    - ``"off"``: no correction.
+
+    Limits (both): one node is undone (as :func:`junction_transition` passes one per step).
+
+    Args:
+        state: rows at ``t_k``.
+        r0: the A1 retrodiction ``(B, r, ...)``.
+        seg_tau: ``(B, r)`` int64 segments located at ``r0.x`` (``"locate"``).
+        net: road network.
+        config: :class:`VSIMMConfig`.
+        rows: ``(B,)`` bool, the rows to correct (default all).
+
+    Returns:
+        The retrodiction and ``(B, r)`` the segment of each mode at ``tau`` (``seg_tau``, or
+        ``segment_prev`` where the state's junction map was inverted).
     """
-    if config.junction != "rotate" or not state.mu.numel():
-        return r0
+    mode = config.junction_retro if config.junction == "rotate" else "off"
+    B = state.mu.shape[0]
+    if mode == "off" or not state.mu.numel():
+        return r0, seg_tau
     moving = torch.tensor([k == "road" for k in config.kinds]).view(1, -1)
+    if rows is not None:
+        moving = moving & rows.view(B, 1)
     seg_k = state.segment
-    cand = moving & (seg_k >= 0) & (seg_tau >= 0) & (seg_k != seg_tau)
-    if not bool(cand.any()):
-        return r0
-    flip = torch.tensor([1.0, -1.0, 1.0, -1.0], dtype=DTYPE)
-    new = torch.where(cand, seg_tau, seg_k)
-    T, b = junction_transition(net, seg_k, new, state.x * flip, r0.x * flip, moving)
+    if mode == "locate":
+        cand = moving & (seg_k >= 0) & (seg_tau >= 0) & (seg_k != seg_tau)
+        if not bool(cand.any()):
+            return r0, seg_tau
+        flip = torch.tensor([1.0, -1.0, 1.0, -1.0], dtype=DTYPE)
+        new = torch.where(cand, seg_tau, seg_k)
+        T, b = junction_transition(net, seg_k, new, state.x * flip, r0.x * flip, moving)
+    else:
+        if state.segment_prev is None or state.junction_node is None:
+            return r0, seg_tau
+        T, b, ok = _junction_inverse(
+            net, seg_k, state.segment_prev, state.junction_node, r0.x, moving
+        )
+        if not bool(ok.any()):
+            return r0, seg_tau
+        seg_tau = torch.where(ok, state.segment_prev, seg_tau)
     x = (T @ r0.x.unsqueeze(-1)).squeeze(-1) + b
     Tt = T.transpose(-1, -2)
     P = T @ r0.P @ Tt
-    return Retrodiction(x, 0.5 * (P + P.transpose(-1, -2)), r0.C @ Tt)
+    return Retrodiction(x, 0.5 * (P + P.transpose(-1, -2)), r0.C @ Tt), seg_tau
+
+
+def _junction_inverse(
+    net: RoadNetwork,
+    seg: torch.Tensor,
+    seg_prev: torch.Tensor,
+    node: torch.Tensor,
+    x: torch.Tensor,
+    moving: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Inverse junction map ``x -> T x + b`` from ``seg`` back onto ``seg_prev`` about ``node``.
+
+    ``u``: the direction leaving ``J = nodes[node]`` along ``seg``; ``w``: along ``seg_prev``.
+    The forward map (:func:`junction_transition`) rotated the direction of travel into ``J``
+    on ``seg_prev`` (``-w``) onto ``u``; ``T`` rotates ``u`` onto ``-w`` (positions about ``J``,
+    velocities about the origin). Applied (``ok``) to moving modes with ``seg != seg_prev``,
+    a valid ``node`` that ends both segments, and ``x`` behind ``J`` (``(p - J) . u < 0``);
+    ``T = I``, ``b = 0`` elsewhere. Shapes ``(B, r)``, ``x (B, r, 4)``; returns
+    ``T (B, r, 4, 4)``, ``b (B, r, 4)``, ``ok (B, r)`` bool.
+    """
+    B, r = seg.shape
+    T = torch.eye(4, dtype=DTYPE).expand(B, r, 4, 4).clone()
+    b = torch.zeros(B, r, 4, dtype=DTYPE)
+    sk, sp, nd = seg.clamp(min=0), seg_prev.clamp(min=0), node.clamp(min=0)
+    ends_k, ends_p = net.segment_nodes[sk], net.segment_nodes[sp]
+    touch = (ends_k == nd.unsqueeze(-1)).any(-1) & (ends_p == nd.unsqueeze(-1)).any(-1)
+    u = torch.where((ends_k[..., 0] == nd).unsqueeze(-1), net.direction[sk], -net.direction[sk])
+    w = torch.where((ends_p[..., 0] == nd).unsqueeze(-1), net.direction[sp], -net.direction[sp])
+    J = net.nodes[nd]
+    behind = ((x[..., [0, 2]] - J) * u).sum(-1) < 0
+    ok = moving & (seg >= 0) & (seg_prev >= 0) & (seg != seg_prev) & (node >= 0) & touch & behind
+    if not bool(ok.any()):
+        return T, b, ok
+    c = -(u * w).sum(-1)  # rotation taking u to -w
+    s = -(u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0])
+    R = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)
+    Tr = torch.zeros(B, r, 4, 4, dtype=DTYPE)
+    pos, vel = [0, 2], [1, 3]
+    for a in range(2):
+        for k in range(2):
+            Tr[..., pos[a], pos[k]] = R[..., a, k]
+            Tr[..., vel[a], vel[k]] = R[..., a, k]
+    br = torch.zeros(B, r, 4, dtype=DTYPE)
+    br[..., pos] = J - (R @ J.unsqueeze(-1)).squeeze(-1)
+    T = torch.where(ok[..., None, None], Tr, T)
+    b = torch.where(ok[..., None], br, b)
+    return T, b, ok
+
+
+def _road_retrodiction(
+    state: VSIMMState,
+    r0: Retrodiction,
+    net: RoadNetwork,
+    config: VSIMMConfig,
+    back_across_junction: bool | torch.Tensor = False,
+) -> Retrodiction:
+    """The retrodiction ``r0`` carried across the last junction and projected on the road.
+
+    ``back_across_junction`` (bool or ``(B,)`` bool): the rows whose ``r0`` is a one-step A1
+    retrodiction (:func:`_retro_junction`). The projection is on the segment of each mode at
+    ``tau``: the state's ``segment_prev`` where :func:`_retro_junction` inverted the junction
+    map, else the segment of the section nearest to the retrodiction (24.14-24.16,
+    "retrodiction done on the road"); road and stop modes only.
+    """
+    B = state.mu.shape[0]
+    allowed = net.section_mask(state.section).unsqueeze(1)
+    seg_tau = net.locate(r0.x, allowed=allowed).segment
+    back = torch.as_tensor(back_across_junction, dtype=torch.bool).expand(B)
+    if bool(back.any()):
+        r0, seg_tau = _retro_junction(state, r0, seg_tau, net, config, back)
+    on = state.segment >= 0
+    D, L = net.constraint(seg_tau)
+    xs, A = _projection(r0.x, r0.P, D, L)
+    At = A.transpose(-1, -2)
+    onx = on.unsqueeze(-1)
+    return Retrodiction(
+        torch.where(onx, xs, r0.x),
+        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
+        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
+    )
 
 
 def _oosm_finish(
@@ -1635,16 +1846,16 @@ def _oosm_finish(
     sensor: Any,
     net: RoadNetwork,
     config: VSIMMConfig,
-    back_across_junction: bool = False,
+    back_across_junction: bool | torch.Tensor = False,
 ) -> tuple[VSIMMState, torch.Tensor, torch.Tensor]:
     """The common end of :func:`vsimm_oosm` and ``_vsimm_oosm_lag`` after the retrodiction.
 
-    ``back_across_junction``: first carry a one-step A1 retrodiction (a straight
-    back-extrapolation along the current segment) back across a junction passed after ``tau``
-    (:func:`_retro_junction`); not for the lag memory's RTS, which undoes the junction rotation
-    through its stored steps already.
+    ``back_across_junction`` (bool or ``(B,)`` bool): first carry a one-step A1 retrodiction
+    (a straight back-extrapolation along the current segment) back across a junction passed
+    after ``tau`` (:func:`_retro_junction`); not for the lag memory's RTS, which undoes the
+    junction rotation through its stored steps already.
 
-    The retrodiction ``r0`` projected on the segment of the section nearest to it (24.14-24.16,
+    The retrodiction ``r0`` projected on the road (:func:`_road_retrodiction`, 24.14-24.16,
     "retrodiction done on the road"), the OOSM update of ``x(k|k)`` (:func:`_apply`), its
     projection on the mode's current segment, the mode probabilities re-weighted by the
     PD-aware likelihoods (24.30-24.31) and the A1 memory refreshed (:func:`_refresh_memory`).
@@ -1653,20 +1864,8 @@ def _oosm_finish(
     """
     B, r = state.mu.shape
     m = sensor.dim
-    allowed = net.section_mask(state.section).unsqueeze(1)
-    loc = net.locate(r0.x, allowed=allowed)
-    if back_across_junction:
-        r0 = _retro_junction(state, r0, loc.segment, net, config)
-    on = state.segment >= 0
-    D, L = net.constraint(loc.segment)
-    xs, A = _projection(r0.x, r0.P, D, L)
-    At = A.transpose(-1, -2)
-    onx = on.unsqueeze(-1)
-    r1 = Retrodiction(
-        torch.where(onx, xs, r0.x),
-        torch.where(onx.unsqueeze(-1), A @ r0.P @ At, r0.P),
-        torch.where(onx.unsqueeze(-1), r0.C @ At, r0.C),
-    )
+    r1 = _road_retrodiction(state, r0, net, config, back_across_junction)
+    onx = (state.segment >= 0).unsqueeze(-1)
     xc = _combine(state.mu, r1.x, r1.P)[0]
     zt = torch.where(det.unsqueeze(-1), zt, sensor.measure(xc))
     hx, H, R = sensor.linearize(r1.x, zt.unsqueeze(1))
@@ -1958,7 +2157,10 @@ def _vsimm_oosm_lag(
             torch.where(use.unsqueeze(-1), rr.P, r0.P),
             torch.where(use.unsqueeze(-1), rr.C, r0.C),
         )
-    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config)
+    # the one-step rows are A1 retrodictions as in vsimm_oosm: carried back across the junction
+    # of the last step from the state ("state"; the former "locate" did not do it here)
+    back = one & ~dropped if config.junction_retro == "state" else False
+    new, ll_out, mode_ll = _oosm_finish(state, r0, zt, det, sensor, net, config, back)
     return _oosm_result(new, ll_out, mode_ll, dropped, too_old)
 
 

@@ -900,3 +900,85 @@ def test_vsimm_oosm_rts_across_a_junction_rotation():
     c, _ = vsimm_oosm(b, z[tau], tau, video, net, cfg, lag_memory=mem)
     c1, _ = vsimm_oosm(b, z[tau], tau, video, net, cfg, lag_memory=mem, lag_method="al1")
     assert maha(c) < 0.02 and maha(c) < maha(c1) / 5 and maha(c) < maha(b) / 5
+
+
+def _pipeline_bend_oosm(junction_retro: str, max_lag: int | None):
+    """VSIMMRoadFilter through a 90 degree bend (one section, drawn from the north arm, node
+    (1000, 0)): noise-free video every 10 s from 0 to 60 s of a 12 m/s target from 640 m west
+    of the node (crossed at 53.3 s), then a delayed video report taken at 51 s, 28 m before the
+    node. Returns the state dicts before and after the delayed report and its ``ln Lambda``."""
+    from hocnet.tracking.pipeline import PDTrackerConfig, VSIMMRoadFilter
+    from hocnet.tracking.sensors import GMTISensor
+
+    net = RoadNetwork([[[1000.0, 1500.0], [1000.0, 0.0], [-500.0, 0.0]]])
+    cfg = PDTrackerConfig(junction_retro=junction_retro, max_lag=max_lag)
+    video = VideoSensor(10.0, name="video")
+    filt = VSIMMRoadFilter(net, cfg, GMTISensor((0.0, -5000.0, 3000.0)), video, video, ())
+    R = torch.eye(3, dtype=torch.float64).expand(1, 3, 3) * 100
+
+    def z(t):
+        d = 12.0 * t - 640.0
+        p = (1000.0 + d, 0.0) if d <= 0 else (1000.0, d)
+        return torch.tensor([[p[0], p[1], 0.0]], dtype=torch.float64)
+
+    filt.set_scan("video", 0.0)
+    s = filt.initiate(z(0.0), R)
+    for t in (10.0, 20.0, 30.0, 40.0, 50.0, 60.0):
+        filt.set_scan("video", t)
+        s, _ = filt.update(filt.predict(s, 10.0), z(t), R)
+    filt.set_scan("video", 51.0)
+    s2 = filt.predict(s, 0.0)
+    assert bool(s2["retro"][0]) and bool(s2["lag_ok"][0])
+    s3, ll = filt.update(s2, z(51.0), R)
+    assert filt.oosm_failures == 0
+    return s, s3, float(ll[0])
+
+
+@pytest.mark.parametrize("max_lag", [None, 2])
+def test_pipeline_oosm_across_a_bend_uses_the_state_junction(max_lag):
+    # the junction map of the last step travels in the filter's state dict (segment_prev,
+    # junction_node: initiate / predict / update / _take / _merge) and the delayed report from
+    # before the bend is retrodicted onto the old segment, also by the lag memory's one-step
+    # rows (which had no junction step before); measured ln Lambda -10.6 ("state") against
+    # -17.5 ("locate": the tie keeps the current segment here; "off"), the road mode M1 at
+    # 60 s 80.0 m past the bend (truth 80 m) against 88 m
+    s, s3, ll = _pipeline_bend_oosm("state", max_lag)
+    assert s["segment"][0, 1:].tolist() == [0, 0] and s["segment_prev"][0, 1:].tolist() == [1, 1]
+    assert s["junction_node"][0, 1:].tolist() == [1, 1]
+    assert torch.equal(s3["segment_prev"], s["segment_prev"])
+    _, _, ll_off = _pipeline_bend_oosm("off", max_lag)
+    _, _, ll_locate = _pipeline_bend_oosm("locate", max_lag)
+    assert ll > ll_locate + 4.0 and ll > ll_off + 4.0
+    assert (
+        abs(float(s3["x"][0, 1, 2]) - 80.0) < 1.0 and abs(float(s3["x"][0, 1, 0]) - 1000.0) < 1e-6
+    )
+
+
+@pytest.mark.parametrize("junction_retro", ["state", "locate"])
+def test_vsimm_oosm_with_memory_equals_a1_within_one_step_across_a_junction(junction_retro):
+    # a 34 degree bend at (1000, 0) crossed between the scans at 30 and 40 s, a report from
+    # 31 s: with "state" the lag memory's one-step row is the A1 of vsimm_oosm, junction step
+    # included; the former "locate" left it out there (the two then differ)
+    a = math.radians(34.0)
+    u = np.array([math.cos(a), math.sin(a)])
+    net = RoadNetwork([[[0.0, 0.0], [1000.0, 0.0], list(np.array([1000.0, 0.0]) + 2000 * u)]])
+    cfg = VSIMMConfig(junction_retro=junction_retro)
+    video = VideoSensor(10.0)
+
+    def truth(t):
+        d = 580.0 + 12.0 * t
+        p = [d, 0.0] if d <= 1000 else list(np.array([1000.0, 0.0]) + (d - 1000) * u)
+        return torch.tensor([p], dtype=torch.float64)
+
+    x0 = torch.tensor([[580.0, 12.0, 0.0, 0.0]], dtype=torch.float64)
+    s = vsimm_init(net, x0, torch.diag(torch.tensor([100.0, 4.0, 100.0, 4.0])), cfg)
+    mem = vsimm_lag_memory(s, 3)
+    for t in (10.0, 20.0, 30.0, 40.0):
+        s, mem = step_with_memory(s, mem, net, cfg, t, truth(t), video)
+    assert bool((s.junction_node[0, 1:] == 1).all())
+    a1, oa = vsimm_oosm(s, truth(31.0), 31.0, video, net, cfg)
+    b1, ob = vsimm_oosm(s, truth(31.0), 31.0, video, net, cfg, lag_memory=mem)
+    same = all(torch.allclose(f, g, rtol=1e-12, atol=1e-12) for f, g in zip(a1, b1, strict=True))
+    assert same == (junction_retro == "state")
+    if same:
+        torch.testing.assert_close(oa.log_likelihood, ob.log_likelihood)
