@@ -259,13 +259,14 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    (d) Inner points at crossings and close passes (seeds 0-199: 6 points in scenes 98, 107,
    117, 155; 5000-5199: 10): in scene 98 a mixed track takes the point (not analysed further).
 
-**Readings of the identification gap** (options, all off by default; issue 7,
+**Readings of the identification gap** (options, all off by default; issue 7, numbers from the
+rerun of task h7combo, with ``RESCUE_END`` / ``ALONE_EXTEND`` and today's ``residual``;
 ``experiments/hoc_table3_gap.py``, results ``experiments/results/hoc-table3-gap.md``). On the
 Table III scenes (``table3-paper``, seeds 3000-3019) our MHOC column matches the paper's but
-identification keeps 3.1 / 8.8 / 24.8 clutter points per scene at 0.8 / 1.4 / 2.0 % against
-the paper's about 1 / 4 / 18. Where they are (defaults): at 0.8 % all on *other* tracks (mostly
-target points, not a true track's match: alternative end points 24 of 62, detours 5, chains
-mixing close tracks 33); at 2.0 % 216 on other tracks and 277 on 64 false tracks (mean length
+identification keeps 3.1 / 8.8 / 24.9 clutter points per scene at 0.8 / 1.4 / 2.0 % against the
+paper's about 1 / 4 / 18. Where they are (defaults): at 0.8 % all on *other* tracks (mostly
+target points, not a true track's match: alternative end points 25 of 62, detours 5, chains
+mixing close tracks 32); at 2.0 % 216 on other tracks and 279 on 66 false tracks (mean length
 5.4, scores 2.50-2.89, 26 of them below 2.55). Readings of section III-B, each an option of
 :func:`identify_tracks` / :func:`detect` (handled by this module's own path only:
 :func:`needs_slow_path`):
@@ -278,22 +279,22 @@ mixing close tracks 33); at 2.0 % 216 on other tracks and 277 on 64 false tracks
   average alone; loses 1 hard-case point. ``near_duplicate="score-ends"``: by the average only
   where the candidate differs at its first or last scans (an alternative end point, where the
   residual of the evidence rule is an extrapolation), by the evidence elsewhere: 99.11 / 98.43
-  / 96.75 % on Table III against 98.92 / 98.28 / 96.61 % (defaults), Table II equal or better,
+  / 96.74 % on Table III against 98.92 / 98.28 / 96.59 % (defaults), Table II equal or better,
   no target point lost on Table III, Table II or 120 hard-case scenes, and no more on 120
-  partial-track scenes (46 eligible points, as the defaults). Out of sample (300 fresh scenes
-  of each kind): hard case 0 lost either way, clutter kept 2611 -> 2353 points; partial tracks
-  97 -> 99 eligible points lost (37 -> 38 scenes): not strictly free.
+  partial-track scenes (10 eligible points, as the defaults). Out of sample (300 fresh scenes
+  of each kind): hard case 0 lost either way, clutter rejection 98.28 -> 98.45 %; partial
+  tracks 70 -> 72 eligible points lost (23 -> 25 scenes): not strictly free.
 - ``dedupe_rescued=True``: the track-ends step's tracks are judged as near-duplicates of the
   accepted ones too (it re-adds alternative end points ``dedupe`` dropped): 99.03 / 98.34 /
-  96.70 %, no target point lost in sample, but 3 of 300 fresh hard-case
+  96.69 %, no target point lost in sample, but 2 of 300 fresh hard-case
   scenes lose a point each; with ``near_duplicate="score-ends"`` it loses 3 hard-case
   points.
 - ``case1=True`` (Case 1 for most of a track's scans): no effect on Table III (every track
-  kept there has most of its points in the MHOC image); ``score_points="all"``: +0.02-0.08 points,
-  6 more partial-track points lost.
-- Not options: ``threshold=2.5 + 1e-9`` (track scores are quantised; 20 of the 64 false
-  tracks at 2.0 % score exactly 2.5): 98.96 / 98.50 / 97.19 %, 2 more partial-track points lost;
-  ``min_points=6`` / ``7``: 97.75 / 98.41 % at 2.0 %, 10 / 155 more partial-track points lost.
+  kept there has most of its points in the MHOC image); ``score_points="all"``: +0.02-0.07 points,
+  no more partial-track points lost (10, as the defaults).
+- Not options: ``threshold=2.5 + 1e-9`` (track scores are quantised; 20 of the 66 false
+  tracks at 2.0 % score exactly 2.5): 98.96 / 98.50 / 97.16 %, 1 more partial-track point lost;
+  ``min_points=6`` / ``7``: 97.75 / 98.41 % at 2.0 %, 41 / 181 more partial-track points lost.
 
 None reaches the paper's column at every density with no target point lost. The paper
 averages six scenes per density: of the 6-scene subsets of our 20 scenes, none reaches its
