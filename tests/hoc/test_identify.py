@@ -1361,9 +1361,10 @@ class TestHardCaseScene76:
     shared points (scans 1-9 here: 0.62 against 0.80 px, within the half-pixel margin), so
     both tracks are kept. ``"lsq"`` (the least-squares line through all shared points on that
     side) keeps it too, but loses target points two-point keeps on partial-track scenes
-    (:meth:`test_lsq_loses_partial_scene_18`); ``"straight"`` alone loses one too
-    (:meth:`test_straight_alone_loses_partial_track_scene_89`; module notes of
-    ``hocnet.hoc.identify``, step 4).
+    (:meth:`test_lsq_loses_partial_scene_18`); ``"straight"`` alone loses some too
+    (:meth:`test_straight_alone_loses_partial_track_scene_89`, shown with ``RESCUE_END`` off,
+    which now re-adds that point; :meth:`test_straight_alone_loses_a_track_partial_scene_94`
+    with every rule on; module notes of ``hocnet.hoc.identify``, step 4).
     """
 
     def test_no_target_point_lost(self):
@@ -1427,19 +1428,56 @@ class TestHardCaseScene76:
             lost = (eligible & ~detect(cube, residual=residual).cleaned).nonzero().tolist()
             assert lost == [[2, 30, 27], [3, 31, 27], [5, 33, 29]]
 
-    def test_straight_alone_loses_partial_track_scene_89(self):
+    def test_straight_alone_loses_partial_track_scene_89(self, monkeypatch):
         # why the default asks two-point too: in ``partial_track_scene(89, ends=False)`` a
         # candidate starts with a track's first point (3, 31, 26) and continues on another
         # track; the straight run predicts the kept track's (3, 32, 27) better (0.45 against
-        # 1.00 px; two-point 1.0 against 1.0, a tie), so ``"straight"`` (and ``"lsq"``) drop it,
-        # and with it the only kept track through (3, 31, 26)
+        # 1.00 px; two-point 1.0 against 1.0, a tie), so ``"straight"`` (and ``"lsq"``) drop it
+        # as a near-duplicate (``dedupe=False`` keeps it), and with it the only kept track
+        # through (3, 31, 26). Shown with ``RESCUE_END`` (step 5) off: since that rule, the
+        # true track from (3, 31, 26) (score 2.80) is re-added in the track-ends step as a
+        # track whose own start point scores above the accepted tracks it shares points with,
+        # so no setting loses the point any more
         cube, _, eligible = partial_track_scene(89, ends=False)
+        monkeypatch.setattr(identify_module, "RESCUE_END", False)
         for residual in ("straight", "lsq"):
-            lost = (eligible & ~detect(cube, residual=residual).cleaned).nonzero().tolist()
-            assert lost == [[3, 31, 26]]
+            assert _lost(cube, eligible, residual=residual) == [[3, 31, 26]]
+            assert _lost(cube, eligible, residual=residual, dedupe=False) == []
         for residual in ("two-point", "two-point+straight", "both"):
-            assert not (eligible & ~detect(cube, residual=residual).cleaned).any()
-        assert not (eligible & ~detect(cube).cleaned).any()
+            assert _lost(cube, eligible, residual=residual) == []
+        monkeypatch.undo()
+        for residual in identify_module.RESIDUAL:
+            assert _lost(cube, eligible, residual=residual) == []
+        tracks = detect(cube, residual="straight").tracks
+        tracks = [t for t in tracks if [3, 31, 26] in t.points.tolist()]
+        assert [t.points.tolist() for t in tracks] == [
+            [
+                [3, 31, 26],
+                [4, 32, 27],
+                [5, 32, 28],
+                [6, 33, 29],
+                [7, 34, 30],
+                [8, 35, 31],
+                [9, 35, 32],
+            ]
+        ]
+        assert tracks[0].score == pytest.approx(2.8)
+
+    def test_straight_alone_loses_a_track_partial_scene_94(self):
+        # the same tie under the merged rules (``RESCUE_END`` and ``ALONE_EXTEND`` on, measured
+        # by task h7combo): in ``partial_track_scene(94, ends=True)`` a candidate starts with
+        # the first point (3, 30, 34) of a 6-point track and continues on another track; the
+        # kept track starts at (3, 32, 35). Two-point: 1.00 against 1.41 px, within the margin,
+        # both kept; the straight run: 0.60 against 1.72 px, the candidate is dropped, and the
+        # whole 6-point track is lost with ``"straight"`` (and ``"lsq"``); ``dedupe=False``
+        # and every setting that asks two-point keep it
+        cube, _, eligible = partial_track_scene(94, ends=True)
+        track = [[3, 30, 34], [4, 30, 33], [5, 30, 32], [6, 30, 31], [7, 30, 30], [8, 29, 29]]
+        for residual in ("straight", "lsq"):
+            assert _lost(cube, eligible, residual=residual) == track
+        assert _lost(cube, eligible, residual="straight", dedupe=False) == []
+        for residual in ("two-point", "two-point+straight", "both"):
+            assert _lost(cube, eligible, residual=residual) == []
 
 
 class TestResidual:
