@@ -484,6 +484,27 @@ class MHT:
             24.4.4 step 5); ``None`` (default, the former behaviour): any distance, so a family
             could keep leaves on two targets km apart for the whole run and its reported track
             jumped between them (issue 12, seed 2408: 3.2 km, 200 s).
+        section_best: which leaf of a family is "the best track" of a road section in the
+            road-section exception of the N-scan pruning (24.4.4 step 5; our reading, issue 12):
+            ``"hypothesis"`` (default): the family's leaf on that section in the best-scoring
+            global hypothesis that holds one, so that the section of the family's leaf in the
+            best hypothesis keeps that leaf only; ``"leaf"`` (the former behaviour): the leaf
+            of highest track score. A track score ignores the measurements the leaf takes from
+            other families: with ``"leaf"`` a leaf that took another target's report survived
+            on its own section next to the best hypothesis's leaf, although every hypothesis
+            holding it scored lower (issue 12, seed 2424 of [PD] 24.6: target 1's track took
+            the first report of target 10 leaving its stop at J3, t = 730 s, and followed
+            target 10 for 110 s).
+        split_links: which shared measurements keep families in one cluster when clusters are
+            split after pruning: ``"history"`` (default): any measurement of the leaves'
+            histories (checked only when the last ``max(n_scan, merge_scans) + 1`` scans would
+            split the cluster); ``"window"`` (the former behaviour): only those of the last
+            ``max(n_scan, merge_scans) + 1`` scans. Each part of a split cluster takes its
+            best projected hypothesis independently; with ``"window"`` two families whose
+            leaves claim one older measurement (kept by the road-section exception) were split
+            apart and each took the leaf holding it, an inconsistent pair of tracks (the same
+            seed 2424 episode). Without the road-section exception all hypotheses agree on
+            the older scans and the two settings give the same clusters.
 
     Raises:
         TypeError, ValueError: bad parameters.
@@ -518,6 +539,8 @@ class MHT:
         missed_pd: float | None = None,
         hold_uninformative: bool = True,
         section_distance: float | None = None,
+        section_best: str = "hypothesis",
+        split_links: str = "history",
     ) -> None:
         from scipy.stats import chi2
 
@@ -569,6 +592,8 @@ class MHT:
             if section_distance is None
             else check_number("section_distance", section_distance, low=0.0)
         )
+        self.section_best = check_choice("section_best", section_best, ("hypothesis", "leaf"))
+        self.split_links = check_choice("split_links", split_links, ("history", "window"))
         if self.initial_score == "log_odds":
             self.l_init = math.log(self.lambda_nt / self.lambda_fa)
         else:
@@ -1039,12 +1064,16 @@ class MHT:
                 allowed: dict[int, set[Any]] = {fam: {best_sig.get(fam)} for fam in fams}
                 if sec_of:
                     best_by_sec: dict[tuple[int, Any], _Leaf] = {}
-                    for _, h in cl.hyps:
+                    by_hyp = self.section_best == "hypothesis"
+                    ranked = sorted(cl.hyps, key=lambda t: -t[0]) if by_hyp else cl.hyps
+                    for _, h in ranked:
                         for u in h:
                             leaf = by_uid[u]
                             key = (leaf.family, sec_of[u])
-                            if leaf.birth <= cut and (
-                                key not in best_by_sec or best_by_sec[key].score < leaf.score
+                            if leaf.birth > cut:
+                                continue
+                            if key not in best_by_sec or (
+                                not by_hyp and best_by_sec[key].score < leaf.score
                             ):
                                 best_by_sec[key] = leaf
                     near = self._near_best(best, best_by_sec, by_uid)
@@ -1158,6 +1187,34 @@ class MHT:
                     seen.add(key)
         return True
 
+    @staticmethod
+    def _components(
+        uids: set[int], by_uid: dict[int, _Leaf], after: int | None
+    ) -> dict[int, set[int]]:
+        """Families of the leaves ``uids`` linked by a shared measurement at a scan ``> after``.
+
+        ``after=None``: at any scan of the leaves' histories.
+        """
+        uf = _UnionFind()
+        owner: dict[tuple[int, int], int] = {}
+        for u in uids:
+            leaf = by_uid[u]
+            uf.find(leaf.family)
+            first = 0 if after is None else max(0, after + 1 - leaf.birth)
+            for i in range(first, len(leaf.history)):
+                j = leaf.history[i]
+                if j >= 0:
+                    key = (leaf.birth + i, j)
+                    if key in owner:
+                        uf.union(owner[key], leaf.family)
+                    else:
+                        owner[key] = leaf.family
+        comps: dict[int, set[int]] = {}
+        for u in uids:
+            fam = by_uid[u].family
+            comps.setdefault(uf.find(fam), set()).add(fam)
+        return comps
+
     def _split(self) -> None:
         """Split clusters into independent components and project their hypotheses."""
         k = self.scan
@@ -1168,23 +1225,9 @@ class MHT:
             if not cl.hyps:
                 continue
             uids = {u for _, h in cl.hyps for u in h}
-            uf = _UnionFind()
-            owner: dict[tuple[int, int], int] = {}
-            for u in uids:
-                leaf = by_uid[u]
-                uf.find(leaf.family)
-                for i, j in enumerate(leaf.history):
-                    s = leaf.birth + i
-                    if j >= 0 and s > k - window:
-                        key = (s, j)
-                        if key in owner:
-                            uf.union(owner[key], leaf.family)
-                        else:
-                            owner[key] = leaf.family
-            comps: dict[int, set[int]] = {}
-            for u in uids:
-                fam = by_uid[u].family
-                comps.setdefault(uf.find(fam), set()).add(fam)
+            comps = self._components(uids, by_uid, k - window)
+            if len(comps) > 1 and self.split_links == "history":
+                comps = self._components(uids, by_uid, None)
             if len(comps) == 1:
                 cl.families = next(iter(comps.values()))
                 out.append(cl)
