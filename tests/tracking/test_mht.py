@@ -654,8 +654,9 @@ def test_uninformative_scan_does_not_delete_a_tentative_track(hold: bool) -> Non
 class TestStoppedTrackReport:
     """Issue 12 ([PD] 24.6, seed 2424): a passing track must not keep a stopped target's report.
 
-    Target 10 stands at the origin (its own confirmed track); target 1 drives past it along
-    ``y = 2``. On scan ``K0`` the sensor misses target 1 and sees target 10 at ``Z``, nearer to
+    Target 10 stands at the origin (its own confirmed track; a constant-velocity filter, so the
+    stop model's free miss of 24.31 plays no part: the test isolates the MHT's pruning, the
+    mechanism of the seed); target 1 drives past it along ``y = 2``. On scan ``K0`` the sensor misses target 1 and sees target 10 at ``Z``, nearer to
     target 10's track than to target 1's. The best hypothesis gives ``Z`` to target 10; target
     1's leaf that took ``Z`` scores higher than its miss leaf on its own (a track score ignores
     that the report is taken from another family). Road sections (``x > 0.15``) put target 10's
@@ -747,3 +748,9 @@ class TestStoppedTrackReport:
             if j >= 0
         ]
         assert len(held) == len(set(held))
+
+    def test_bad_values(self) -> None:
+        with pytest.raises(ValueError, match="section_best"):
+            make_mht(section_best="score")
+        with pytest.raises(ValueError, match="split_links"):
+            make_mht(split_links="all")
