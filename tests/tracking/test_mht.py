@@ -656,8 +656,9 @@ class TestStoppedTrackReport:
 
     Target 10 stands at the origin (its own confirmed track; a constant-velocity filter, so the
     stop model's free miss of 24.31 plays no part: the test isolates the MHT's pruning, the
-    mechanism of the seed); target 1 drives past it along ``y = 2``. On scan ``K0`` the sensor misses target 1 and sees target 10 at ``Z``, nearer to
-    target 10's track than to target 1's. The best hypothesis gives ``Z`` to target 10; target
+    mechanism of the seed); target 1 drives past it along ``y = 2``. On scan ``K0`` the
+    sensor misses target 1 and sees target 10 at ``Z``, nearer to target 10's track than to
+    target 1's. The best hypothesis gives ``Z`` to target 10; target
     1's leaf that took ``Z`` scores higher than its miss leaf on its own (a track score ignores
     that the report is taken from another family). Road sections (``x > 0.15``) put target 10's
     two leaves on two sections, so that the N-scan road-section exception keeps its miss leaf,
