@@ -23,7 +23,10 @@ One :meth:`MHT.step` per scan runs the six blocks of the chapter's figure 24.2:
 5. **N-scan pruning** (the chapter's modified form): every hypothesis must agree with the best
    one on all decisions older than ``n_scan`` scans, except that, when tracks carry a road
    section id (filter state key ``"section"``), the best branch of each road section is kept
-   too.
+   too (on the sections other than that of the family's leaf in the best hypothesis,
+   ``section_best="other"``; on every section, its own included, with ``"leaf"``, the former
+   rule).
+   Clusters whose hypotheses no longer share a measurement are split (``split_links``).
 6. **Merging**: leaves of one family (target tree) with the same measurements over the last
    ``merge_scans`` scans are merged into the best-scoring one (never across families).
 
@@ -484,17 +487,17 @@ class MHT:
             24.4.4 step 5); ``None`` (default, the former behaviour): any distance, so a family
             could keep leaves on two targets km apart for the whole run and its reported track
             jumped between them (issue 12, seed 2408: 3.2 km, 200 s).
-        section_best: which leaf of a family is "the best track" of a road section in the
-            road-section exception of the N-scan pruning (24.4.4 step 5; our reading, issue 12):
-            ``"hypothesis"`` (default): the family's leaf on that section in the best-scoring
-            global hypothesis that holds one, so that the section of the family's leaf in the
-            best hypothesis keeps that leaf only; ``"leaf"`` (the former behaviour): the leaf
-            of highest track score. A track score ignores the measurements the leaf takes from
-            other families: with ``"leaf"`` a leaf that took another target's report survived
-            on its own section next to the best hypothesis's leaf, although every hypothesis
-            holding it scored lower (issue 12, seed 2424 of [PD] 24.6: target 1's track took
-            the first report of target 10 leaving its stop at J3, t = 730 s, and followed
-            target 10 for 110 s).
+        section_best: which leaves the road-section exception of the N-scan pruning keeps
+            (24.4.4 step 5, "the best track on each road section"; our reading, issue 12):
+            ``"other"`` (default): per family, the best-scoring leaf of every section *other*
+            than that of its leaf in the best hypothesis (on that section the best
+            hypothesis's leaf is the best track); ``"leaf"`` (the former behaviour): the
+            best-scoring leaf of every section, its own included. A track score ignores the
+            measurements a leaf takes from other families: with ``"leaf"`` a leaf that took
+            another target's report survived on the best leaf's own section although every
+            hypothesis holding it scored lower (issue 12, seed 2424 of [PD] 24.6: target 1's
+            track took the first report of target 10 leaving its stop at J3, t = 730 s, and
+            followed target 10 for 110 s).
         split_links: which shared measurements keep families in one cluster when clusters are
             split after pruning: ``"history"`` (default): any measurement of the leaves'
             histories (checked only when the last ``max(n_scan, merge_scans) + 1`` scans would
@@ -539,7 +542,7 @@ class MHT:
         missed_pd: float | None = None,
         hold_uninformative: bool = True,
         section_distance: float | None = None,
-        section_best: str = "hypothesis",
+        section_best: str = "other",
         split_links: str = "history",
     ) -> None:
         from scipy.stats import chi2
@@ -592,7 +595,7 @@ class MHT:
             if section_distance is None
             else check_number("section_distance", section_distance, low=0.0)
         )
-        self.section_best = check_choice("section_best", section_best, ("hypothesis", "leaf"))
+        self.section_best = check_choice("section_best", section_best, ("other", "leaf"))
         self.split_links = check_choice("split_links", split_links, ("history", "window"))
         if self.initial_score == "log_odds":
             self.l_init = math.log(self.lambda_nt / self.lambda_fa)
@@ -1064,16 +1067,18 @@ class MHT:
                 allowed: dict[int, set[Any]] = {fam: {best_sig.get(fam)} for fam in fams}
                 if sec_of:
                     best_by_sec: dict[tuple[int, Any], _Leaf] = {}
-                    by_hyp = self.section_best == "hypothesis"
-                    ranked = sorted(cl.hyps, key=lambda t: -t[0]) if by_hyp else cl.hyps
-                    for _, h in ranked:
+                    if self.section_best == "other":  # best's own leaf stands for its section
+                        own = {(by_uid[u].family, sec_of[u]) for u in best}
+                    else:
+                        own = set()
+                    for _, h in cl.hyps:
                         for u in h:
                             leaf = by_uid[u]
                             key = (leaf.family, sec_of[u])
-                            if leaf.birth > cut:
-                                continue
-                            if key not in best_by_sec or (
-                                not by_hyp and best_by_sec[key].score < leaf.score
+                            if (
+                                leaf.birth <= cut
+                                and key not in own
+                                and (key not in best_by_sec or best_by_sec[key].score < leaf.score)
                             ):
                                 best_by_sec[key] = leaf
                     near = self._near_best(best, best_by_sec, by_uid)

@@ -363,7 +363,7 @@ class PDTrackerConfig:
             track jumped between them (target 7 ARMSE 15.5 -> 183 m over 10 seeds; 15.5 m with
             500 m).
         section_best, split_links: the MHT's ``section_best`` / ``split_links`` (issue 12,
-            target 1's ARMSE; :class:`~hocnet.tracking.mht.MHT`): ``"hypothesis"`` /
+            target 1's ARMSE; :class:`~hocnet.tracking.mht.MHT`): ``"other"`` /
             ``"history"`` (default) or ``"leaf"`` / ``"window"`` (the former behaviour). Why:
             seed 2424, t = 730 s, target 10 leaves its stop at J3 as target 1 passes it; the
             GMTI misses target 1 and target 1's track takes target 10's report (its M2 mode
@@ -416,7 +416,7 @@ class PDTrackerConfig:
     junction_defer: float = 0.0
     junction_on_crossing: bool = False
     section_distance: float | None = 500.0
-    section_best: str = "hypothesis"
+    section_best: str = "other"
     split_links: str = "history"
     vsimm: VSIMMConfig = field(init=False)
 
@@ -424,7 +424,7 @@ class PDTrackerConfig:
         check_choice("lag_method", self.lag_method, ("rts", "al1"))
         check_choice("too_old", self.too_old, ("raise", "drop"))
         check_choice("junction_test", self.junction_test, ("one-step", "sprt"))
-        check_choice("section_best", self.section_best, ("hypothesis", "leaf"))
+        check_choice("section_best", self.section_best, ("other", "leaf"))
         check_choice("split_links", self.split_links, ("history", "window"))
         sprt_thresholds(self.junction_alpha, self.junction_beta)  # validates both
         check_number("junction_defer", self.junction_defer, low=0.0)
