@@ -23,10 +23,8 @@ One :meth:`MHT.step` per scan runs the six blocks of the chapter's figure 24.2:
 5. **N-scan pruning** (the chapter's modified form): every hypothesis must agree with the best
    one on all decisions older than ``n_scan`` scans, except that, when tracks carry a road
    section id (filter state key ``"section"``), the best branch of each road section is kept
-   too (on the sections other than that of the family's leaf in the best hypothesis,
-   ``section_best="other"``; on every section, its own included, with ``"leaf"``, the former
-   rule).
-   Clusters whose hypotheses no longer share a measurement are split (``split_links``).
+   too (``section_best``). Clusters whose kept hypotheses no longer share a measurement are
+   split (``split_links``).
 6. **Merging**: leaves of one family (target tree) with the same measurements over the last
    ``merge_scans`` scans are merged into the best-scoring one (never across families).
 
@@ -489,25 +487,31 @@ class MHT:
             jumped between them (issue 12, seed 2408: 3.2 km, 200 s).
         section_best: which leaves the road-section exception of the N-scan pruning keeps
             (24.4.4 step 5, "the best track on each road section"; our reading, issue 12):
-            ``"other"`` (default): per family, the best-scoring leaf of every section *other*
-            than that of its leaf in the best hypothesis (on that section the best
-            hypothesis's leaf is the best track); ``"leaf"`` (the former behaviour): the
-            best-scoring leaf of every section, its own included. A track score ignores the
+            ``"leaf"`` (default, the former behaviour): per family, the best-scoring leaf of
+            every road section, the section of its leaf in the best hypothesis included;
+            ``"other"`` (our addition, opt-in): only on the sections *other* than that one (on
+            it the best hypothesis's leaf is the best track). A track score ignores the
             measurements a leaf takes from other families: with ``"leaf"`` a leaf that took
-            another target's report survived on the best leaf's own section although every
-            hypothesis holding it scored lower (issue 12, seed 2424 of [PD] 24.6: target 1's
-            track took the first report of target 10 leaving its stop at J3, t = 730 s, and
-            followed target 10 for 110 s).
+            another target's report survives on the best leaf's own section although every
+            hypothesis holding it scores lower (issue 12, seed 2424 of [PD] 24.6, see
+            ``split_links``). ``"other"`` is not the default: it also drops the second-best
+            leaf of a family on its own section, which lost a turning target's track in seed
+            2437 (target 3 ARMSE 10.0 -> 24.3 m), and ``split_links="history"`` alone fixes
+            seed 2424.
         split_links: which shared measurements keep families in one cluster when clusters are
-            split after pruning: ``"history"`` (default): any measurement of the leaves'
-            histories (checked only when the last ``max(n_scan, merge_scans) + 1`` scans would
-            split the cluster); ``"window"`` (the former behaviour): only those of the last
-            ``max(n_scan, merge_scans) + 1`` scans. Each part of a split cluster takes its
-            best projected hypothesis independently; with ``"window"`` two families whose
-            leaves claim one older measurement (kept by the road-section exception) were split
-            apart and each took the leaf holding it, an inconsistent pair of tracks (the same
-            seed 2424 episode). Without the road-section exception all hypotheses agree on
-            the older scans and the two settings give the same clusters.
+            split after pruning (our reading, issue 12): ``"history"`` (default): any
+            measurement of the leaves' histories (looked at only when the last
+            ``max(n_scan, merge_scans) + 1`` scans would split the cluster); ``"window"`` (the
+            former behaviour): only those of the last ``max(n_scan, merge_scans) + 1`` scans.
+            Each part of a split cluster takes its best projected hypothesis on its own, so the
+            parts must not share a measurement in any kept hypothesis. With ``"window"`` two
+            families whose leaves held one older measurement in different hypotheses (kept by
+            the road-section exception) were split apart and each reported the leaf holding
+            it, an inconsistent pair of tracks: seed 2424, t = 730 s, target 1's track took
+            the first report of target 10 leaving its stop at J3 although the hypothesis giving
+            it to target 10's track scored 2.1 higher, and followed target 10 for 110 s.
+            Without the road-section exception all kept hypotheses agree on the older scans
+            and the two settings give the same clusters.
 
     Raises:
         TypeError, ValueError: bad parameters.
@@ -542,7 +546,7 @@ class MHT:
         missed_pd: float | None = None,
         hold_uninformative: bool = True,
         section_distance: float | None = None,
-        section_best: str = "other",
+        section_best: str = "leaf",
         split_links: str = "history",
     ) -> None:
         from scipy.stats import chi2

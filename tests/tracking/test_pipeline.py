@@ -506,9 +506,9 @@ def test_section_best_and_split_links_reach_the_mht(short):
     from hocnet.tracking.pipeline import _pd_tracker
 
     cfg = PDTrackerConfig()
-    assert (cfg.section_best, cfg.split_links) == ("other", "history")
+    assert (cfg.section_best, cfg.split_links) == ("leaf", "history")
     _, mht, _ = _pd_tracker(short, cfg, type_tracking=False)
-    assert (mht.section_best, mht.split_links) == ("other", "history")
+    assert (mht.section_best, mht.split_links) == ("leaf", "history")
     old = PDTrackerConfig(section_best="leaf", split_links="window")
     _, mht, _ = _pd_tracker(short, old, type_tracking=False)
     assert (mht.section_best, mht.split_links) == ("leaf", "window")
