@@ -372,10 +372,16 @@ class PDTrackerConfig:
             (target 10's stopped track takes the report). The N-scan's road-section exception
             kept it (best-scoring leaf of its section), the cluster was split 4 scans later
             (``"window"``) and target 1's family reported it: its track followed target 10
-            north for 110 s. Seed 2424 (without PCR5,
-            ``experiments/_pd_armse_diag.py``), window -> history: target 1 ARMSE 159.8 -> 9.0
-            m, length ratio 0.553 -> 0.954, GOSPA 106.5 -> 94.7 m, the other targets unchanged
-            but target 10 (14.6 -> 14.3 m).
+            north for 110 s. Measured without PCR5 (``experiments/_pd_armse_diag.py --set
+            split_links=window`` against the default), window -> history: seed 2424, target 1
+            ARMSE 159.8 -> 9.0 m, length ratio 0.553 -> 0.954, GOSPA 106.5 -> 94.7 m; seeds
+            2400-2409, all targets unchanged but target 3 (11.4 -> 11.5 m, seed 2408), GOSPA
+            85.0 m both; seeds 2410-2429, target 1 57.3 -> 12.4 m (length ratio 0.929 ->
+            0.949), mean ARMSE 23.0 -> 18.5 m, GOSPA 84.4 -> 83.8 m, the other targets
+            unchanged. Of seeds 2400-2449 only 2424 and 2408 change; 2424 alone made target
+            1's 50-run ARMSE (41.6 m, 13.3 m without it; no other seed above 21 m).
+            ``section_best="other"`` (or ranking a section's leaves by their best hypothesis,
+            tried) also fixes seed 2424 but lost target 3 in seed 2437 (10.0 -> 24.3 m).
 
     ``merge_scans`` (3) merges duplicate leaves of one target tree (the MHT's merge once grouped
     leaves of *different* families and emptied the convoy's cluster during an overtaking; fixed
