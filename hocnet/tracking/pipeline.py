@@ -378,8 +378,10 @@ class PDTrackerConfig:
             2400-2409, all targets unchanged but target 3 (11.4 -> 11.5 m, seed 2408), GOSPA
             85.0 m both; seeds 2410-2429, target 1 57.3 -> 12.4 m (length ratio 0.929 ->
             0.949), mean ARMSE 23.0 -> 18.5 m, GOSPA 84.4 -> 83.8 m, the other targets
-            unchanged. Of seeds 2400-2449 only 2424 and 2408 change; 2424 alone made target
-            1's 50-run ARMSE (41.6 m, 13.3 m without it; no other seed above 21 m).
+            unchanged. Of seeds 2400-2449 only 2424 and 2408 change: over the 50 runs target 1
+            41.6 -> 13.3 m (the chapter 14.82; no other seed above 21 m), mean ARMSE 21.2 ->
+            18.3 m, GOSPA 83.5 -> 83.3 m, the other targets unchanged (the old column
+            reproduces ``experiments/results/pd-scenario.md``).
             ``section_best="other"`` (or ranking a section's leaves by their best hypothesis,
             tried) also fixes seed 2424 but lost target 3 in seed 2437 (10.0 -> 24.3 m).
 
