@@ -23,7 +23,8 @@ One :meth:`MHT.step` per scan runs the six blocks of the chapter's figure 24.2:
 5. **N-scan pruning** (the chapter's modified form): every hypothesis must agree with the best
    one on all decisions older than ``n_scan`` scans, except that, when tracks carry a road
    section id (filter state key ``"section"``), the best branch of each road section is kept
-   too.
+   too (``section_best``). Clusters whose kept hypotheses no longer share a measurement are
+   split (``split_links``).
 6. **Merging**: leaves of one family (target tree) with the same measurements over the last
    ``merge_scans`` scans are merged into the best-scoring one (never across families).
 
@@ -495,6 +496,33 @@ class MHT:
             24.4.4 step 5); ``None`` (default, the former behaviour): any distance, so a family
             could keep leaves on two targets km apart for the whole run and its reported track
             jumped between them (issue 12, seed 2408: 3.2 km, 200 s).
+        section_best: which leaves the road-section exception of the N-scan pruning keeps
+            (24.4.4 step 5, "the best track on each road section"; our reading, issue 12):
+            ``"leaf"`` (default, the former behaviour): per family, the best-scoring leaf of
+            every road section, the section of its leaf in the best hypothesis included;
+            ``"other"`` (our addition, opt-in): only on the sections *other* than that one (on
+            it the best hypothesis's leaf is the best track). A track score ignores the
+            measurements a leaf takes from other families: with ``"leaf"`` a leaf that took
+            another target's report survives on the best leaf's own section although every
+            hypothesis holding it scores lower (issue 12, seed 2424 of [PD] 24.6, see
+            ``split_links``). ``"other"`` is not the default: it also drops the second-best
+            leaf of a family on its own section, which lost a turning target's track in seed
+            2437 (target 3 ARMSE 10.0 -> 24.3 m), and ``split_links="history"`` alone fixes
+            seed 2424.
+        split_links: which shared measurements keep families in one cluster when clusters are
+            split after pruning (our reading, issue 12): ``"history"`` (default): any
+            measurement of the leaves' histories (looked at only when the last
+            ``max(n_scan, merge_scans) + 1`` scans would split the cluster); ``"window"`` (the
+            former behaviour): only those of the last ``max(n_scan, merge_scans) + 1`` scans.
+            Each part of a split cluster takes its best projected hypothesis on its own, so the
+            parts must not share a measurement in any kept hypothesis. With ``"window"`` two
+            families whose leaves held one older measurement in different hypotheses (kept by
+            the road-section exception) were split apart and each reported the leaf holding
+            it, an inconsistent pair of tracks: seed 2424, t = 730 s, target 1's track took
+            the first report of target 10 leaving its stop at J3 although the hypothesis giving
+            it to target 10's track scored 2.1 higher, and followed target 10 for 110 s.
+            Without the road-section exception all kept hypotheses agree on the older scans
+            and the two settings give the same clusters.
 
     Raises:
         TypeError, ValueError: bad parameters.
@@ -529,6 +557,8 @@ class MHT:
         missed_pd: float | None = None,
         hold_uninformative: bool = True,
         section_distance: float | None = None,
+        section_best: str = "leaf",
+        split_links: str = "history",
     ) -> None:
         from scipy.stats import chi2
 
@@ -580,6 +610,8 @@ class MHT:
             if section_distance is None
             else check_number("section_distance", section_distance, low=0.0)
         )
+        self.section_best = check_choice("section_best", section_best, ("other", "leaf"))
+        self.split_links = check_choice("split_links", split_links, ("history", "window"))
         if self.initial_score == "log_odds":
             self.l_init = math.log(self.lambda_nt / self.lambda_fa)
         else:
@@ -1054,12 +1086,18 @@ class MHT:
                 allowed: dict[int, set[Any]] = {fam: {best_sig.get(fam)} for fam in fams}
                 if sec_of:
                     best_by_sec: dict[tuple[int, Any], _Leaf] = {}
+                    if self.section_best == "other":  # best's own leaf stands for its section
+                        own = {(by_uid[u].family, sec_of[u]) for u in best}
+                    else:
+                        own = set()
                     for _, h in cl.hyps:
                         for u in h:
                             leaf = by_uid[u]
                             key = (leaf.family, sec_of[u])
-                            if leaf.birth <= cut and (
-                                key not in best_by_sec or best_by_sec[key].score < leaf.score
+                            if (
+                                leaf.birth <= cut
+                                and key not in own
+                                and (key not in best_by_sec or best_by_sec[key].score < leaf.score)
                             ):
                                 best_by_sec[key] = leaf
                     near = self._near_best(best, best_by_sec, by_uid)
@@ -1173,6 +1211,34 @@ class MHT:
                     seen.add(key)
         return True
 
+    @staticmethod
+    def _components(
+        uids: set[int], by_uid: dict[int, _Leaf], after: int | None
+    ) -> dict[int, set[int]]:
+        """Families of the leaves ``uids`` linked by a shared measurement at a scan ``> after``.
+
+        ``after=None``: at any scan of the leaves' histories.
+        """
+        uf = _UnionFind()
+        owner: dict[tuple[int, int], int] = {}
+        for u in uids:
+            leaf = by_uid[u]
+            uf.find(leaf.family)
+            first = 0 if after is None else max(0, after + 1 - leaf.birth)
+            for i in range(first, len(leaf.history)):
+                j = leaf.history[i]
+                if j >= 0:
+                    key = (leaf.birth + i, j)
+                    if key in owner:
+                        uf.union(owner[key], leaf.family)
+                    else:
+                        owner[key] = leaf.family
+        comps: dict[int, set[int]] = {}
+        for u in uids:
+            fam = by_uid[u].family
+            comps.setdefault(uf.find(fam), set()).add(fam)
+        return comps
+
     def _split(self) -> None:
         """Split clusters into independent components and project their hypotheses."""
         k = self.scan
@@ -1183,23 +1249,9 @@ class MHT:
             if not cl.hyps:
                 continue
             uids = {u for _, h in cl.hyps for u in h}
-            uf = _UnionFind()
-            owner: dict[tuple[int, int], int] = {}
-            for u in uids:
-                leaf = by_uid[u]
-                uf.find(leaf.family)
-                for i, j in enumerate(leaf.history):
-                    s = leaf.birth + i
-                    if j >= 0 and s > k - window:
-                        key = (s, j)
-                        if key in owner:
-                            uf.union(owner[key], leaf.family)
-                        else:
-                            owner[key] = leaf.family
-            comps: dict[int, set[int]] = {}
-            for u in uids:
-                fam = by_uid[u].family
-                comps.setdefault(uf.find(fam), set()).add(fam)
+            comps = self._components(uids, by_uid, k - window)
+            if len(comps) > 1 and self.split_links == "history":
+                comps = self._components(uids, by_uid, None)
             if len(comps) == 1:
                 cl.families = next(iter(comps.values()))
                 out.append(cl)

@@ -649,3 +649,109 @@ def test_uninformative_scan_does_not_delete_a_tentative_track(hold: bool) -> Non
         mht2.step(torch.zeros(1, 2), time=0.0)
         mht2.step(torch.zeros(0, 2), time=1.0)  # an informative miss still deletes it
         assert mht2.n_leaves == 0
+
+
+class TestStoppedTrackReport:
+    """Issue 12 ([PD] 24.6, seed 2424): a passing track must not keep a stopped target's report.
+
+    Target 10 stands at the origin (its own confirmed track; a constant-velocity filter, so the
+    stop model's free miss of 24.31 plays no part: the test isolates the MHT's pruning, the
+    mechanism of the seed); target 1 drives past it along ``y = 2``. On scan ``K0`` the
+    sensor misses target 1 and sees target 10 at ``Z``, nearer to target 10's track than to
+    target 1's. The best hypothesis gives ``Z`` to target 10; target
+    1's leaf that took ``Z`` scores higher than its miss leaf on its own (a track score ignores
+    that the report is taken from another family). Road sections (``x > 0.15``) put target 10's
+    two leaves on two sections, so that the N-scan road-section exception keeps its miss leaf,
+    as at the junction J3 of the seed.
+    """
+
+    K0 = 8
+    Z = (0.5, 0.6)
+
+    class SectionCV(CVKalmanFilter):
+        def _sec(self, s):
+            s["section"] = (s["x"][:, 0] > 0.15).long()
+            return s
+
+        def initiate(self, z, R):
+            return self._sec(super().initiate(z, R))
+
+        def predict(self, states, dt):
+            return self._sec(super().predict(states, dt))
+
+        def update(self, states, z, R):
+            s, ll = super().update(states, z, R)
+            return self._sec(s), ll
+
+    def scans(self) -> tuple[list[np.ndarray], list[list[int]]]:
+        z, lab = [], []
+        for k in range(self.K0 + 4):
+            a = (1.0 + 4.0 * (k - self.K0), 2.0)  # target 1, at x = 1 on scan K0
+            if k < self.K0:
+                z.append(np.array([a, (0.0, 0.0)]))
+                lab.append([1, 10])
+            elif k == self.K0:  # target 1 missed; target 10 seen at Z
+                z.append(np.array([self.Z]))
+                lab.append([10])
+            else:  # both missed (k = K0 + 1, + 2: the cluster splits), then both seen
+                z.append(np.array([a, (0.0, 0.0)]) if k == self.K0 + 3 else np.zeros((0, 2)))
+                lab.append([1, 10] if k == self.K0 + 3 else [])
+        return z, lab
+
+    def run(self, **kw) -> tuple[MHT, list[list[int]]]:
+        mht = make_mht(
+            filter=self.SectionCV(sigma_a=0.1, velocity_std=3.0),
+            R=0.25 * torch.eye(2),
+            lambda_fa=1e-4,
+            lambda_nt=1e-5,
+            n_scan=1,
+            merge_scans=0,
+            n_hypotheses=10,
+            **kw,
+        )
+        z, lab = self.scans()
+        for zk in z:
+            mht.step(torch.from_numpy(zk))
+        return mht, lab
+
+    def owners(self, mht: MHT, lab: list[list[int]]) -> dict[int, list[tuple[int, int]]]:
+        """Per reported track: the (scan, target) of its measurements, from the truth labels."""
+        out = {}
+        for t in mht.tracks(include_tentative=True):
+            out[t.id] = [(k, lab[k][j]) for k, j in enumerate(t.measurements, t.birth) if j >= 0]
+        return out
+
+    def test_mechanism_reproduced_with_the_former_pruning(self) -> None:
+        mht, lab = self.run(section_best="leaf", split_links="window")
+        owners = self.owners(mht, lab)
+        holders = [tid for tid, ms in owners.items() if (self.K0, 10) in ms]
+        # the former behaviour: both tracks hold target 10's report of scan K0
+        assert len(holders) == 2
+        assert any(g == 1 for tid in holders for _, g in owners[tid])
+
+    @pytest.mark.parametrize(
+        "kw",
+        [{}, {"section_best": "other", "split_links": "window"}, {"section_best": "leaf"}],
+    )
+    def test_report_stays_with_the_stopped_target(self, kw: dict) -> None:
+        mht, lab = self.run(**kw)
+        owners = self.owners(mht, lab)
+        assert len(owners) == 2
+        for ms in owners.values():  # each track holds one target's reports only (the truth)
+            assert len({g for _, g in ms}) == 1
+        (t10,) = [ms for ms in owners.values() if ms[0][1] == 10]
+        assert (self.K0, 10) in t10
+        # and no measurement is held twice
+        held = [
+            (k, j)
+            for t in mht.tracks(include_tentative=True)
+            for k, j in enumerate(t.measurements, t.birth)
+            if j >= 0
+        ]
+        assert len(held) == len(set(held))
+
+    def test_bad_values(self) -> None:
+        with pytest.raises(ValueError, match="section_best"):
+            make_mht(section_best="score")
+        with pytest.raises(ValueError, match="split_links"):
+            make_mht(split_links="all")

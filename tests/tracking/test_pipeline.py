@@ -498,3 +498,21 @@ def test_section_distance_is_checked_in_the_config(bad):
     with pytest.raises(ValueError, match="section_distance"):
         PDTrackerConfig(section_distance=bad)
     assert PDTrackerConfig(section_distance=None).section_distance is None
+
+
+def test_section_best_and_split_links_reach_the_mht(short):
+    # issue 12 (target 1's ARMSE): the MHT's N-scan section exception and cluster split,
+    # the former behaviour kept as "leaf" / "window" (tests/tracking/test_mht.py)
+    from hocnet.tracking.pipeline import _pd_tracker
+
+    cfg = PDTrackerConfig()
+    assert (cfg.section_best, cfg.split_links) == ("leaf", "history")
+    _, mht, _ = _pd_tracker(short, cfg, type_tracking=False)
+    assert (mht.section_best, mht.split_links) == ("leaf", "history")
+    old = PDTrackerConfig(section_best="leaf", split_links="window")
+    _, mht, _ = _pd_tracker(short, old, type_tracking=False)
+    assert (mht.section_best, mht.split_links) == ("leaf", "window")
+    with pytest.raises(ValueError, match="section_best"):
+        PDTrackerConfig(section_best="score")
+    with pytest.raises(ValueError, match="split_links"):
+        PDTrackerConfig(split_links="all")
