@@ -120,7 +120,11 @@ PARAMETER_NOTES = {
     "library's default beta = 1e-3 (ln A = -6.9): mean ARMSE 16.5 vs 17.3 m, GOSPA 85.0 vs "
     "85.7 m, length ratio 0.864 vs 0.866 (experiments/_pd_armse_diag.py --set beta=0.001).",
     "n_hypotheses": "10 best hypotheses per cluster (Murty k-best), ratio pruning 1e-4.",
-    "n_scan": "N-scan depth 3 (30 s of GMTI) with the chapter's per-road-section exception.",
+    "n_scan": (
+        "N-scan depth 3 MHT scans with the chapter's per-road-section exception. Every sensor"
+        " scan counts (GMTI, video and each UGS report time: about 538 scans in 1200 s, so"
+        " about 7 s of history, not 30 s of GMTI)."
+    ),
     "merge_scans": "3: duplicate leaves of one target tree with the same last 3 measurements "
     "are merged (the chapter's merging, 24.4.4 step 6). The MHT's merge once grouped leaves of "
     "different trees and emptied the convoy's cluster during the overtaking (every convoy "
