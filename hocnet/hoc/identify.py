@@ -1737,6 +1737,7 @@ def _extensions(
     acc = [True] * p0.numel() if accepted is None else accepted.tolist()
     out = []
     links = None
+    beats = None
     seen: set[tuple[int, ...]] = set()
     for path in paths:
         pts = [a0[path[0]], a1[path[0]]] + [a2[k] for k in path]
@@ -1752,8 +1753,8 @@ def _extensions(
                 # a lone proposal too short on its own: extended along its unique accepted
                 # continuations (our addition, task h7part)
                 if links is None:
-                    links = _accepted_links(a_in.tolist(), a_out.tolist(), acc)
-                longer = _extend_alone(path, links, a0, a2, root, point_tracks)
+                    links = _fast.unique_links(a_in, a_out, accepted)
+                longer = _fast.extend_alone(path, links, a0, a2, root, point_tracks)
                 if len(longer) + 2 >= min_points + 1 and tuple(longer) not in seen:
                     seen.add(tuple(longer))
                     out.append(longer)
@@ -1780,9 +1781,9 @@ def _extensions(
             for part in _own_ends(pts, new, root, min_points):
                 sub = path[part.start : part.stop - 2]  # the triples of pts[part]
                 rivals = {ti for p in pts[part.start : part.stop] for ti in point_tracks.get(p, [])}
-                if all(acc[k] for k in sub) and _beats(
-                    sub, [tracks[ti][0].score for ti in rivals], p0, p1, p2, s, coords, track_kw
-                ):
+                if beats is None:
+                    beats = _fast.beats_scorer(p0, p1, p2, s, coords, track_kw)
+                if all(acc[k] for k in sub) and beats(sub, [tracks[ti][0].score for ti in rivals]):
                     out.append(sub)  # its own end point, on accepted tracks scoring lower
                     break
     return out

@@ -185,7 +185,17 @@ def _unwired() -> SimpleNamespace:
         best = ident._group_best_sorted(c_idx, key_rows, k)
         return left_t[best], right_t[best], key_rows[best]
 
+    def unique_links(a_in, a_out, accepted):
+        acc = [True] * a_in.numel() if accepted is None else accepted.tolist()
+        return ident._accepted_links(a_in.tolist(), a_out.tolist(), acc)
+
+    def beats_scorer(p0, p1, p2, s, coords, track_kw):
+        return lambda path, scores: ident._beats(path, scores, p0, p1, p2, s, coords, track_kw)
+
     return SimpleNamespace(
+        unique_links=unique_links,
+        extend_alone=ident._extend_alone,
+        beats_scorer=beats_scorer,
         score_paths_passing=score_paths_passing,
         kept_sharing_a_point=kept_sharing_a_point,
         make_tracks=make_tracks,
@@ -382,3 +392,54 @@ def test_best_paths_non_finite_scores_use_the_reference():
         s2[::7] = bad
         args = (n, p0, p1, p2, s2, a_in, a_out, 8, 2.5, 5, points)
         assert fast.best_paths(*args) == ident._best_paths(*args)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_extend_alone_equals_identify(seed):
+    """`extend_alone` on `unique_links` == `_extend_alone` on `_accepted_links`, every triple."""
+    _, p0, _, p2, _, a_in, a_out, _, _, gen = _scene(seed, density=0.03 + 0.01 * (seed % 4))
+    k = p0.numel()
+    n = int(torch.maximum(p0.max(), p2.max())) + 1
+    a0, a2 = p0.tolist(), p2.tolist()
+    grown = 0
+    for frac in (1.0, 0.6, 0.3):
+        accepted = None if frac == 1.0 else torch.rand(k, generator=gen) < frac
+        acc = [True] * k if accepted is None else accepted.tolist()
+        ref_links = ident._accepted_links(a_in.tolist(), a_out.tolist(), acc)
+        links = fast.unique_links(a_in, a_out, accepted)
+        root = (torch.rand(n, generator=gen) < 0.8).tolist()
+        on_tracks = torch.randperm(n, generator=gen)[: n // 10].tolist()
+        point_tracks = {q: [0] for q in on_tracks}
+        for j in range(k):
+            want = ident._extend_alone([j], ref_links, a0, a2, root, point_tracks)
+            assert fast.extend_alone([j], links, a0, a2, root, point_tracks) == want
+            grown += len(want) > 1
+    assert grown > 0  # tracks were extended: not vacuous
+
+
+def test_unique_links_empty_and_none():
+    empty = torch.zeros(0, dtype=torch.long)
+    assert fast.unique_links(empty, empty, None) == ([], [])
+    a_in, a_out = torch.tensor([0, 1, 1]), torch.tensor([1, 2, 3])
+    none = torch.zeros(3, dtype=torch.bool)
+    assert fast.unique_links(a_in, a_out, none) == ([-1] * 3, [-1] * 3)
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("span", [None, 1, 2, 3])
+def test_beats_scorer_equals_identify(seed, span):
+    """The same answers as `_beats`, at the path's own score (the same bits) and around it."""
+    _, p0, p1, p2, s, a_in, a_out, coords, kw, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.7
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    track_kw = None if span is None else {**kw, "span": span}
+    beats = fast.beats_scorer(p0, p1, p2, s, coords, track_kw)
+    answers = []
+    for path in list(paths)[:200]:
+        [(score, _, _)] = ident._score_paths([path], p0, p1, p2, s, coords, 0, track_kw)
+        below = math.nextafter(score, -math.inf)
+        for rivals in ([], [score], [below], [below, score], [score - 1.0, below]):
+            want = ident._beats(path, rivals, p0, p1, p2, s, coords, track_kw)
+            assert beats(path, rivals) == want
+            answers.append(want)
+    assert any(answers) and not all(answers)
