@@ -40,7 +40,7 @@ streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push (pro
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from itertools import chain
 from typing import Any
 
@@ -562,21 +562,67 @@ def _walk_table(ptr: np.ndarray, start: np.ndarray, steps: np.ndarray) -> np.nda
     return table
 
 
-class PathList(list):
-    """Chains of triples (a ``list`` of lists) that also carry their arrays, grouped by length.
+class PathList(Sequence):
+    """Chains of triples (a sequence of lists) that also carry their arrays, grouped by length.
 
     ``groups``: per chain length, ``(index, triples)``: the positions of the chains of that
     length in the list (ascending) and their triples, an ``(R, length)`` int64 array (row ``r``
     is chain ``index[r]``). Built by :func:`hocnet.hoc._incremental.enumerate_paths_vectorised`
     from the arrays it grows the chains in, so that :func:`score_paths_passing` need not turn
-    the lists back into arrays. Equal to the plain list of its chains.
+    the lists back into arrays. Equal to the plain list of its chains (``==``, ``+``,
+    iteration, indexing); the Python lists are built from ``groups`` only when first asked for
+    (the default identification reads ``groups`` and the length only: building and freeing
+    20 000 lists cost about 2 ms per 640 x 512 window at 2 % clutter).
     """
 
-    __slots__ = ("groups",)
+    __slots__ = ("_n", "_rows", "groups")
+    __hash__ = None  # type: ignore[assignment]  # mutable-list semantics: unhashable
 
-    def __init__(self, rows: list[list[int]], groups: list[tuple[np.ndarray, np.ndarray]]):
-        super().__init__(rows)
+    def __init__(
+        self,
+        rows: list[list[int]] | None,
+        groups: list[tuple[np.ndarray, np.ndarray]],
+        n: int | None = None,
+    ):
         self.groups = groups
+        self._rows = rows
+        self._n = len(rows) if rows is not None else int(n or 0)
+
+    def _list(self) -> list[list[int]]:
+        if self._rows is None:
+            rows: list[Any] = [None] * self._n
+            for at, tri in self.groups:
+                for i, row in zip(at.tolist(), tri.tolist(), strict=True):
+                    rows[i] = row
+            self._rows = rows
+        return self._rows
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: Any) -> Any:
+        return self._list()[i]
+
+    def __iter__(self) -> Iterator[list[int]]:
+        return iter(self._list())
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, PathList):
+            other = other._list()
+        if isinstance(other, list):
+            return self._list() == other
+        return NotImplemented
+
+    def __add__(self, other: Any) -> list[list[int]]:
+        if isinstance(other, PathList):
+            other = other._list()
+        return self._list() + other
+
+    def __radd__(self, other: Any) -> list[list[int]]:
+        return other + self._list()
+
+    def __repr__(self) -> str:
+        return repr(self._list())
 
 
 def _path_groups(paths: list[list[int]]) -> list[tuple[np.ndarray, np.ndarray]]:

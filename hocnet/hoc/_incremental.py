@@ -9,8 +9,6 @@ same order (each tested against the loop it replaces, ``tests/hoc/test_stream.py
 
 from __future__ import annotations
 
-from operator import itemgetter
-
 import numpy as np
 import torch
 
@@ -105,17 +103,12 @@ def enumerate_paths_vectorised(
         place = place[rep] + before[at] - before[first]
     if not done_paths:
         return PathList([], [])
-    rows: list[list[int]] = []
     groups = []
     for p, at in zip(done_paths, done_place, strict=True):
-        rows.extend(idx[p].tolist())  # one list per chain, its length that of its group
         sort = np.argsort(at)
         groups.append((at[sort], idx[p[sort]]))
-    perm = np.empty(len(rows), dtype=np.int64)  # the chain listed at each place
-    perm[np.concatenate(done_place)] = np.arange(len(rows))
-    if len(rows) == 1:
-        return PathList(rows, groups)
-    return PathList(list(itemgetter(*perm.tolist())(rows)), groups)
+    # the places are 0 .. n - 1, each once: the lists are built from the groups when asked for
+    return PathList(None, groups, sum(int(at.size) for at in done_place))
 
 
 def _chain_counts(
