@@ -1045,7 +1045,9 @@ def _enumerate_paths(
     fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
     if fast is not None:
         return fast, False
-    cluster, count = _chain_clusters(accepted, a_in, a_out)
+    from hocnet.hoc._incremental import chain_clusters  # _chain_clusters, counts capped
+
+    cluster, count = chain_clusters(accepted, a_in, a_out, max_candidates)
     n_c = count.numel()
     # smallest clusters first (ties: lower cluster label, i.e. first triple index, first)
     order = torch.argsort(count, stable=True)
@@ -1131,8 +1133,10 @@ def _enumerate_paths_loop(
     max_candidates: int,
 ) -> tuple[list[list[int]], bool]:
     """:func:`_enumerate_paths` as a depth-first loop (the reference, and the capped case)."""
-    idx = accepted.nonzero().squeeze(1).tolist()
-    ain, aout, sl = a_in.tolist(), a_out.tolist(), s.tolist()
+    idx_t = accepted.nonzero().squeeze(1)
+    idx = idx_t.tolist()
+    # per accepted triple only (the capped case passes the triples of a few clusters)
+    ain, aout, sl = (dict(zip(idx, x[idx_t].tolist(), strict=True)) for x in (a_in, a_out, s))
     succ: dict[int, list[int]] = {}
     ends_with: set[int] = set()
     for k in idx:
