@@ -205,9 +205,11 @@ def chain_clusters(
     _, labels = connected_components(graph, directed=False)
     raw = labels[ai]
     # clusters numbered by their first triple (the reference's numbering)
-    present, first = np.unique(raw, return_index=True)
-    rank = np.empty(int(labels.max()) + 1, dtype=np.int64)
-    rank[present[np.argsort(first, kind="stable")]] = np.arange(present.size)
+    first = np.full(int(labels.max()) + 1, k, dtype=np.int64)
+    np.minimum.at(first, raw, np.arange(k))
+    present = np.flatnonzero(first < k)
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[present[np.argsort(first[present])]] = np.arange(present.size)  # distinct: no ties
     cluster = rank[raw]
     fan = np.bincount(ai, minlength=n_e)[ao]
     chains = _chain_counts(ai, ao, fan, n_e, cap)

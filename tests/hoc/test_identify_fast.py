@@ -443,3 +443,23 @@ def test_beats_scorer_equals_identify(seed, span):
             assert beats(path, rivals) == want
             answers.append(want)
     assert any(answers) and not all(answers)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_path_list_is_lazy_and_adds_as_a_list(seed):
+    """A PathList equals its plain list before and after `+`, and `+` keeps the groups."""
+    _, p0, p1, p2, s, a_in, a_out, coords, _, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.8
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    assert isinstance(paths, fast.PathList) and paths._rows is None  # nothing built yet
+    plain = ident._enumerate_paths_loop(accepted, a_in, a_out, s, 20000)[0]
+    assert len(paths) == len(plain) > 2
+    tail, nothing = plain[:2], []
+    for other in (tail, fast.PathList(tail, fast._path_groups(tail)), []):
+        joined = paths + other
+        assert isinstance(joined, fast.PathList) and joined == plain + list(other)
+        assert nothing + joined == plain + list(other) and list(joined) == plain + list(other)
+        args = (p0, p1, p2, s, coords, 4, None, 2.0)
+        got = fast.score_paths_passing(joined, *args)
+        assert got == fast.score_paths_passing(plain + list(other), *args) and got
+    assert paths == plain and paths[0] == plain[0] and paths != plain[1:]
