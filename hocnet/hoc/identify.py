@@ -1225,14 +1225,15 @@ def _select_tracks(
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
         cands.append((score, len(pts), pts, pscores))
     cands.sort(key=lambda item: (-item[0], -item[1]))
-    covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
-    scan_of = coords[:, 0].tolist() if dedupe is not None else []
+    # NumPy views: the same indices without torch's per-call overhead
+    covered: set[int] = set(cleaned.numpy()[flat.numpy()].nonzero()[0].tolist())
+    scan_of = coords.numpy()[:, 0].tolist() if dedupe is not None else []
     xy: dict[int, list[int]] = {}  # (t, y, x) of the candidates' points: the only ones asked
     if dedupe is not None:
         need = sorted(
             {q for _, _, pts, _ in cands for q in pts} | {q for t in prior or [] for q in t}
         )
-        xy = dict(zip(need, coords[need].tolist(), strict=True))
+        xy = dict(zip(need, coords.numpy()[need].tolist(), strict=True))
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     kept_items: list[tuple[float, list[int], list[float]]] = []
