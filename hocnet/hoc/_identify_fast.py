@@ -216,7 +216,8 @@ def fill_scores(
 
     The same per-point maxima (the same scatter reduction, middle points first, then the
     ends), written into the cube through NumPy views (fancy indexing without torch's
-    per-operation overhead): a point keeps the value written first.
+    per-operation overhead; one write for the three passes): a point keeps the value written
+    first.
 
     Wiring: ``identify._identify_sequences`` calls ``fill_scores`` instead of ``_fill_scores``.
 
@@ -229,14 +230,19 @@ def fill_scores(
     """
     cube = scores_cube.numpy()
     q = flat.numpy()
+    # the three passes of the reference write a point's middle maximum if it has one (not
+    # NaN), else its first-point one, else its last-point one, where the cube holds NaN: the
+    # same values picked per point first, then one gather and one write into the cube
+    value = None
     for members in (p1, p0, p2):
         best = torch.full((q.size,), -math.inf, dtype=torch.float64)
         best.scatter_reduce_(0, members, s, reduce="amax")
         b = best.numpy()
-        has = b > -math.inf
-        idx = q[has]
-        cur = cube[idx]
-        cube[idx] = np.where(np.isnan(cur), b[has], cur)
+        value = b if value is None else np.where(value > -math.inf, value, b)
+    has = value > -math.inf
+    idx = q[has]
+    cur = cube[idx]
+    cube[idx] = np.where(np.isnan(cur), value[has], cur)
 
 
 def whole_sequence_rows(
