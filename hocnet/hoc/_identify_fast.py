@@ -893,7 +893,7 @@ def make_tracks(
 
 def unique_links(
     a_in: torch.Tensor, a_out: torch.Tensor, accepted: torch.Tensor | None
-) -> tuple[list[int], list[int]]:
+) -> tuple[np.ndarray, np.ndarray]:
     """Per triple: the only accepted triple continuing it, and the only one leading into it.
 
     What ``identify._extend_alone`` reads off ``identify._accepted_links`` (the accepted
@@ -912,16 +912,16 @@ def unique_links(
         accepted: ``(K,)`` bool, the accepted triples, or ``None`` (all).
 
     Returns:
-        ``(after, before)``: ``K`` triple indices each (-1: none or several).
+        ``(after, before)``: ``(K,)`` int64 triple indices each (-1: none or several).
 
     Examples:
         >>> a_in, a_out = torch.tensor([0, 1, 1, 2]), torch.tensor([1, 2, 3, 4])
-        >>> unique_links(a_in, a_out, None)  # triple 0 has two continuations
-        ([-1, 3, -1, -1], [-1, 0, 0, 1])
+        >>> [x.tolist() for x in unique_links(a_in, a_out, None)]  # 0: two continuations
+        [[-1, 3, -1, -1], [-1, 0, 0, 1]]
     """
     ai, ao = a_in.numpy(), a_out.numpy()
     if ai.size == 0:
-        return [], []
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     n_e = int(max(ai.max(), ao.max())) + 1
     acc = np.arange(ai.size) if accepted is None else np.flatnonzero(accepted.numpy())
     out: list[list[int]] = []
@@ -929,13 +929,13 @@ def unique_links(
         only = np.full(n_e, -1, dtype=np.int64)
         only[by[acc]] = acc  # one of the triples on each edge (the only one where count 1)
         only[np.bincount(by[acc], minlength=n_e) != 1] = -1
-        out.append(only[at].tolist())
+        out.append(only[at])  # read a few entries per lone track: no Python list of all
     return out[0], out[1]
 
 
 def extend_alone(
     path: list[int],
-    links: tuple[list[int], list[int]],
+    links: tuple[np.ndarray, np.ndarray],
     a0: list[int],
     a2: list[int],
     root: list[bool],
@@ -960,12 +960,12 @@ def extend_alone(
     after, before = links
     path = list(path)  # triples move forward in time: an extension never meets the path
     while True:
-        k = after[path[-1]]
+        k = int(after[path[-1]])
         if k < 0 or not root[a2[k]] or a2[k] in point_tracks:
             break
         path.append(k)
     while True:
-        k = before[path[0]]
+        k = int(before[path[0]])
         if k < 0 or not root[a0[k]] or a0[k] in point_tracks:
             break
         path.insert(0, k)
