@@ -936,8 +936,8 @@ def unique_links(
 def extend_alone(
     path: list[int],
     links: tuple[np.ndarray, np.ndarray],
-    a0: list[int],
-    a2: list[int],
+    a0: list[int] | np.ndarray,
+    a2: list[int] | np.ndarray,
     root: list[bool],
     point_tracks: dict[int, list[int]],
 ) -> list[int]:
@@ -961,12 +961,12 @@ def extend_alone(
     path = list(path)  # triples move forward in time: an extension never meets the path
     while True:
         k = int(after[path[-1]])
-        if k < 0 or not root[a2[k]] or a2[k] in point_tracks:
+        if k < 0 or not root[q := int(a2[k])] or q in point_tracks:
             break
         path.append(k)
     while True:
         k = int(before[path[0]])
-        if k < 0 or not root[a0[k]] or a0[k] in point_tracks:
+        if k < 0 or not root[q := int(a0[k])] or q in point_tracks:
             break
         path.insert(0, k)
     return path
@@ -1027,3 +1027,36 @@ def beats_scorer(
         return all(score > other for other in scores)
 
     return beats
+
+
+def path_points(
+    paths: list[list[int]], p0: torch.Tensor, p1: torch.Tensor, p2: torch.Tensor
+) -> list[list[int]]:
+    """The points of every chain of triples: ``[p0[c[0]], p1[c[0]], *(p2[k] for k in c)]``.
+
+    What ``identify._extensions`` builds per proposed track from Python lists of every
+    triple's points (three lists of 30 000 entries per 640 x 512 window at 2 % clutter, for a
+    few hundred chains): here one gather over the chains' triples.
+
+    Wiring: ``identify._extensions`` iterates ``zip(paths, path_points(paths, p0, p1, p2))``
+    instead of building each ``pts`` from ``p0.tolist()``, ``p1.tolist()``, ``p2.tolist()``.
+
+    Examples:
+        >>> p0, p1, p2 = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3]), torch.tensor([2, 3, 4])
+        >>> path_points([[0, 1], [2]], p0, p1, p2)
+        [[0, 1, 2, 3], [2, 3, 4]]
+    """
+    if not paths:
+        return []
+    lens = np.fromiter(map(len, paths), dtype=np.int64, count=len(paths))
+    tri = np.fromiter(chain.from_iterable(paths), dtype=np.int64, count=int(lens.sum()))
+    starts = np.cumsum(lens) - lens  # each chain's first triple in ``tri``
+    at = starts + 2 * np.arange(lens.size)  # each chain's first point in the output
+    out = np.empty(tri.size + 2 * lens.size, dtype=np.int64)
+    first = tri[starts]
+    out[at] = p0.numpy()[first]
+    out[at + 1] = p1.numpy()[first]
+    out[np.arange(tri.size) - np.repeat(starts, lens) + np.repeat(at + 2, lens)] = p2.numpy()[tri]
+    flat = out.tolist()
+    ends = np.cumsum(lens + 2).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]

@@ -1736,7 +1736,7 @@ def _extensions(
         scans.append({scan_of[q] for q in pts})
         for q in pts:
             point_tracks.setdefault(q, []).append(t_idx)
-    a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
+    a0, a2 = p0.numpy(), p2.numpy()  # read at a few triples (``extend_alone``)
     root = is_root.tolist()
     crossing = RESCUE_CROSSING if crossing is None else crossing
     acc = [True] * p0.numel() if accepted is None else accepted.tolist()
@@ -1744,8 +1744,7 @@ def _extensions(
     links = None
     beats = None
     seen: set[tuple[int, ...]] = set()
-    for path in paths:
-        pts = [a0[path[0]], a1[path[0]]] + [a2[k] for k in path]
+    for path, pts in zip(paths, _fast.path_points(paths, p0, p1, p2), strict=True):
         shared = {ti for p in pts for ti in point_tracks.get(p, [])}
         if not shared:
             # a track of its own (e.g. one starting mid-window whose maximal chain is extended

@@ -192,7 +192,12 @@ def _unwired() -> SimpleNamespace:
     def beats_scorer(p0, p1, p2, s, coords, track_kw):
         return lambda path, scores: ident._beats(path, scores, p0, p1, p2, s, coords, track_kw)
 
+    def path_points(paths, p0, p1, p2):
+        a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
+        return [[a0[path[0]], a1[path[0]]] + [a2[k] for k in path] for path in paths]
+
     return SimpleNamespace(
+        path_points=path_points,
         unique_links=unique_links,
         extend_alone=ident._extend_alone,
         beats_scorer=beats_scorer,
@@ -465,3 +470,16 @@ def test_path_list_is_lazy_and_adds_as_a_list(seed):
         got = fast.score_paths_passing(joined, *args)
         assert got == fast.score_paths_passing(plain + list(other), *args) and got
     assert paths == plain and paths[0] == plain[0] and paths != plain[1:]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_path_points_equals_the_loop(seed):
+    _, p0, p1, p2, s, a_in, a_out, _, _, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.8
+    paths = list(ident._enumerate_paths(accepted, a_in, a_out, s, 20000)[0])
+    assert len(paths) > 1
+    a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
+    want = [[a0[c[0]], a1[c[0]]] + [a2[k] for k in c] for c in paths]
+    got = fast.path_points(paths, p0, p1, p2)
+    assert got == want and all(type(q) is int for q in got[0])
+    assert fast.path_points([], p0, p1, p2) == []
