@@ -1722,14 +1722,14 @@ def _extensions(
     replaces an inner point of an accepted track (a detour) or shares nothing with one stays
     rejected.
     """
-    lost = is_root & ~cleaned[flat]
+    lost = torch.from_numpy(is_root.numpy() & ~cleaned.numpy()[flat.numpy()])  # NumPy views
     if not bool(lost.any()) or not tracks:
         return []
     paths = _fast.best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
     if not paths:
         return []
     # tracks hold candidate points (indices into ``flat``): key them by index, not by coords
-    scan_of = coords[:, 0].tolist()
+    scan_of = coords.numpy()[:, 0].tolist()
     point_tracks: dict[int, list[int]] = {}
     scans: list[set[int]] = []
     for t_idx, (_, pts) in enumerate(tracks):
@@ -1737,9 +1737,9 @@ def _extensions(
         for q in pts:
             point_tracks.setdefault(q, []).append(t_idx)
     a0, a2 = p0.numpy(), p2.numpy()  # read at a few triples (``extend_alone``)
-    root = is_root.tolist()
+    root = is_root.numpy().tolist()
     crossing = RESCUE_CROSSING if crossing is None else crossing
-    acc = [True] * p0.numel() if accepted is None else accepted.tolist()
+    acc = [True] * p0.numel() if accepted is None else accepted.numpy().tolist()
     out = []
     links = None
     beats = None
@@ -2023,7 +2023,7 @@ def _identify_sequences(
         )
 
     tracks = select(paths)
-    flat_l = flat.tolist()
+    flat_np = flat.numpy()
     if rescue:
         extra = _extensions(
             tracks,
@@ -2046,7 +2046,7 @@ def _identify_sequences(
         )
         tracks += select(extra, [pts for _, pts in tracks] if dedupe_rescued else None)
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
-    kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
+    kept = sorted(tracks, key=lambda item: (int(flat_np[item[1][0]]), int(flat_np[item[1][-1]])))
     out = [tr for tr, _ in kept]
     return out, scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), capped
 
