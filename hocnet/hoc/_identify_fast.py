@@ -1060,3 +1060,29 @@ def path_points(
     flat = out.tolist()
     ends = np.cumsum(lens + 2).tolist()
     return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+def mark_cleaned(cleaned: torch.Tensor, flat: torch.Tensor, point_lists: list[list[int]]) -> None:
+    """``cleaned[flat[points]] = True`` for every point of ``point_lists``, in place.
+
+    What ``identify._select_tracks`` does with the kept tracks' points
+    (``torch.tensor`` of a Python list of every point, then two torch indexing calls), with
+    one ``fromiter`` and NumPy views of the same buffers.
+
+    Wiring: ``identify._select_tracks`` calls ``mark_cleaned(cleaned, flat, [pts for _, pts in
+    tracks])``.
+
+    Examples:
+        >>> cleaned = torch.zeros(6, dtype=torch.bool)
+        >>> mark_cleaned(cleaned, torch.tensor([1, 3, 5]), [[0, 2], [2]])
+        >>> cleaned.nonzero().squeeze(1).tolist()
+        [1, 5]
+    """
+    n = sum(map(len, point_lists))
+    if n == 0:
+        return
+    kept = np.fromiter(chain.from_iterable(point_lists), dtype=np.int64, count=n)
+    if cleaned.is_contiguous() and flat.is_contiguous():
+        cleaned.numpy()[flat.numpy()[kept]] = True
+    else:
+        cleaned[flat[torch.from_numpy(kept)]] = True

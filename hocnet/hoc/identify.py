@@ -1272,9 +1272,7 @@ def _select_tracks(
     # Track objects only for the kept candidates, all in one go (as ``_make_track`` each)
     made = _fast.make_tracks(kept_items, coords, batch)
     tracks = [(track, pts) for track, (_, pts, _) in zip(made, kept_items, strict=True)]
-    if tracks:
-        kept = torch.tensor([q for _, pts in tracks for q in pts])
-        cleaned[flat[kept]] = True
+    _fast.mark_cleaned(cleaned, flat, [pts for _, pts in tracks])  # cleaned[flat[...]] = True
     return tracks
 
 

@@ -196,7 +196,13 @@ def _unwired() -> SimpleNamespace:
         a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
         return [[a0[path[0]], a1[path[0]]] + [a2[k] for k in path] for path in paths]
 
+    def mark_cleaned(cleaned, flat, point_lists):
+        if point_lists:
+            kept = torch.tensor([q for pts in point_lists for q in pts])
+            cleaned[flat[kept]] = True
+
     return SimpleNamespace(
+        mark_cleaned=mark_cleaned,
         path_points=path_points,
         unique_links=unique_links,
         extend_alone=ident._extend_alone,
@@ -483,3 +489,19 @@ def test_path_points_equals_the_loop(seed):
     got = fast.path_points(paths, p0, p1, p2)
     assert got == want and all(type(q) is int for q in got[0])
     assert fast.path_points([], p0, p1, p2) == []
+
+
+def test_mark_cleaned_equals_indexing():
+    gen = torch.Generator().manual_seed(0)
+    flat = torch.randperm(500, generator=gen)[:120].sort().values
+    lists = [torch.randint(0, 120, (int(n),), generator=gen).tolist() for n in (5, 7, 0, 3)]
+    want = torch.zeros(500, dtype=torch.bool)
+    want[flat[torch.tensor([q for pts in lists for q in pts])]] = True
+    got = torch.zeros(500, dtype=torch.bool)
+    fast.mark_cleaned(got, flat, lists)
+    assert torch.equal(got, want) and bool(want.any())
+    strided = torch.zeros(1000, dtype=torch.bool)[::2]  # a view: the torch indexing path
+    fast.mark_cleaned(strided, flat, lists)
+    assert torch.equal(strided, want)
+    fast.mark_cleaned(got, flat, [[], []])  # nothing to mark
+    assert torch.equal(got, want)
