@@ -35,6 +35,17 @@ streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push (pro
 20 pushes, old and new code back to back at load 6) went 69.0 -> 39.9 ms at 2 %, order 2,
 ``mhoc`` (116.5 -> 54.4 ms with ``chain``; order 3: 37.7 -> 19.2 and 65.5 -> 32.2 ms; at 1 %:
 9.1-10.8 ms from 13.0-18.9 ms); ``benchmarks/results/hoc_stream.md`` for the benchmark.
+
+Third round (task h7speed, ``support="chain"`` at 2 %, order 2, whose identification had
+grown with the lone-track and track-end rescues of ``identify._extensions``): old and new
+code alternating on the same captured windows in one process (process time, medians of 15,
+load 1-2): ``_extensions`` 26.8 -> 9.4 ms (:func:`unique_links` and :func:`extend_alone`
+instead of a dictionary of lists over every triple, :func:`beats_scorer` instead of
+``_score_paths`` per proposal, :func:`path_points`), an over-cap window's
+``_enumerate_paths`` 14.9 -> 7.5 ms (:func:`hocnet.hoc._incremental.chain_clusters`, the
+capped loop reading the accepted triples only, :class:`PathList` lazy, also across ``+``),
+:func:`best_paths` 11.6 -> 10.1 ms (its first maximum by row reductions), :func:`fill_scores`
+1.9 -> 1.3 ms; the median push (paired, 41 pushes) 72.8 -> 45.7 ms, every window equal.
 """
 
 from __future__ import annotations
