@@ -456,11 +456,11 @@ def best_paths(
       triple reaching it with two segment reductions (``reduceat``) instead of two scatter
       reductions and a ``nonzero`` per column: the same continuation (the largest sum, the
       lowest triple index on ties, none where every sum is ``-inf``);
-    - the ``(K, L, L)`` table of chain sums over (backward length, forward length) is reduced
-      one backward length at a time (``(K, L)`` each, in cache): every entry is the same
-      ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
-      (``argmax`` returns the first maximal index of a row; a later ``lb`` replaces the
-      running best only when strictly greater);
+    - the table of chain sums over (backward length, forward length) is built only for the
+      triples whose bound reaches the pass mark, as ``(L, L, Ks)`` in place: every entry is
+      the same ``(bw + fw) - w``; its flat arg-max per triple, the first maximum in
+      ``(lb, lf)`` order as ``argmax`` gives it, is the lowest row equal to the column
+      maximum (two reductions along rows; the sums are finite or ``-inf``, never NaN);
     - the chains are read off the pointer walks (the table of ``identify._walk``) with one
       filter and one ``tolist`` for all of them, not a Python filter per chain.
 
