@@ -495,7 +495,7 @@ def best_paths(
         # best[l]: best sum of a chain starting at triple k and continuing l triples (through
         # dst -> src edges); ptr[l]: the next triple (-1: none); (L, K), one row per length
         best = np.full((L, k), neg)
-        ptr = np.full((L, k), -1, dtype=np.int64)
+        ptr = np.full((L, k), -1, dtype=np.int32 if k < 1 << 31 else np.int64)  # half the pages
         best[0] = w
         idx = np.arange(k)  # the triples whose previous column is finite
         top = np.empty(n_e)  # per column: refilled, not reallocated (no fresh pages)
