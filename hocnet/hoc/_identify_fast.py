@@ -35,11 +35,23 @@ streaming detector's own changes (:mod:`hocnet.hoc.stream`) the median push (pro
 20 pushes, old and new code back to back at load 6) went 69.0 -> 39.9 ms at 2 %, order 2,
 ``mhoc`` (116.5 -> 54.4 ms with ``chain``; order 3: 37.7 -> 19.2 and 65.5 -> 32.2 ms; at 1 %:
 9.1-10.8 ms from 13.0-18.9 ms); ``benchmarks/results/hoc_stream.md`` for the benchmark.
+
+Third round (task h7speed, ``support="chain"`` at 2 %, order 2, whose identification had
+grown with the lone-track and track-end rescues of ``identify._extensions``): old and new
+code alternating on the same captured windows in one process (process time, medians of 15,
+load 1-2): ``_extensions`` 26.8 -> 9.4 ms (:func:`unique_links` and :func:`extend_alone`
+instead of a dictionary of lists over every triple, :func:`beats_scorer` instead of
+``_score_paths`` per proposal, :func:`path_points`), an over-cap window's
+``_enumerate_paths`` 14.9 -> 7.5 ms (:func:`hocnet.hoc._incremental.chain_clusters`, the
+capped loop reading the accepted triples only, :class:`PathList` lazy, also across ``+``),
+:func:`best_paths` 11.6 -> 10.1 ms (its first maximum by row reductions), :func:`fill_scores`
+1.9 -> 1.3 ms; the median push (paired, 41 pushes) 72.8 -> 45.7 ms, every window equal.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator, Sequence
 from itertools import chain
 from typing import Any
 
@@ -215,7 +227,8 @@ def fill_scores(
 
     The same per-point maxima (the same scatter reduction, middle points first, then the
     ends), written into the cube through NumPy views (fancy indexing without torch's
-    per-operation overhead): a point keeps the value written first.
+    per-operation overhead; one write for the three passes): a point keeps the value written
+    first.
 
     Wiring: ``identify._identify_sequences`` calls ``fill_scores`` instead of ``_fill_scores``.
 
@@ -228,14 +241,19 @@ def fill_scores(
     """
     cube = scores_cube.numpy()
     q = flat.numpy()
+    # the three passes of the reference write a point's middle maximum if it has one (not
+    # NaN), else its first-point one, else its last-point one, where the cube holds NaN: the
+    # same values picked per point first, then one gather and one write into the cube
+    value = None
     for members in (p1, p0, p2):
         best = torch.full((q.size,), -math.inf, dtype=torch.float64)
         best.scatter_reduce_(0, members, s, reduce="amax")
         b = best.numpy()
-        has = b > -math.inf
-        idx = q[has]
-        cur = cube[idx]
-        cube[idx] = np.where(np.isnan(cur), b[has], cur)
+        value = b if value is None else np.where(value > -math.inf, value, b)
+    has = value > -math.inf
+    idx = q[has]
+    cur = cube[idx]
+    cube[idx] = np.where(np.isnan(cur), value[has], cur)
 
 
 def whole_sequence_rows(
@@ -438,11 +456,11 @@ def best_paths(
       triple reaching it with two segment reductions (``reduceat``) instead of two scatter
       reductions and a ``nonzero`` per column: the same continuation (the largest sum, the
       lowest triple index on ties, none where every sum is ``-inf``);
-    - the ``(K, L, L)`` table of chain sums over (backward length, forward length) is reduced
-      one backward length at a time (``(K, L)`` each, in cache): every entry is the same
-      ``(bw + fw) - w``, and the flat arg-max keeps the first maximum in ``(lb, lf)`` order
-      (``argmax`` returns the first maximal index of a row; a later ``lb`` replaces the
-      running best only when strictly greater);
+    - the table of chain sums over (backward length, forward length) is built only for the
+      triples whose bound reaches the pass mark, as ``(L, L, Ks)`` in place: every entry is
+      the same ``(bw + fw) - w``; its flat arg-max per triple, the first maximum in
+      ``(lb, lf)`` order as ``argmax`` gives it, is the lowest row equal to the column
+      maximum (two reductions along rows; the sums are finite or ``-inf``, never NaN);
     - the chains are read off the pointer walks (the table of ``identify._walk``) with one
       filter and one ``tolist`` for all of them, not a Python filter per chain.
 
@@ -477,16 +495,18 @@ def best_paths(
         # best[l]: best sum of a chain starting at triple k and continuing l triples (through
         # dst -> src edges); ptr[l]: the next triple (-1: none); (L, K), one row per length
         best = np.full((L, k), neg)
-        ptr = np.full((L, k), -1, dtype=np.int64)
+        ptr = np.full((L, k), -1, dtype=np.int32 if k < 1 << 31 else np.int64)  # half the pages
         best[0] = w
         idx = np.arange(k)  # the triples whose previous column is finite
+        top = np.empty(n_e)  # per column: refilled, not reallocated (no fresh pages)
+        first = np.empty(n_e, dtype=np.int64)
         for ell in range(1, L):
             col = best[ell - 1]
             g, key = src[idx], col[idx]
-            top = np.full(n_e, neg)
+            top.fill(neg)
             np.maximum.at(top, g, key)  # each edge's largest sum
             hit = key == top[g]
-            first = np.full(n_e, k)
+            first.fill(k)
             np.minimum.at(first, g[hit], idx[hit])  # the lowest triple reaching it
             nxt = first[dst]
             idx = np.flatnonzero(nxt < k)
@@ -511,11 +531,18 @@ def best_paths(
         return []
     # the (L, L, Ks) table of chain sums over (backward length, forward length), each entry
     # (bw + fw) - w; the flat arg-max keeps the first maximum in (lb, lf) order
-    length = np.arange(L)[:, None, None] + np.arange(L)[None, :, None] + 3
+    length = np.arange(L)[:, None] + np.arange(L)[None, :] + 3
     bw_s, fw_s = np.take(bw, sub, axis=1), np.take(fw, sub, axis=1)
-    total = bw_s[:, None, :] + fw_s[None, :, :] - w[sub][None, None, :]
-    total = np.where(length >= min_points, total, neg).reshape(L * L, ks)
-    arg = total.argmax(axis=0)
+    total = bw_s[:, None, :] + fw_s[None, :, :]  # one table, the rest in place (same ops)
+    total -= w[sub][None, None, :]
+    total[length < min_points] = neg
+    total = total.reshape(L * L, ks)
+    # ``argmax(axis=0)`` (the first maximal row of each column; no NaN here: the sums are
+    # finite or -inf) as a column maximum and the lowest row reaching it: two reductions
+    # along rows instead of one short arg-max per column (6 ms -> 1 ms on 10 000 columns)
+    rows = np.arange(L * L, dtype=np.min_scalar_type(L * L))
+    arg = np.where(total == total.max(axis=0), rows[:, None], rows[-1]).min(axis=0)
+    arg = arg.astype(np.int64)
     flat_best = total[arg, np.arange(ks)]
     members = np.concatenate([q0[sub], q1[sub], q2[sub]])
     values = np.tile(flat_best, 3)
@@ -561,21 +588,74 @@ def _walk_table(ptr: np.ndarray, start: np.ndarray, steps: np.ndarray) -> np.nda
     return table
 
 
-class PathList(list):
-    """Chains of triples (a ``list`` of lists) that also carry their arrays, grouped by length.
+class PathList(Sequence):
+    """Chains of triples (a sequence of lists) that also carry their arrays, grouped by length.
 
     ``groups``: per chain length, ``(index, triples)``: the positions of the chains of that
     length in the list (ascending) and their triples, an ``(R, length)`` int64 array (row ``r``
     is chain ``index[r]``). Built by :func:`hocnet.hoc._incremental.enumerate_paths_vectorised`
     from the arrays it grows the chains in, so that :func:`score_paths_passing` need not turn
-    the lists back into arrays. Equal to the plain list of its chains.
+    the lists back into arrays (several groups may hold chains of one length, e.g. after
+    ``+``). Equal to the plain list of its chains (``==``, ``+``, iteration, indexing); the
+    Python lists are built from ``groups`` only when first asked for
+    (the default identification reads ``groups`` and the length only: building and freeing
+    20 000 lists cost about 2 ms per 640 x 512 window at 2 % clutter).
     """
 
-    __slots__ = ("groups",)
+    __slots__ = ("_n", "_rows", "groups")
+    __hash__ = None  # type: ignore[assignment]  # mutable-list semantics: unhashable
 
-    def __init__(self, rows: list[list[int]], groups: list[tuple[np.ndarray, np.ndarray]]):
-        super().__init__(rows)
+    def __init__(
+        self,
+        rows: list[list[int]] | None,
+        groups: list[tuple[np.ndarray, np.ndarray]],
+        n: int | None = None,
+    ):
         self.groups = groups
+        self._rows = rows
+        self._n = len(rows) if rows is not None else int(n or 0)
+
+    def _list(self) -> list[list[int]]:
+        if self._rows is None:
+            rows: list[Any] = [None] * self._n
+            for at, tri in self.groups:
+                for i, row in zip(at.tolist(), tri.tolist(), strict=True):
+                    rows[i] = row
+            self._rows = rows
+        return self._rows
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: Any) -> Any:
+        return self._list()[i]
+
+    def __iter__(self) -> Iterator[list[int]]:
+        return iter(self._list())
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, PathList):
+            other = other._list()
+        if isinstance(other, list):
+            return self._list() == other
+        return NotImplemented
+
+    def __add__(self, other: Any) -> PathList:
+        """The chains of both, as a :class:`PathList` (its groups: both lists' groups)."""
+        if isinstance(other, PathList):
+            more = other.groups
+        elif isinstance(other, list):
+            more = _path_groups(other) if other else []
+        else:
+            return NotImplemented
+        shifted = [(index + self._n, tri) for index, tri in more]
+        return PathList(None, [*self.groups, *shifted], self._n + len(other))
+
+    def __radd__(self, other: Any) -> list[list[int]]:
+        return other + self._list()
+
+    def __repr__(self) -> str:
+        return repr(self._list())
 
 
 def _path_groups(paths: list[list[int]]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -820,3 +900,200 @@ def make_tracks(
         Track(points=pt, id=0, score=score, point_scores=ps, batch=batch)
         for (score, _, _), pt, ps in zip(kept, points, point_scores, strict=True)
     ]
+
+
+def unique_links(
+    a_in: torch.Tensor, a_out: torch.Tensor, accepted: torch.Tensor | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per triple: the only accepted triple continuing it, and the only one leading into it.
+
+    What ``identify._extend_alone`` reads off ``identify._accepted_links`` (the accepted
+    triples by in-edge and by out-edge, one Python list per edge, built over every triple):
+    ``after[k]`` is the accepted triple whose in-edge is ``a_out[k]`` when there is exactly
+    one such triple, else -1; ``before[k]`` likewise the accepted triple whose out-edge is
+    ``a_in[k]``. Two counting passes over the edge ids instead of a dictionary of lists (about
+    15 ms per 640 x 512 window at 2 % clutter, 30 000 triples, against 1 ms).
+
+    Wiring: ``identify._extensions`` builds ``links = unique_links(a_in, a_out, accepted)``
+    for :func:`extend_alone` instead of ``_accepted_links`` for ``_extend_alone``.
+
+    Args:
+        a_in: ``(K,)`` int64 in-edge id of each triple (``>= 0``).
+        a_out: ``(K,)`` int64 out-edge id of each triple (``>= 0``).
+        accepted: ``(K,)`` bool, the accepted triples, or ``None`` (all).
+
+    Returns:
+        ``(after, before)``: ``(K,)`` int64 triple indices each (-1: none or several).
+
+    Examples:
+        >>> a_in, a_out = torch.tensor([0, 1, 1, 2]), torch.tensor([1, 2, 3, 4])
+        >>> [x.tolist() for x in unique_links(a_in, a_out, None)]  # 0: two continuations
+        [[-1, 3, -1, -1], [-1, 0, 0, 1]]
+    """
+    ai, ao = a_in.numpy(), a_out.numpy()
+    if ai.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    n_e = int(max(ai.max(), ao.max())) + 1
+    acc = np.arange(ai.size) if accepted is None else np.flatnonzero(accepted.numpy())
+    out: list[list[int]] = []
+    for by, at in ((ai, ao), (ao, ai)):  # (continuations: by in-edge, read at the out-edge)
+        only = np.full(n_e, -1, dtype=np.int64)
+        only[by[acc]] = acc  # one of the triples on each edge (the only one where count 1)
+        only[np.bincount(by[acc], minlength=n_e) != 1] = -1
+        out.append(only[at])  # read a few entries per lone track: no Python list of all
+    return out[0], out[1]
+
+
+def extend_alone(
+    path: list[int],
+    links: tuple[np.ndarray, np.ndarray],
+    a0: list[int] | np.ndarray,
+    a2: list[int] | np.ndarray,
+    root: list[bool],
+    point_tracks: dict[int, list[int]],
+) -> list[int]:
+    """``identify._extend_alone`` with the links of :func:`unique_links`: the same track.
+
+    At each end, while exactly one accepted triple continues the track (``after`` of its last
+    triple, ``before`` of its first) and its new point is an image point on no accepted track,
+    it is added.
+
+    Wiring: ``identify._extensions`` calls ``extend_alone(path, unique_links(...), ...)``
+    instead of ``_extend_alone(path, _accepted_links(...), ...)``.
+
+    Examples:
+        >>> a_in, a_out = torch.tensor([0, 1, 2, 3]), torch.tensor([1, 2, 3, 4])
+        >>> links = unique_links(a_in, a_out, None)
+        >>> a0, a2 = [0, 1, 2, 3], [2, 3, 4, 5]
+        >>> extend_alone([1], links, a0, a2, [True] * 6, {})
+        [0, 1, 2, 3]
+    """
+    after, before = links
+    path = list(path)  # triples move forward in time: an extension never meets the path
+    while True:
+        k = int(after[path[-1]])
+        if k < 0 or not root[q := int(a2[k])] or q in point_tracks:
+            break
+        path.append(k)
+    while True:
+        k = int(before[path[0]])
+        if k < 0 or not root[q := int(a0[k])] or q in point_tracks:
+            break
+        path.insert(0, k)
+    return path
+
+
+def beats_scorer(
+    p0: torch.Tensor,
+    p1: torch.Tensor,
+    p2: torch.Tensor,
+    s: torch.Tensor,
+    coords: torch.Tensor,
+    track_kw: dict[str, Any] | None,
+) -> Callable[[list[int], list[float]], bool]:
+    """``identify._beats`` for many paths of one scene: the same answers.
+
+    ``_beats(path, scores, ...)`` scores one path with ``_score_paths`` (the moves and point
+    scores of every triple of the scene are not needed, but its float moves and batch scoring
+    cost about 0.3 ms a call). The returned function scores the path as
+    :func:`score_paths_passing` does (the same bits as ``_score_paths``: the point scores read
+    from the half-pixel table, the row mean by ``torch.mean`` of the same ``(1, n)`` row), with
+    the triples' move codes computed once, on the first call; spans above 2 or long moves: the
+    reference.
+
+    Wiring: ``identify._extensions`` makes one ``beats = beats_scorer(p0, p1, p2, s, coords,
+    track_kw)`` and calls ``beats(sub, rivals)`` instead of ``_beats(sub, rivals, p0, p1, p2,
+    s, coords, track_kw)``.
+
+    Examples:
+        >>> coords = torch.tensor([[t, 2, 2 + t] for t in range(5)])
+        >>> p0, p1, p2 = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3]), torch.tensor([2, 3, 4])
+        >>> s = torch.tensor([3.0, 3.0, 3.0], dtype=torch.float64)
+        >>> beats = beats_scorer(p0, p1, p2, s, coords, None)
+        >>> beats([0, 1, 2], [2.9]), beats([0, 1, 2], [2.9, 3.0])
+        (True, False)
+    """
+    from hocnet.hoc.identify import _beats
+
+    span = track_kw["span"] if track_kw is not None else 0
+    state: dict[str, Any] = {}
+
+    def beats(path: list[int], scores: list[float]) -> bool:
+        if not path or (track_kw is not None and span > 2):
+            return _beats(path, scores, p0, p1, p2, s, coords, track_kw)
+        tri = np.asarray([path], dtype=np.int64)
+        if track_kw is None:
+            pscores = s[torch.from_numpy(tri)]
+        else:
+            if not state:
+                kw = {key: val for key, val in track_kw.items() if key != "span"}
+                m1c, m2c, reach = _triple_moves(coords, p0.numpy(), p1.numpy(), p2.numpy())
+                state["codes"] = None if reach is None else (m1c, m2c, reach)
+                state["table"] = None if reach is None else _score_table(kw, reach)
+            if state["codes"] is None:
+                return _beats(path, scores, p0, p1, p2, s, coords, track_kw)
+            table, codes = state["table"], state["codes"]
+            pscores = torch.from_numpy(_path_table_scores(table, codes, tri, span))
+        score = pscores.mean(dim=1).tolist()[0]
+        return all(score > other for other in scores)
+
+    return beats
+
+
+def path_points(
+    paths: list[list[int]], p0: torch.Tensor, p1: torch.Tensor, p2: torch.Tensor
+) -> list[list[int]]:
+    """The points of every chain of triples: ``[p0[c[0]], p1[c[0]], *(p2[k] for k in c)]``.
+
+    What ``identify._extensions`` builds per proposed track from Python lists of every
+    triple's points (three lists of 30 000 entries per 640 x 512 window at 2 % clutter, for a
+    few hundred chains): here one gather over the chains' triples.
+
+    Wiring: ``identify._extensions`` iterates ``zip(paths, path_points(paths, p0, p1, p2))``
+    instead of building each ``pts`` from ``p0.tolist()``, ``p1.tolist()``, ``p2.tolist()``.
+
+    Examples:
+        >>> p0, p1, p2 = torch.tensor([0, 1, 2]), torch.tensor([1, 2, 3]), torch.tensor([2, 3, 4])
+        >>> path_points([[0, 1], [2]], p0, p1, p2)
+        [[0, 1, 2, 3], [2, 3, 4]]
+    """
+    if not paths:
+        return []
+    lens = np.fromiter(map(len, paths), dtype=np.int64, count=len(paths))
+    tri = np.fromiter(chain.from_iterable(paths), dtype=np.int64, count=int(lens.sum()))
+    starts = np.cumsum(lens) - lens  # each chain's first triple in ``tri``
+    at = starts + 2 * np.arange(lens.size)  # each chain's first point in the output
+    out = np.empty(tri.size + 2 * lens.size, dtype=np.int64)
+    first = tri[starts]
+    out[at] = p0.numpy()[first]
+    out[at + 1] = p1.numpy()[first]
+    out[np.arange(tri.size) - np.repeat(starts, lens) + np.repeat(at + 2, lens)] = p2.numpy()[tri]
+    flat = out.tolist()
+    ends = np.cumsum(lens + 2).tolist()
+    return [flat[a:b] for a, b in zip([0, *ends[:-1]], ends, strict=True)]
+
+
+def mark_cleaned(cleaned: torch.Tensor, flat: torch.Tensor, point_lists: list[list[int]]) -> None:
+    """``cleaned[flat[points]] = True`` for every point of ``point_lists``, in place.
+
+    What ``identify._select_tracks`` does with the kept tracks' points
+    (``torch.tensor`` of a Python list of every point, then two torch indexing calls), with
+    one ``fromiter`` and NumPy views of the same buffers.
+
+    Wiring: ``identify._select_tracks`` calls ``mark_cleaned(cleaned, flat, [pts for _, pts in
+    tracks])``.
+
+    Examples:
+        >>> cleaned = torch.zeros(6, dtype=torch.bool)
+        >>> mark_cleaned(cleaned, torch.tensor([1, 3, 5]), [[0, 2], [2]])
+        >>> cleaned.nonzero().squeeze(1).tolist()
+        [1, 5]
+    """
+    n = sum(map(len, point_lists))
+    if n == 0:
+        return
+    kept = np.fromiter(chain.from_iterable(point_lists), dtype=np.int64, count=n)
+    if cleaned.is_contiguous() and flat.is_contiguous():
+        cleaned.numpy()[flat.numpy()[kept]] = True
+    else:
+        cleaned[flat[torch.from_numpy(kept)]] = True

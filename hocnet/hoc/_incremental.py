@@ -9,8 +9,6 @@ same order (each tested against the loop it replaces, ``tests/hoc/test_stream.py
 
 from __future__ import annotations
 
-from operator import itemgetter
-
 import numpy as np
 import torch
 
@@ -105,17 +103,12 @@ def enumerate_paths_vectorised(
         place = place[rep] + before[at] - before[first]
     if not done_paths:
         return PathList([], [])
-    rows: list[list[int]] = []
     groups = []
     for p, at in zip(done_paths, done_place, strict=True):
-        rows.extend(idx[p].tolist())  # one list per chain, its length that of its group
         sort = np.argsort(at)
         groups.append((at[sort], idx[p[sort]]))
-    perm = np.empty(len(rows), dtype=np.int64)  # the chain listed at each place
-    perm[np.concatenate(done_place)] = np.arange(len(rows))
-    if len(rows) == 1:
-        return PathList(rows, groups)
-    return PathList(list(itemgetter(*perm.tolist())(rows)), groups)
+    # the places are 0 .. n - 1, each once: the lists are built from the groups when asked for
+    return PathList(None, groups, sum(int(at.size) for at in done_place))
 
 
 def _chain_counts(
@@ -162,3 +155,68 @@ def _stable_argsort_values(x: np.ndarray) -> np.ndarray:
     if distinct.size <= 1 << 16:
         return np.argsort(rank.reshape(-1).astype(np.uint16), kind="stable")
     return np.argsort(x, kind="stable")
+
+
+def chain_clusters(
+    accepted: torch.Tensor, a_in: torch.Tensor, a_out: torch.Tensor, cap: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``identify._chain_clusters`` with the chain counts capped at ``cap``.
+
+    The same clusters, numbered the same way (by their first triple), and per cluster the
+    number of maximal chains when it is below ``cap``, else a number ``>= cap``: the counts per
+    triple come from :func:`_chain_counts` (NumPy, each capped at ``cap``) instead of a float
+    fixed point in torch. A cluster holding fewer than ``cap`` chains has no triple with
+    ``cap`` or more (each chain from a triple extends to a distinct chain of its cluster), so
+    its count is exact; one holding more has a capped start or an exact sum ``>= cap``. What
+    ``identify._enumerate_paths`` reads off the counts (the clusters whose running total, in
+    ascending count order, stays below ``max_candidates``, and that total) is therefore the
+    same with ``cap = max_candidates``.
+
+    Wiring: ``identify._enumerate_paths`` calls ``chain_clusters(accepted, a_in, a_out,
+    max_candidates)`` instead of ``_chain_clusters(accepted, a_in, a_out)``.
+
+    Args:
+        accepted: ``(K,)`` bool, the accepted triples.
+        a_in: ``(K,)`` int64 in-edge id of each triple (``>= 0``).
+        a_out: ``(K,)`` int64 out-edge id of each triple (``>= 0``; a directed acyclic graph).
+        cap: where the counts stop (``>= 1``).
+
+    Returns:
+        ``(cluster, count)``: ``(K_acc,)`` int64 cluster of each accepted triple (in index
+        order) and ``(C,)`` float64 chains per cluster (capped as above).
+
+    Examples:
+        >>> accepted = torch.tensor([True, True, True, True])
+        >>> a_in, a_out = torch.tensor([0, 1, 1, 5]), torch.tensor([1, 2, 3, 6])
+        >>> cluster, count = chain_clusters(accepted, a_in, a_out, 100)
+        >>> cluster.tolist(), count.tolist()
+        ([0, 0, 0, 1], [2.0, 1.0])
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    idx = np.flatnonzero(accepted.numpy())
+    if idx.size == 0:
+        return torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=torch.float64)
+    ai, ao = a_in.numpy()[idx], a_out.numpy()[idx]
+    k = idx.size
+    n_e = int(max(ai.max(), ao.max())) + 1
+    graph = coo_matrix((np.ones(k), (ai, ao)), shape=(n_e, n_e))
+    _, labels = connected_components(graph, directed=False)
+    raw = labels[ai]
+    # clusters numbered by their first triple (the reference's numbering)
+    first = np.full(int(labels.max()) + 1, k, dtype=np.int64)
+    np.minimum.at(first, raw, np.arange(k))
+    present = np.flatnonzero(first < k)
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[present[np.argsort(first[present])]] = np.arange(present.size)  # distinct: no ties
+    cluster = rank[raw]
+    fan = np.bincount(ai, minlength=n_e)[ao]
+    chains = _chain_counts(ai, ao, fan, n_e, cap)
+    ends_one = np.zeros(n_e, dtype=bool)
+    ends_one[ao] = True
+    is_start = ~ends_one[ai]
+    count = np.bincount(
+        cluster[is_start], weights=chains[is_start].astype(np.float64), minlength=present.size
+    )
+    return torch.from_numpy(cluster), torch.from_numpy(count)

@@ -1069,7 +1069,9 @@ def _enumerate_paths(
     fast = enumerate_paths_vectorised(accepted, a_in, a_out, s, max_candidates)
     if fast is not None:
         return fast, False
-    cluster, count = _chain_clusters(accepted, a_in, a_out)
+    from hocnet.hoc._incremental import chain_clusters  # _chain_clusters, counts capped
+
+    cluster, count = chain_clusters(accepted, a_in, a_out, max_candidates)
     n_c = count.numel()
     # smallest clusters first (ties: lower cluster label, i.e. first triple index, first)
     order = torch.argsort(count, stable=True)
@@ -1155,8 +1157,10 @@ def _enumerate_paths_loop(
     max_candidates: int,
 ) -> tuple[list[list[int]], bool]:
     """:func:`_enumerate_paths` as a depth-first loop (the reference, and the capped case)."""
-    idx = accepted.nonzero().squeeze(1).tolist()
-    ain, aout, sl = a_in.tolist(), a_out.tolist(), s.tolist()
+    idx_t = accepted.nonzero().squeeze(1)
+    idx = idx_t.tolist()
+    # per accepted triple only (the capped case passes the triples of a few clusters)
+    ain, aout, sl = (dict(zip(idx, x[idx_t].tolist(), strict=True)) for x in (a_in, a_out, s))
     succ: dict[int, list[int]] = {}
     ends_with: set[int] = set()
     for k in idx:
@@ -1245,14 +1249,15 @@ def _select_tracks(
             continue  # Case 1 (its points in the MHOC image) at a minority of its scans
         cands.append((score, len(pts), pts, pscores))
     cands.sort(key=lambda item: (-item[0], -item[1]))
-    covered: set[int] = set(cleaned[flat].nonzero().squeeze(1).tolist())
-    scan_of = coords[:, 0].tolist() if dedupe is not None else []
+    # NumPy views: the same indices without torch's per-call overhead
+    covered: set[int] = set(cleaned.numpy()[flat.numpy()].nonzero()[0].tolist())
+    scan_of = coords.numpy()[:, 0].tolist() if dedupe is not None else []
     xy: dict[int, list[int]] = {}  # (t, y, x) of the candidates' points: the only ones asked
     if dedupe is not None:
         need = sorted(
             {q for _, _, pts, _ in cands for q in pts} | {q for t in prior or [] for q in t}
         )
-        xy = dict(zip(need, coords[need].tolist(), strict=True))
+        xy = dict(zip(need, coords.numpy()[need].tolist(), strict=True))
     kept_scans: list[tuple[list[int], dict[int, int]]] = []
     kept_at: dict[int, list[int]] = {}  # point -> the kept tracks through it
     kept_items: list[tuple[float, list[int], list[float]]] = []
@@ -1291,9 +1296,7 @@ def _select_tracks(
     # Track objects only for the kept candidates, all in one go (as ``_make_track`` each)
     made = _fast.make_tracks(kept_items, coords, batch)
     tracks = [(track, pts) for track, (_, pts, _) in zip(made, kept_items, strict=True)]
-    if tracks:
-        kept = torch.tensor([q for _, pts in tracks for q in pts])
-        cleaned[flat[kept]] = True
+    _fast.mark_cleaned(cleaned, flat, [pts for _, pts in tracks])  # cleaned[flat[...]] = True
     return tracks
 
 
@@ -1741,29 +1744,29 @@ def _extensions(
     replaces an inner point of an accepted track (a detour) or shares nothing with one stays
     rejected.
     """
-    lost = is_root & ~cleaned[flat]
+    lost = torch.from_numpy(is_root.numpy() & ~cleaned.numpy()[flat.numpy()])  # NumPy views
     if not bool(lost.any()) or not tracks:
         return []
     paths = _fast.best_paths(n, p0, p1, p2, s, a_in, a_out, n_t, threshold, min_points, lost)
     if not paths:
         return []
     # tracks hold candidate points (indices into ``flat``): key them by index, not by coords
-    scan_of = coords[:, 0].tolist()
+    scan_of = coords.numpy()[:, 0].tolist()
     point_tracks: dict[int, list[int]] = {}
     scans: list[set[int]] = []
     for t_idx, (_, pts) in enumerate(tracks):
         scans.append({scan_of[q] for q in pts})
         for q in pts:
             point_tracks.setdefault(q, []).append(t_idx)
-    a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
-    root = is_root.tolist()
+    a0, a2 = p0.numpy(), p2.numpy()  # read at a few triples (``extend_alone``)
+    root = is_root.numpy().tolist()
     crossing = RESCUE_CROSSING if crossing is None else crossing
-    acc = [True] * p0.numel() if accepted is None else accepted.tolist()
+    acc = [True] * p0.numel() if accepted is None else accepted.numpy().tolist()
     out = []
     links = None
+    beats = None
     seen: set[tuple[int, ...]] = set()
-    for path in paths:
-        pts = [a0[path[0]], a1[path[0]]] + [a2[k] for k in path]
+    for path, pts in zip(paths, _fast.path_points(paths, p0, p1, p2), strict=True):
         shared = {ti for p in pts for ti in point_tracks.get(p, [])}
         if not shared:
             # a track of its own (e.g. one starting mid-window whose maximal chain is extended
@@ -1776,8 +1779,8 @@ def _extensions(
                 # a lone proposal too short on its own: extended along its unique accepted
                 # continuations (our addition, task h7part)
                 if links is None:
-                    links = _accepted_links(a_in.tolist(), a_out.tolist(), acc)
-                longer = _extend_alone(path, links, a0, a2, root, point_tracks)
+                    links = _fast.unique_links(a_in, a_out, accepted)
+                longer = _fast.extend_alone(path, links, a0, a2, root, point_tracks)
                 if len(longer) + 2 >= min_points + 1 and tuple(longer) not in seen:
                     seen.add(tuple(longer))
                     out.append(longer)
@@ -1804,9 +1807,9 @@ def _extensions(
             for part in _own_ends(pts, new, root, min_points):
                 sub = path[part.start : part.stop - 2]  # the triples of pts[part]
                 rivals = {ti for p in pts[part.start : part.stop] for ti in point_tracks.get(p, [])}
-                if all(acc[k] for k in sub) and _beats(
-                    sub, [tracks[ti][0].score for ti in rivals], p0, p1, p2, s, coords, track_kw
-                ):
+                if beats is None:
+                    beats = _fast.beats_scorer(p0, p1, p2, s, coords, track_kw)
+                if all(acc[k] for k in sub) and beats(sub, [tracks[ti][0].score for ti in rivals]):
                     out.append(sub)  # its own end point, on accepted tracks scoring lower
                     break
     return out
@@ -2042,7 +2045,7 @@ def _identify_sequences(
         )
 
     tracks = select(paths)
-    flat_l = flat.tolist()
+    flat_np = flat.numpy()
     if rescue:
         extra = _extensions(
             tracks,
@@ -2065,7 +2068,7 @@ def _identify_sequences(
         )
         tracks += select(extra, [pts for _, pts in tracks] if dedupe_rescued else None)
     # order by first point, then last point (t, y, x): the flat index orders (t, y, x)
-    kept = sorted(tracks, key=lambda item: (flat_l[item[1][0]], flat_l[item[1][-1]]))
+    kept = sorted(tracks, key=lambda item: (int(flat_np[item[1][0]]), int(flat_np[item[1][-1]])))
     out = [tr for tr, _ in kept]
     return out, scores_cube.reshape(n_t, h, w), cleaned.reshape(n_t, h, w), capped
 

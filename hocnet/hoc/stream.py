@@ -55,16 +55,29 @@ vectorised (:mod:`hocnet.hoc._incremental`, :mod:`hocnet.hoc._identify_fast`; sh
 ``detect``). The look-ups, joins and unions of a push work on NumPy views of the same buffers
 (the same integer results without torch's per-operation overhead).
 Where a push's time goes with ``support="chain"`` at 2 % clutter, order 2, 640 x 512 (process
-time per push, 40 pushes, wrappers around the functions, on the shared machine under load):
-of a 51 ms median push, 44 ms is the one identification call (``_select_tracks`` 11,
-``_extensions`` 9, ``_enumerate_paths`` 8, of which
-:func:`~hocnet.hoc._incremental.enumerate_paths_vectorised` 6, ``whole_sequence_rows`` 3) and
-7 ms the incremental HOC part above; the window holds about 30 000 candidate triples and
-about 20 000 maximal chains, at or near ``max_candidates``. Counting the chains before
-listing them (:func:`~hocnet.hoc._incremental.enumerate_paths_vectorised`), the
-block-count pre-check of :meth:`StreamingDetector._local_points` and the conflict-free path
-of :meth:`StreamingDetector._associate` saved 1.7 ms of a 62 ms push (median of paired
-old/new pushes on the same scans in one process, load average about 11).
+time per push, 40 pushes, wrappers around the functions, on the shared machine at load 1-5):
+of a 43 ms median push, 35 ms is the one identification call (``_select_tracks`` 10,
+``_extensions`` 9 of which :func:`~hocnet.hoc._identify_fast.best_paths` 4.5,
+``_enumerate_paths`` 4, ``whole_sequence_rows`` 3, ``_triple_scores`` 1.5, ``_edge_ids`` 1)
+and 8 ms the incremental HOC part above; the window holds about 30 000 candidate triples and
+about 20 000 maximal chains, at or near ``max_candidates`` (5 of 31 windows of seed 0 over
+it). Two rounds of work on it, each measured as the median of paired old/new pushes on the
+same scans in one process: counting the chains before listing them
+(:func:`~hocnet.hoc._incremental.enumerate_paths_vectorised`), the block-count pre-check of
+:meth:`StreamingDetector._local_points` and the conflict-free path of
+:meth:`StreamingDetector._associate` saved 1.7 ms of a 62 ms push (load about 11); then
+(task h7speed) the lone-track extension's links as two arrays instead of a dictionary of
+lists over every triple (:func:`~hocnet.hoc._identify_fast.unique_links`, about 15 ms), one
+scorer for the track-end proposals (:func:`~hocnet.hoc._identify_fast.beats_scorer`), the
+chains' Python lists built only when read (:class:`~hocnet.hoc._identify_fast.PathList`), the
+over-cap clusters counted in NumPy (:func:`~hocnet.hoc._incremental.chain_clusters`), the
+first maximum of ``best_paths`` by row reductions, and a few NumPy views in place of
+``tolist`` of every triple: 72.8 -> 45.7 ms per push (41 pushes, load about 2; 5.7x -> 3.6x
+the max-pool floor in process time), every window equal to the old code's. Not cached across
+pushes, though the root scans' triples are: their scores (``identify._triple_scores`` scores
+them in one contiguous batch, whose SIMD blocks and element-wise tail differ in the last bit,
+see :func:`~hocnet.hoc._identify_fast._score_table`, so a score depends on the batch it is
+computed in) and what is built on them (edge ids, whole-sequence rows).
 What still scales with the window's area: the float64 ``scores`` cube of the result (26 MB,
 NaN-filled, for 10 x 512 x 640) and the bool cubes of the result. Python's cyclic garbage
 collector is paused during a push (:func:`_gc_paused`). Measured on a 640 x 512 sensor:

@@ -185,7 +185,28 @@ def _unwired() -> SimpleNamespace:
         best = ident._group_best_sorted(c_idx, key_rows, k)
         return left_t[best], right_t[best], key_rows[best]
 
+    def unique_links(a_in, a_out, accepted):
+        acc = [True] * a_in.numel() if accepted is None else accepted.tolist()
+        return ident._accepted_links(a_in.tolist(), a_out.tolist(), acc)
+
+    def beats_scorer(p0, p1, p2, s, coords, track_kw):
+        return lambda path, scores: ident._beats(path, scores, p0, p1, p2, s, coords, track_kw)
+
+    def path_points(paths, p0, p1, p2):
+        a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
+        return [[a0[path[0]], a1[path[0]]] + [a2[k] for k in path] for path in paths]
+
+    def mark_cleaned(cleaned, flat, point_lists):
+        if point_lists:
+            kept = torch.tensor([q for pts in point_lists for q in pts])
+            cleaned[flat[kept]] = True
+
     return SimpleNamespace(
+        mark_cleaned=mark_cleaned,
+        path_points=path_points,
+        unique_links=unique_links,
+        extend_alone=ident._extend_alone,
+        beats_scorer=beats_scorer,
         score_paths_passing=score_paths_passing,
         kept_sharing_a_point=kept_sharing_a_point,
         make_tracks=make_tracks,
@@ -310,7 +331,9 @@ def test_whole_sequence_rows_equal_identify(seed, v):
 def test_fill_scores_equals_identify(seed):
     flat, p0, p1, p2, s, *_ = _scene(seed, density=0.06)
     size = 8 * 24 * 24
-    for values in (s, torch.full_like(s, 3.0)):  # ties too
+    holes = s.clone()
+    holes[::3] = math.nan  # NaN maxima are skipped: the next pass writes
+    for values in (s, torch.full_like(s, 3.0), holes):  # ties too
         want = torch.full((size,), math.nan, dtype=torch.float64)
         got = want.clone()
         want[flat[:5]] = 1.5  # points already holding a score keep it
@@ -382,3 +405,103 @@ def test_best_paths_non_finite_scores_use_the_reference():
         s2[::7] = bad
         args = (n, p0, p1, p2, s2, a_in, a_out, 8, 2.5, 5, points)
         assert fast.best_paths(*args) == ident._best_paths(*args)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_extend_alone_equals_identify(seed):
+    """`extend_alone` on `unique_links` == `_extend_alone` on `_accepted_links`, every triple."""
+    _, p0, _, p2, _, a_in, a_out, _, _, gen = _scene(seed, density=0.03 + 0.01 * (seed % 4))
+    k = p0.numel()
+    n = int(torch.maximum(p0.max(), p2.max())) + 1
+    a0, a2 = p0.tolist(), p2.tolist()
+    grown = 0
+    for frac in (1.0, 0.6, 0.3):
+        accepted = None if frac == 1.0 else torch.rand(k, generator=gen) < frac
+        acc = [True] * k if accepted is None else accepted.tolist()
+        ref_links = ident._accepted_links(a_in.tolist(), a_out.tolist(), acc)
+        links = fast.unique_links(a_in, a_out, accepted)
+        root = (torch.rand(n, generator=gen) < 0.8).tolist()
+        on_tracks = torch.randperm(n, generator=gen)[: n // 10].tolist()
+        point_tracks = {q: [0] for q in on_tracks}
+        for j in range(k):
+            want = ident._extend_alone([j], ref_links, a0, a2, root, point_tracks)
+            assert fast.extend_alone([j], links, a0, a2, root, point_tracks) == want
+            grown += len(want) > 1
+    assert grown > 0  # tracks were extended: not vacuous
+
+
+def test_unique_links_empty_and_none():
+    empty = torch.zeros(0, dtype=torch.long)
+    assert [x.tolist() for x in fast.unique_links(empty, empty, None)] == [[], []]
+    a_in, a_out = torch.tensor([0, 1, 1]), torch.tensor([1, 2, 3])
+    none = torch.zeros(3, dtype=torch.bool)
+    assert [x.tolist() for x in fast.unique_links(a_in, a_out, none)] == [[-1] * 3] * 2
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("span", [None, 1, 2, 3])
+def test_beats_scorer_equals_identify(seed, span):
+    """The same answers as `_beats`, at the path's own score (the same bits) and around it."""
+    _, p0, p1, p2, s, a_in, a_out, coords, kw, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.7
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    track_kw = None if span is None else {**kw, "span": span}
+    beats = fast.beats_scorer(p0, p1, p2, s, coords, track_kw)
+    answers = []
+    for path in list(paths)[:200]:
+        [(score, _, _)] = ident._score_paths([path], p0, p1, p2, s, coords, 0, track_kw)
+        below = math.nextafter(score, -math.inf)
+        for rivals in ([], [score], [below], [below, score], [score - 1.0, below]):
+            want = ident._beats(path, rivals, p0, p1, p2, s, coords, track_kw)
+            assert beats(path, rivals) == want
+            answers.append(want)
+    assert any(answers) and not all(answers)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_path_list_is_lazy_and_adds_as_a_list(seed):
+    """A PathList equals its plain list before and after `+`, and `+` keeps the groups."""
+    _, p0, p1, p2, s, a_in, a_out, coords, _, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.8
+    paths, _ = ident._enumerate_paths(accepted, a_in, a_out, s, 20000)
+    assert isinstance(paths, fast.PathList) and paths._rows is None  # nothing built yet
+    plain = ident._enumerate_paths_loop(accepted, a_in, a_out, s, 20000)[0]
+    assert len(paths) == len(plain) > 2
+    tail, nothing = plain[:2], []
+    for other in (tail, fast.PathList(tail, fast._path_groups(tail)), []):
+        joined = paths + other
+        assert isinstance(joined, fast.PathList) and joined == plain + list(other)
+        assert nothing + joined == plain + list(other) and list(joined) == plain + list(other)
+        args = (p0, p1, p2, s, coords, 4, None, 2.0)
+        got = fast.score_paths_passing(joined, *args)
+        assert got == fast.score_paths_passing(plain + list(other), *args) and got
+    assert paths == plain and paths[0] == plain[0] and paths != plain[1:]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_path_points_equals_the_loop(seed):
+    _, p0, p1, p2, s, a_in, a_out, _, _, gen = _scene(seed, density=0.06)
+    accepted = torch.rand(p0.numel(), generator=gen) < 0.8
+    paths = list(ident._enumerate_paths(accepted, a_in, a_out, s, 20000)[0])
+    assert len(paths) > 1
+    a0, a1, a2 = p0.tolist(), p1.tolist(), p2.tolist()
+    want = [[a0[c[0]], a1[c[0]]] + [a2[k] for k in c] for c in paths]
+    got = fast.path_points(paths, p0, p1, p2)
+    assert got == want and all(type(q) is int for q in got[0])
+    assert fast.path_points([], p0, p1, p2) == []
+
+
+def test_mark_cleaned_equals_indexing():
+    gen = torch.Generator().manual_seed(0)
+    flat = torch.randperm(500, generator=gen)[:120].sort().values
+    lists = [torch.randint(0, 120, (int(n),), generator=gen).tolist() for n in (5, 7, 0, 3)]
+    want = torch.zeros(500, dtype=torch.bool)
+    want[flat[torch.tensor([q for pts in lists for q in pts])]] = True
+    got = torch.zeros(500, dtype=torch.bool)
+    fast.mark_cleaned(got, flat, lists)
+    assert torch.equal(got, want) and bool(want.any())
+    strided = torch.zeros(1000, dtype=torch.bool)[::2]  # a view: the torch indexing path
+    fast.mark_cleaned(strided, flat, lists)
+    assert torch.equal(strided, want)
+    fast.mark_cleaned(got, flat, [[], []])  # nothing to mark
+    assert torch.equal(got, want)

@@ -685,6 +685,29 @@ class TestLatencyPathsEqualBatch:
             got = _chain_counts(a_in, a_out, fan, n_e, cap).tolist()
             assert got == [min(w, cap) for w in want]
 
+    @pytest.mark.parametrize("seed", range(20))
+    def test_chain_clusters_equals_identify(self, seed):
+        """The same clusters as ``_chain_clusters``; the counts equal below the cap, else >= it."""
+        from hocnet.hoc._incremental import chain_clusters
+        from hocnet.hoc.identify import _chain_clusters
+
+        gen = torch.Generator().manual_seed(300 + seed)
+        k = int(torch.randint(0, 300, (1,), generator=gen))
+        a_in = torch.randint(0, 60, (k,), generator=gen)
+        a_out = a_in + torch.randint(1, 4, (k,), generator=gen)
+        accepted = torch.rand(k, generator=gen) < 0.7
+        want_c, want_n = _chain_clusters(accepted, a_in, a_out)
+        capped_once = False
+        for cap in (1, 5, 40, 10**9):
+            got_c, got_n = chain_clusters(accepted, a_in, a_out, cap)
+            assert got_c.dtype == torch.long and got_n.dtype == torch.float64
+            assert torch.equal(got_c, want_c)
+            exact = want_n < cap
+            assert torch.equal(got_n[exact], want_n[exact])
+            assert bool((got_n[~exact] >= cap).all())
+            capped_once |= bool((~exact).any())
+        assert k == 0 or capped_once
+
     @pytest.mark.parametrize("distinct", [1, 9, 70000])
     def test_stable_argsort_values_equals_numpy(self, distinct):
         from hocnet.hoc._incremental import _stable_argsort_values
