@@ -97,7 +97,7 @@ class TestTable3:
         rows = check_outputs("hoc-table3", md, tmp_path)
         configs = len(module.CONFIGS) + len(module.ORDER3_CONFIGS)
         assert len(rows) == len(module.SCENES) * 2 * configs
-        assert {r["scene"] for r in rows} == {"table3-paper", "table3-int"}
+        assert {r["scene"] for r in rows} == {"table3-paper", "table3-int", "table3"}
         # the default (whole-sequence score) loses no target point on either variant
         assert all(
             int(r["id_target_lost"]) == 0
@@ -106,11 +106,20 @@ class TestTable3:
         )
         values = rejection_columns(rows)
         assert values and all(0.0 <= v <= 1.0 for v in values)
-        for label in range(1, 4):  # every true track evaluated (>= 5 points)
-            assert all(r[f"found_T{label}"] in ("0", "1") for r in rows)
+        for row in rows:  # every true track of the row's scene evaluated (>= 2k + 1 points)
+            labels = module.TRACK_NAMES[row["scene"]]
+            assert all(row[f"found_T{label}"] in ("0", "1") for label in labels)
+            others = [row.get(f"found_T{i}", "") for i in range(1, 6) if i not in labels]
+            assert all(flag == "" for flag in others)
+        # the harder scene's extra rows: four tracks plus the branch, all found at k = 2
+        harder = [r for r in rows if r["scene"] == "table3" and r["order"] == "2"]
+        assert harder and all(int(r["input_target"]) == 45 for r in harder)
+        assert all(int(r["true_found"]) == 5 for r in harder if r["config"] == "paper")
         text = md.read_text()
         assert "[LA98] as printed | 78.67 | 97.46" in text
         assert "chain support (`support='chain'`" in text and "scene-to-scene spread" in text
+        assert "## `table3`, order k = 2" in text and "true tracks found (of 5)" in text
+        assert "- Command: `OMP_NUM_THREADS=1 python experiments/hoc_table3.py --quick`" in text
 
     @pytest.mark.slow
     def test_full(self, tmp_path):
@@ -203,8 +212,11 @@ def paper_columns(name: str, seeds: list[int]) -> dict[float, tuple[float, float
 CLAIMED = {
     # (experiment, column): the densities where our mean over 20 scenes is within 1 point of
     # the printed value (full runs, experiments/results/hoc-table2.md / hoc-table3.md). Not
-    # claimed: Table II MHOC at 2.0 % (ours 79.4 %, printed 75.44 %: its own counts give
-    # 75.44 %, the gap is open), reported in the results files only.
+    # claimed: Table II MHOC at 2.0 % (ours 79.41 %, printed 75.44 %; its own counts give
+    # 75.44 %), measured to lie outside the paper's stated set-up
+    # (experiments/results/hoc-table2-gap.md: our eq. (5)-(6) needs 2.13 % clutter to reach
+    # 75.44 %, and none of 200 random 2.0 % scenes does, minimum 77.80 %), reported in the
+    # results files only.
     ("hoc-table2", "hoc"): (0.008, 0.011, 0.014, 0.017),
     ("hoc-table2", "id"): (0.008, 0.011, 0.014, 0.017, 0.020),
     ("hoc-table3", "hoc"): (0.008, 0.014, 0.020),
@@ -224,9 +236,11 @@ RESULTS = pathlib.Path(__file__).resolve().parents[2] / "experiments" / "results
 
 
 def test_full_std_is_the_committed_runs_std():
-    # FULL_STD sets the tolerance of the fast test below: it must be the scene-to-scene std of
-    # the committed full runs (rerun an experiment -> update FULL_STD; issue 7 audit: the
-    # Table III identification row had drifted, 0.74 / 0.86 / 1.71 against 0.85 / 0.94 / 1.77)
+    # FULL_STD sets the tolerance of the fast Table II test below (Table III runs its full 20
+    # seeds in the default suite; its rows here check that the committed run has not drifted):
+    # it must be the scene-to-scene std of the committed full runs (rerun an experiment ->
+    # update FULL_STD; issue 7 audit: the Table III identification row had drifted, 0.74 /
+    # 0.86 / 1.71 against 0.85 / 0.94 / 1.77)
     import statistics
 
     for (name, column), per_density in FULL_STD.items():
@@ -244,8 +258,10 @@ def test_full_std_is_the_committed_runs_std():
             assert round(statistics.stdev(values), 2) == want, (name, column, density)
 
 
-FAST_SEEDS = {"hoc-table2": 2, "hoc-table3": 4}
-"""Scenes per density of the fast test (the first seeds of the full run)."""
+FAST_SEEDS = {"hoc-table2": 2}
+"""Scenes per density of the fast Table II test (the first seeds of the full run). Table III
+has no reduced test: its full 20 seeds take about a second, and a 4-seed test would allow
+1 + 3 * 4.53 / sqrt(4) = 7.8 points at 2.0 % MHOC."""
 
 
 def check_claims(name: str, ours: dict, tolerance) -> None:
@@ -260,7 +276,7 @@ def check_claims(name: str, ours: dict, tolerance) -> None:
 class TestPrintedValues:
     """Tables II and III of [LA98]: our columns against the printed ones ("within a point")."""
 
-    @pytest.mark.parametrize("name", ["hoc-table2", "hoc-table3"])
+    @pytest.mark.parametrize("name", ["hoc-table2"])
     def test_reduced_seeds(self, name):
         # the mean of n scenes scatters around the 20-scene mean by std / sqrt(n): allow the
         # claimed 1 point plus 3 standard errors (std measured in the full run)
@@ -273,8 +289,10 @@ class TestPrintedValues:
 
         check_claims(name, ours, tolerance)
 
-    @pytest.mark.slow
-    @pytest.mark.parametrize("name", ["hoc-table2", "hoc-table3"])
+    @pytest.mark.parametrize(
+        "name",
+        [pytest.param("hoc-table2", marks=pytest.mark.slow), "hoc-table3"],  # Table III: ~1 s
+    )
     def test_full_configuration(self, name):
         module = load(name)
         ours = paper_columns(name, [module.SEED_BASE + i for i in range(20)])
