@@ -49,13 +49,14 @@ The paper's procedure (``method="paper"``, the default; our reading of section I
    differs at two scans when the kept track wins at both, unless one of its differing points
    is an image point on no kept track and next to (8-connected) the kept track's point there:
    at a crossing that is the other track's own point (measured: without this guard, 1 target
-   point lost in 120 hard-case scenes). Measured with ``combine="min", score_span=2``
-   (``dedupe=True`` -> ``2``): Table II seeds 2000-2003, 45.6 -> 45.0 tracks per scene; Table
-   III seeds 3000-3019, 7.73 -> 7.40 (``table3-paper``) and 7.05 -> 6.63 (``table3-int``);
-   the harder ``table3`` preset (seeds 0-9), 11.0 -> 10.0; 120 hard-case scenes, 7.51 ->
-   6.99; no additional target point lost with the default point score, clutter rejection
-   equal or better (with ``combine="min", score_span=1``, which already loses target points
-   of alternating tracks, ``dedupe=2`` lost 4 more on Table III: 42 -> 46). With shared
+   point lost in 120 hard-case scenes). Measured with today's other defaults, ``dedupe=1``
+   -> ``2``, tracks per scene: Table II seeds 2000-2019 at 0.8-2.0 %, 44.76 -> 44.74; Table
+   III seeds 3000-3019 at 0.8 / 1.4 / 2.0 %, 9.77 -> 9.77 (``table3-paper``), 9.52 -> 9.50
+   (``table3-int``), 15.20 -> 15.10 (the harder ``table3`` preset); 120 hard-case scenes
+   (seeds 7000-7119), 9.03 -> 8.98, clutter rejection 98.30 -> 98.33 %; no target point lost
+   by either (with ``score_span=1``, which loses target points of alternating tracks: 29 ->
+   29 on ``table3-paper``). Today ``dedupe=2`` changes little (7.73 -> 7.40 on
+   ``table3-paper`` when it came in, with the identification of that time). With shared
    points, a candidate may mix two kept tracks plus a clutter point of its own: its points on
    other kept tracks are then not counted as differences (``explained``), so it is judged at
    its own points only (measured, ``table3-paper`` seeds 3000-3005, shared points without ->
