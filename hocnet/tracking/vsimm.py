@@ -649,6 +649,20 @@ def junction_transition(
     c = (w * u).sum(-1)
     s = w[..., 0] * u[..., 1] - w[..., 1] * u[..., 0]
     R = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, r, 2, 2)
+    T, b = _rotate_about(R, J, ok, T, b)
+    return T, b
+
+
+def _rotate_about(
+    R: torch.Tensor, J: torch.Tensor, ok: torch.Tensor, T: torch.Tensor, b: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Affine map ``x -> T x + b`` rotating positions about the node ``J`` and velocities by ``R``.
+
+    ``R``: ``(B, r, 2, 2)`` rotations, ``J``: ``(B, r, 2)`` nodes (m), ``ok``: ``(B, r)`` bool;
+    state order ``[x, vx, y, vy]``. Rows where ``ok`` is false keep the given ``T`` ``(B, r, 4, 4)``
+    and ``b`` ``(B, r, 4)``. Shared by :func:`junction_transition` and its inverse.
+    """
+    B, r = ok.shape
     Tr = torch.zeros(B, r, 4, 4, dtype=DTYPE)
     pos, vel = [0, 2], [1, 3]
     for a in range(2):
@@ -657,9 +671,7 @@ def junction_transition(
             Tr[..., vel[a], vel[k]] = R[..., a, k]
     br = torch.zeros(B, r, 4, dtype=DTYPE)
     br[..., pos] = J - (R @ J.unsqueeze(-1)).squeeze(-1)
-    T = torch.where(ok[..., None, None], Tr, T)
-    b = torch.where(ok[..., None], br, b)
-    return T, b
+    return torch.where(ok[..., None, None], Tr, T), torch.where(ok[..., None], br, b)
 
 
 def node_ahead(
@@ -1792,16 +1804,7 @@ def _junction_inverse(
     c = -(u * w).sum(-1)  # rotation taking u to -w
     s = -(u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0])
     R = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)
-    Tr = torch.zeros(B, r, 4, 4, dtype=DTYPE)
-    pos, vel = [0, 2], [1, 3]
-    for a in range(2):
-        for k in range(2):
-            Tr[..., pos[a], pos[k]] = R[..., a, k]
-            Tr[..., vel[a], vel[k]] = R[..., a, k]
-    br = torch.zeros(B, r, 4, dtype=DTYPE)
-    br[..., pos] = J - (R @ J.unsqueeze(-1)).squeeze(-1)
-    T = torch.where(ok[..., None, None], Tr, T)
-    b = torch.where(ok[..., None], br, b)
+    T, b = _rotate_about(R, J, ok, T, b)
     return T, b, ok
 
 
