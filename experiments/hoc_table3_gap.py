@@ -13,6 +13,10 @@ This script measures:
    detour, a chain zig-zagging between close tracks), (c) on a *false* track (< 50 % target
    points). A point on several tracks counts once, in the first class that holds it (a, b, c).
    Also the scores of the three kinds of track (how far above the 2.5 threshold).
+   **1b.** The same on Table II (``paper_scene("table2", ...)``, seeds 2000-2019, 0.8-2.0 %,
+   whose identification column is also below the paper at 1.1-2.0 %), beside the paper's
+   one-scene counts: the clutter into identification (MHOC image) and the fraction of it kept,
+   and the false tracks by length and score.
 2. **Readings of section III-B** that could remove them, each an opt-in keyword of
    ``hocnet.hoc.detect`` / ``identify_tracks`` (or an existing parameter), measured side by side on
    Table III (20 seeds, 3 densities), Table II (``paper_scene("table2", ...)``, seeds
@@ -24,8 +28,8 @@ This script measures:
 
 Run: ``OMP_NUM_THREADS=1 python experiments/hoc_table3_gap.py [--quick] [--seeds N] [--out DIR]``.
 A full run writes ``experiments/results/hoc-table3-gap.md``; ``--quick`` (one seed, 2.0 %, three
-readings, a few hard-case scenes) prints a smoke version and writes nothing unless ``--out`` is
-given.
+readings, a few hard-case scenes, Table II at 2.0 % too) prints a smoke version and writes
+nothing unless ``--out`` is given.
 """
 
 from __future__ import annotations
@@ -74,6 +78,12 @@ PAPER_CLUTTER_IN = {0.008: 289, 0.014: 507, 0.02: 708}
 """[LA98] Table III, clutter points per scene in the input (total - 30)."""
 PAPER_T2_ID = {0.008: 99.91, 0.011: 99.90, 0.014: 99.96, 0.017: 99.64, 0.02: 98.31}
 """[LA98] Table II, clutter rejection after track identification (%), as printed."""
+PAPER_T2_ID_CLUTTER = {0.008: 1, 0.011: 19, 0.014: 9, 0.017: 103, 0.02: 558}
+"""[LA98] Table II, clutter points kept after identification (points remained - 20, one scene)."""
+PAPER_T2_MHOC_CLUTTER = {0.008: 58, 0.011: 490, 0.014: 1386, 0.017: 3558, 0.02: 8119}
+"""[LA98] Table II, clutter points in the MHOC image (points remained after HOC - 20)."""
+PAPER_T2_CLUTTER_IN = {0.008: 13310, 0.011: 18260, 0.014: 23080, 0.017: 28280, 0.02: 33060}
+"""[LA98] Table II, clutter points in the input (total number of points - 20)."""
 
 READINGS: dict[str, tuple[dict[str, Any], str]] = {
     "default": ({}, "`detect` defaults (min, span 2, dedupe=2, shared points, track ends)"),
@@ -359,7 +369,11 @@ def table3_rows(
 def table2_rows(
     densities: Sequence[float], seeds: Sequence[int], readings: Sequence[str], progress: bool
 ) -> list[dict]:
-    """One row per (density, seed, reading) on the Table II scenes (``paper_scene("table2")``)."""
+    """One row per (density, seed, reading) on the Table II scenes (``paper_scene("table2")``).
+
+    Each row also holds the classification of the kept clutter points (:func:`classify`) and
+    the clutter points of the MHOC image (``mhoc_clutter``), as :func:`table3_rows`.
+    """
     rows = []
     jobs = [(d, s) for d in densities for s in seeds]
     for d, s in C.progress(jobs, enabled=progress, desc=f"{NAME} table2"):
@@ -368,15 +382,24 @@ def table2_rows(
         n_clutter = int((scene.cube & ~target).sum())
         for name in readings:
             res = _detect(scene.cube, **READINGS[name][0])
+            count, tracks = classify(scene.cube, target, scene.tracks, res)
             kept = int((res.cleaned & ~target).sum())
             rows.append(
                 {
                     "density": d,
                     "seed": s,
+                    "config": "two tracks",
                     "reading": name,
+                    "clutter_in": n_clutter,
                     "clutter_kept": kept,
+                    "mhoc_clutter": int((res.support & ~target).sum()),
                     "rejection": 100 * (n_clutter - kept) / n_clutter,
                     "lost": int((target & ~res.cleaned).sum()),
+                    "a": count["a"],
+                    "b": count["b"],
+                    "c": count["c"],
+                    **{f"b:{how}": count[f"b:{how}"] for how in OTHER_KINDS},
+                    "tracks": tracks,
                 }
             )
     return rows
@@ -472,6 +495,115 @@ def _classification_table(rows: list[dict], densities: Sequence[float], reading:
                     PAPER_ID_CLUTTER[d] if cfg == "all" and d in PAPER_ID_CLUTTER else "",
                 ]
             )
+    return C.md_table(headers, body)
+
+
+def _table2_classification_table(rows: list[dict], densities: Sequence[float]) -> str:
+    """Table II: kept clutter by class per density, beside the paper's one-scene count."""
+    headers = [
+        "density",
+        "scenes",
+        "kept clutter / scene",
+        "min - max",
+        "[LA98] kept clutter (one scene)",
+        "our scenes at or below [LA98]",
+        "(a) on a true track's match",
+        "(b) on other tracks",
+        "(c) on false tracks",
+        *(f"(b) of which {how}" for how in OTHER_KINDS),
+        "false tracks / scene",
+        "ours without (c) (%)",
+        "ours (%)",
+        "[LA98] (%)",
+    ]
+    body = []
+    for d in densities:
+        sel = _sel(rows, density=d, reading="default")
+        if not sel:
+            continue
+        n = len(sel)
+        kept = [r["clutter_kept"] for r in sel]
+        no_c = [100 * (r["clutter_in"] - r["a"] - r["b"]) / r["clutter_in"] for r in sel]
+        body.append(
+            [
+                C.pct(d, 1),
+                n,
+                C.mean_std(kept, 1),
+                f"{min(kept)} - {max(kept)}",
+                PAPER_T2_ID_CLUTTER[d],
+                f"{sum(k <= PAPER_T2_ID_CLUTTER[d] for k in kept)} of {n}",
+                *(f"{sum(r[k] for r in sel)} ({sum(r[k] for r in sel) / n:.2f})" for k in "abc"),
+                *(str(sum(r[f"b:{how}"] for r in sel)) for how in OTHER_KINDS),
+                f"{sum(k == 'c' for r in sel for k, _, _ in r['tracks']) / n:.2f}",
+                C.mean_std(no_c, 2),
+                C.mean_std([r["rejection"] for r in sel], 2),
+                f"{PAPER_T2_ID[d]:.2f}",
+            ]
+        )
+    return C.md_table(headers, body)
+
+
+def _table2_ratio_table(rows: list[dict], densities: Sequence[float]) -> str:
+    """Table II: clutter into and out of identification, ours against the paper's counts."""
+    headers = [
+        "density",
+        "MHOC clutter / scene",
+        "[LA98] MHOC clutter",
+        "kept / MHOC clutter (%)",
+        "[LA98] kept / MHOC clutter (%)",
+        "our scenes at or below [LA98]'s fraction",
+    ]
+    body = []
+    for d in densities:
+        sel = _sel(rows, density=d, reading="default")
+        if not sel:
+            continue
+        frac = [100 * r["clutter_kept"] / max(r["mhoc_clutter"], 1) for r in sel]
+        paper = 100 * PAPER_T2_ID_CLUTTER[d] / PAPER_T2_MHOC_CLUTTER[d]
+        body.append(
+            [
+                C.pct(d, 1),
+                C.mean_std([r["mhoc_clutter"] for r in sel], 1),
+                PAPER_T2_MHOC_CLUTTER[d],
+                C.mean_std(frac, 2),
+                f"{paper:.2f}",
+                f"{sum(f <= paper + 1e-9 for f in frac)} of {len(sel)}",
+            ]
+        )
+    return C.md_table(headers, body)
+
+
+def _false_length_table(rows: list[dict], densities: Sequence[float]) -> str:
+    """False tracks by length and at the threshold, and what each group holds."""
+    groups = (("5", 5, 5), ("6", 6, 6), ("7", 7, 7), ("8-10", 8, 10))
+    headers = [
+        "density",
+        "false tracks",
+        *(f"{name} points" for name, _, _ in groups),
+        "score exactly 2.5",
+        "points on false tracks",
+        "of them on tracks of 5-6 points",
+    ]
+    body = []
+    for d in densities:
+        tracks = [
+            (s, n)
+            for r in _sel(rows, density=d, reading="default")
+            for k, s, n in r["tracks"]
+            if k == "c"
+        ]
+        points = sum(n for _, n in tracks)
+        short = sum(n for _, n in tracks if n <= 6)
+        body.append(
+            [
+                C.pct(d, 1),
+                len(tracks),
+                *(sum(lo <= n <= hi for _, n in tracks) for _, lo, hi in groups),
+                sum(abs(s - 2.5) < 1e-9 for s, _ in tracks),
+                points,
+                f"{short} ({100 * short / max(points, 1):.0f} %)",
+            ]
+        )
     return C.md_table(headers, body)
 
 
@@ -588,6 +720,13 @@ def _findings(
             C.mean([r["rejection"] for r in _sel(t3, density=d, reading=name)]) for d in densities
         ]
         gaps = " / ".join(f"{m - PAPER_ID[d]:+.2f}" for m, d in zip(means, densities, strict=True))
+        t2_d = sorted({r["density"] for r in t2})
+        t2_means = [
+            C.mean([r["rejection"] for r in _sel(t2, density=d, reading=name)]) for d in t2_d
+        ]
+        t2_gaps = " / ".join(
+            f"{m - PAPER_T2_ID[d]:+.2f}" for m, d in zip(t2_means, t2_d, strict=True)
+        )
         costs = [f"{k} {v}" for k, v in lost.items() if v]
         if extra > 0:
             costs.append(f"partial tracks {extra:+d} against the default")
@@ -599,9 +738,11 @@ def _findings(
         )
         reached = all(m >= PAPER_ID[d] - 1e-9 for m, d in zip(means, densities, strict=True))
         where = ", ".join(C.pct(d, 1) for d in densities)
+        t2_where = ", ".join(C.pct(d, 1) for d in t2_d)
+        t2_text = f"Table II minus [LA98] {t2_gaps} points ({t2_where}); " if t2_d else ""
         lines.append(
-            f"- `{name}`: Table III minus [LA98] {gaps} points ({where}); "
-            f"{verdict}{'; at or above the paper at every density' if reached else ''}."
+            f"- `{name}`: Table III minus [LA98] {gaps} points ({where}); {t2_text}"
+            f"{verdict}{'; at or above the paper at every Table III density' if reached else ''}."
         )
     return lines
 
@@ -654,6 +795,30 @@ def build_report(
         "",
         _score_table(t3, densities, "default"),
         "",
+        "## 1b. Where the kept clutter points are: Table II (`detect` defaults)",
+        "",
+        "The same classification on the Table II scenes (two isolated 10-point tracks, 520 x 320 "
+        "x 10, `paper_scene('table2', density, seed)`); the paper prints one scene per density "
+        "(kept clutter = its points remained after identification - 20). *Ours without (c)* = "
+        "the clutter rejection if no false track were accepted (only the (a) and (b) points "
+        "kept).",
+        "",
+        _table2_classification_table(t2, t2_densities) if t2 else "(not run)",
+        "",
+        "Clutter into identification (the MHOC image, `DetectResult.support`) and the fraction "
+        "of it identification keeps, ours per scene against the paper's printed counts:",
+        "",
+        _table2_ratio_table(t2, t2_densities) if t2 else "(not run)",
+        "",
+        "False tracks (< 50 % target points) by length, all scenes of a density (a point counted "
+        "once per track, so a point on two false tracks counts twice here):",
+        "",
+        _false_length_table(t2, t2_densities) if t2 else "(not run)",
+        "",
+        "Track scores by kind, Table II:",
+        "",
+        _score_table(t2, t2_densities, "default") if t2 else "(not run)",
+        "",
         "## 2. Readings side by side: Table III (`table3-paper`)",
         "",
         _readings_table(t3, densities, readings, PAPER_ID),
@@ -700,8 +865,8 @@ def run(
     """Run every measurement; write ``<out_dir>/hoc-table3-gap.md`` (full run, or ``out_dir``).
 
     Args:
-        quick: smoke run (2.0 % only, 1 seed, three readings, 4 hard and 4 partial scenes, no
-            Table II); writes nothing unless ``out_dir`` is given.
+        quick: smoke run (2.0 % only, 1 seed, three readings, 4 hard and 4 partial scenes);
+            writes nothing unless ``out_dir`` is given.
         seeds: scenes per density (default 20, quick 1).
         out_dir: output folder (default ``experiments/results`` for a full run).
         progress: show tqdm progress bars.
@@ -714,17 +879,14 @@ def run(
         raise ValueError(f"`seeds`: expected an integer >= 1, got {seeds}")
     densities = QUICK_DENSITIES if quick else DENSITIES
     readings = QUICK_READINGS if quick else tuple(READINGS)
+    t2_densities = QUICK_DENSITIES if quick else TABLE2_DENSITIES
     with C.single_thread(), C.Timer() as timer:
         t3 = table3_rows(densities, C.seed_list(SEED_BASE, n), readings, progress)
-        t2 = (
-            []
-            if quick
-            else table2_rows(
-                TABLE2_DENSITIES,
-                C.seed_list(TABLE2_SEED_BASE, n),
-                [r for r in readings if r in TABLE2_READINGS],
-                progress,
-            )
+        t2 = table2_rows(
+            t2_densities,
+            C.seed_list(TABLE2_SEED_BASE, n),
+            [r for r in readings if r in TABLE2_READINGS],
+            progress,
         )
         hard = hard_rows(4 if quick else HARD_SCENES, False, readings, progress)
         partial = hard_rows(4 if quick else PARTIAL_SCENES, True, readings, progress)
@@ -735,7 +897,7 @@ def run(
             hard_rows(fresh_n, True, fresh_r, progress, FRESH_PARTIAL_BASE),
         )
     text = build_report(
-        quick, n, timer.seconds, t3, t2, hard, partial, densities, TABLE2_DENSITIES, readings
+        quick, n, timer.seconds, t3, t2, hard, partial, densities, t2_densities, readings
     )
     text += "\n" + "\n".join(
         [
