@@ -191,7 +191,7 @@ class VSIMMConfig:
             target 9 went 13 -> 321 m with "state": a video report from 5 s before the junction
             at (3000, 0) no longer penalised (through the wrong guess) the leaf of the branch
             the target did not take, the two branch leaves tied (scores 490.0 / 490.6) and the
-            MHT kept the wrong one for 150 s; at HEAD it is 13.1 m with both.
+            MHT kept the wrong one for 150 s; with ``"history"`` it is 13.1 m with both.
 
     Examples:
         >>> VSIMMConfig().kinds
