@@ -902,9 +902,12 @@ def report_type_likelihood(m: Any, report: Any) -> torch.Tensor:
     refined to the common frame as in 24.5.3: a singleton for a video report, the block of the
     GMTI class for a GMTI report); the factor is ``BetP_m(A) = sum_{X} |X & A| / |X| m(X)``
     (24.47) of the *updated* bba ``m``. A report with no mass off ``Theta`` (vacuous) declares
-    ``Theta`` and gives 1. This is :func:`type_likelihood` with the declared class and the
-    sensor's mapping read off the report's bba, so it works on reports of mixed sensors already
-    on the common frame.
+    ``Theta`` and gives 1. Ties between focal elements of equal largest mass go to the lowest
+    bitmask (``torch.argmax`` returns the first maximum; our choice: an observed bba of 24.5.2
+    has a single focal element besides ``Theta``, so ties arise only in hand-made reports, e.g.
+    ``m({t0}) = m({t1})`` declares ``{t0}``). This is :func:`type_likelihood` with the declared
+    class and the sensor's mapping read off the report's bba, so it works on reports of mixed
+    sensors already on the common frame.
 
     Why (issue 12, ours): ``max BetP`` of the updated bba (``type_likelihood(m)``, the chapter's
     text) measures how *certain* the track's type is, not whether the report *agrees* with it: a

@@ -380,8 +380,11 @@ class PDTrackerConfig:
             kept it (best-scoring leaf of its section), the cluster was split 4 scans later
             (``"window"``) and target 1's family reported it: its track followed target 10
             north for 110 s. Measured without PCR5 (``experiments/_pd_armse_diag.py --set
-            split_links=window`` against the default), window -> history: seed 2424, target 1
-            ARMSE 159.8 -> 9.0 m, length ratio 0.553 -> 0.954, GOSPA 106.5 -> 94.7 m; seeds
+            split_links=window`` against the default) before ``junction_retro="state"`` was
+            merged (the filter then ran with ``"locate"``), window -> history: seed 2424,
+            target 1 ARMSE 159.8 -> 9.0 m, length ratio 0.553 -> 0.954, GOSPA 106.5 -> 94.7 m
+            (re-measured with ``"state"``, seed 2424: target 1 160.1 -> 9.0 m, length ratio
+            0.553 -> 0.954, target 10 14.6 -> 14.3 m, GOSPA 106.5 -> 94.7 m); seeds
             2400-2409, all targets unchanged but target 3 (11.4 -> 11.5 m, seed 2408), GOSPA
             85.0 m both; seeds 2410-2429, target 1 57.3 -> 12.4 m (length ratio 0.929 ->
             0.949), mean ARMSE 23.0 -> 18.5 m, GOSPA 84.4 -> 83.8 m, the other targets

@@ -183,11 +183,15 @@ class VSIMMConfig:
             lag memory's one-step rows. ``"off"``: no correction. Measured in the [PD] 24.6
             scenario (``experiments/_pd_armse_diag.py``, without PCR5), "state" against
             "locate": the step ran on 4 and 6 of 1984 and 3722 OOSM road-mode rows (seeds
-            2408, 2400), every time 5 m or more from the guess; per-target ARMSE within 0.4 m
-            on 29 of the seeds 2400-2429, and on seed 2408 target 9 13 -> 321 m: a video report
-            from 5 s before the junction at (3000, 0) no longer penalises (through the wrong
-            guess) the leaf of the branch the target did not take, the two branch leaves tie
-            (scores 490.0 / 490.6) and the MHT keeps the wrong one for 150 s.
+            2408, 2400), every time 5 m or more from the guess. With the pipeline's
+            ``split_links="history"`` (the default) the two agree on every target of the seeds
+            2400-2429 within 0.1 m of ARMSE (target 4 41.4 / 41.5 m, target 10 15.4 / 15.5 m)
+            and GOSPA 84.1 / 84.2 m (``_pd_armse_diag.py --seeds 2400-2429 --jobs 1 --set
+            junction_retro=state`` and ``=locate``). Before ``split_links="history"``, seed 2408
+            target 9 went 13 -> 321 m with "state": a video report from 5 s before the junction
+            at (3000, 0) no longer penalised (through the wrong guess) the leaf of the branch
+            the target did not take, the two branch leaves tied (scores 490.0 / 490.6) and the
+            MHT kept the wrong one for 150 s; with ``"history"`` it is 13.1 m with both.
 
     Examples:
         >>> VSIMMConfig().kinds
@@ -286,10 +290,13 @@ class VSIMMState(NamedTuple):
             ``t_prev``; ``-1`` off-road), or ``None`` (a state built without it: the OOSM
             junction step of ``VSIMMConfig(junction_retro="state")`` is then skipped).
         junction_node: ``(B, r)`` int64 the node shared by ``segment_prev`` and ``segment``
-            that the mode crossed in its last step (``-1``: none, the segment did not change
-            or the two segments do not touch), or ``None`` as ``segment_prev``. With
-            ``segment_prev`` it is the junction map of the last step (:func:`junction_transition`
-            rotates about that node), inverted by the OOSM retrodiction (:func:`_retro_junction`).
+            (:func:`crossed_node`), recorded whenever the segment changed across a shared node,
+            whether or not the forward map :func:`junction_transition` rotated the prediction
+            (it does not with ``junction="none"`` or for a mixed prediction short of the
+            node); ``-1``: the segment did not change, a mode is off-road or the two segments
+            do not touch; ``None`` as ``segment_prev``. The OOSM retrodiction
+            (:func:`_retro_junction`) rotates back about it the modes whose retrodiction lies
+            behind it.
     """
 
     mu: torch.Tensor
@@ -714,18 +721,26 @@ def crossed_node(
 
     ``-1`` where the segment did not change, a mode is off-road (``-1``) or the two segments
     share no node; where they share both ends (two segments between the same nodes) the node
-    ahead of ``velocity`` on ``old`` (:func:`node_ahead`). Stored in
-    :attr:`VSIMMState.junction_node` by :func:`vsimm_update` (our addition, for the OOSM
-    retrodiction across the junction, :func:`_retro_junction`).
+    ahead of ``velocity`` on ``old`` (:func:`node_ahead`; :func:`vsimm_update` passes the mixed
+    velocity of the step, as :func:`junction_transition` uses it). Recorded whenever the segment
+    changed across a shared node, whether or not :func:`junction_transition` rotated the
+    prediction. Stored in :attr:`VSIMMState.junction_node` by :func:`vsimm_update` (our
+    addition, for the OOSM retrodiction across the junction, :func:`_retro_junction`).
 
     Args:
         net: road network.
         old: ``(...)`` int64 segments before the step (``-1`` off-road).
-        new: ``(...)`` int64 segments after the step.
+        new: ``(...)`` int64 segments after the step, same shape.
         velocity: ``(..., 2)`` velocities ``[vx, vy]`` (m/s) before the step.
 
     Returns:
         ``(...)`` int64 node indices, ``-1`` for none.
+
+    Raises:
+        ValueError: ``old`` / ``new`` not integer, of different shapes or with an index outside
+            ``[-1, num_segments - 1]``; ``velocity`` not of shape ``old.shape + (2,)`` or not
+            finite.
+        TypeError: ``old`` / ``new`` / ``velocity`` not array-like, ``velocity`` not real.
 
     Examples:
         >>> net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
@@ -733,8 +748,15 @@ def crossed_node(
         ...              torch.tensor([[5.0, 0.0], [5.0, 0.0], [0.0, -5.0]])).tolist()
         [1, -1, 1]
     """
-    old = torch.as_tensor(old).to(torch.int64)
-    new = torch.as_tensor(new).to(torch.int64)
+    old = _check_segments(net, "old", old)
+    new = _check_segments(net, "new", new)
+    if new.shape != old.shape:
+        raise ValueError(f"`new`: expected shape {tuple(old.shape)}, got {tuple(new.shape)}")
+    velocity = as_float64("velocity", velocity)
+    if tuple(velocity.shape) != (*old.shape, 2):
+        raise ValueError(
+            f"`velocity`: expected shape {(*old.shape, 2)}, got {tuple(velocity.shape)}"
+        )
     so, sn = old.clamp(min=0), new.clamp(min=0)
     a0, a1 = net.segment_nodes[so, 0], net.segment_nodes[so, 1]
     b0, b1 = net.segment_nodes[sn, 0], net.segment_nodes[sn, 1]
@@ -828,17 +850,7 @@ def _check_transition(
     net: RoadNetwork, old: Any, new: Any, x0: Any, x_pred: Any, moving: Any
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Validated inputs of :func:`junction_transition` / :func:`follow_section`."""
-    old, new = torch.as_tensor(old), torch.as_tensor(new)
-    for name, v in (("old", old), ("new", new)):
-        if v.dim() != 2 or v.is_floating_point() or v.dtype == torch.bool:
-            raise ValueError(
-                f"`{name}`: expected a (B, r) integer tensor, got {tuple(v.shape)} {v.dtype}"
-            )
-        if v.numel() and bool(((v < -1) | (v >= net.num_segments)).any()):
-            raise ValueError(
-                f"`{name}`: expected segment indices in [-1, {net.num_segments - 1}], got "
-                f"{int(v.min())}..{int(v.max())}"
-            )
+    old, new = _check_segments(net, "old", old, 2), _check_segments(net, "new", new, 2)
     if new.shape != old.shape:
         raise ValueError(f"`new`: expected shape {tuple(old.shape)}, got {tuple(new.shape)}")
     B, r = old.shape
@@ -855,7 +867,31 @@ def _check_transition(
             f"`moving`: expected a bool of shape ({r},) or ({B}, {r}), got "
             f"{tuple(torch.as_tensor(moving).shape)}"
         ) from None
-    return old.to(torch.int64), new.to(torch.int64), out[0], out[1], mov
+    return old, new, out[0], out[1], mov
+
+
+def _check_segments(
+    net: RoadNetwork, name: str, value: Any, dim: int | None = None
+) -> torch.Tensor:
+    """``value`` as int64 segment indices in ``[-1, S - 1]`` (``dim`` axes if given)."""
+    shape = "(B, r)" if dim == 2 else "(...)"
+    try:
+        v = torch.as_tensor(value)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError(
+            f"`{name}`: expected a {shape} integer tensor, got {type(value).__name__}"
+        ) from None
+    integer = not (v.is_floating_point() or v.is_complex() or v.dtype == torch.bool)
+    if (dim is not None and v.dim() != dim) or not integer:
+        raise ValueError(
+            f"`{name}`: expected a {shape} integer tensor, got {tuple(v.shape)} {v.dtype}"
+        )
+    if v.numel() and bool(((v < -1) | (v >= net.num_segments)).any()):
+        raise ValueError(
+            f"`{name}`: expected segment indices in [-1, {net.num_segments - 1}], got "
+            f"{int(v.min())}..{int(v.max())}"
+        )
+    return v.to(torch.int64)
 
 
 class VSIMMUpdate(NamedTuple):
@@ -1016,9 +1052,15 @@ def vsimm_update(
         G,
         pred.accel_cov,
         state.segment,
-        crossed_node(net, state.segment, pred.segment, state.x[..., [1, 3]]),
+        crossed_node(net, state.segment, pred.segment, _mixed_velocity(state, config)),
     )
     return new, VSIMMUpdate(total.squeeze(-1), mode_ll)
+
+
+def _mixed_velocity(state: VSIMMState, config: VSIMMConfig) -> torch.Tensor:
+    """``(B, r, 2)`` velocities of the mixed estimates ``x0`` of :func:`vsimm_predict` (24.34)."""
+    _, omega = _mixing(state.mu, config.trans_tensor())
+    return (omega.transpose(-1, -2) @ state.x)[..., [1, 3]]
 
 
 class VSIMMOOSMUpdate(NamedTuple):

@@ -687,3 +687,14 @@ class TestReportTypeLikelihood:
         assert self._winner("estimate") == 1
         # BetP of the updated bba on the declared set: 1 for both tracks, kinematics decide
         assert self._winner("declared_set") == 0
+
+
+def test_report_type_likelihood_tie_goes_to_the_lowest_bitmask():
+    # a report with m({t0}) = m({t1}) = 0.4 declares {t0} (bitmask 1 < 2): BetP({t0}) of m
+    m = torch.tensor([0, 0.1, 0.6, 0, 0, 0, 0, 0.3], dtype=torch.float64)
+    betp = pignistic(m)  # [0.2, 0.7, 0.1]
+    rep = torch.tensor([0, 0.4, 0.4, 0, 0, 0, 0, 0.2], dtype=torch.float64)
+    assert float(report_type_likelihood(m, rep)) == pytest.approx(float(betp[0]), abs=1e-12)
+    # {t1} and {t2} tied: {t1} (bitmask 2 < 4)
+    rep = torch.tensor([0, 0, 0.4, 0, 0.4, 0, 0, 0.2], dtype=torch.float64)
+    assert float(report_type_likelihood(m, rep)) == pytest.approx(float(betp[1]), abs=1e-12)

@@ -731,7 +731,7 @@ class TestStoppedTrackReport:
 
     @pytest.mark.parametrize(
         "kw",
-        [{}, {"section_best": "other", "split_links": "window"}, {"section_best": "leaf"}],
+        [{}, {"section_best": "other", "split_links": "window"}, {"section_best": "other"}],
     )
     def test_report_stays_with_the_stopped_target(self, kw: dict) -> None:
         mht, lab = self.run(**kw)

@@ -516,3 +516,10 @@ def test_section_best_and_split_links_reach_the_mht(short):
         PDTrackerConfig(section_best="score")
     with pytest.raises(ValueError, match="split_links"):
         PDTrackerConfig(split_links="all")
+
+
+def test_junction_retro_is_checked_and_reaches_the_filter():
+    assert PDTrackerConfig().vsimm.junction_retro == "state"
+    assert PDTrackerConfig(junction_retro="locate").vsimm.junction_retro == "locate"
+    with pytest.raises(ValueError, match="`junction_retro`: expected one of 'state', 'locate'"):
+        PDTrackerConfig(junction_retro="bad")

@@ -11,6 +11,7 @@ from hocnet.tracking.sprt import sprt_thresholds
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     VSIMMState,
+    crossed_node,
     follow_section,
     junction_transition,
     node_ahead,
@@ -487,6 +488,10 @@ def test_vsimm_errors_and_empty_batch():
         VSIMMConfig(trans=[[1.0, 0.0], [0.0, 1.0]])
     with pytest.raises(ValueError, match="`noise`"):
         VSIMMConfig(noise="pink")
+    with pytest.raises(ValueError, match="`junction_retro`: expected one of 'state', 'locate'"):
+        VSIMMConfig(junction_retro="bad")
+    with pytest.raises(ValueError, match="`junction`: expected one of"):
+        VSIMMConfig(junction="bad")
     # empty batch
     e = vsimm_init(net, torch.zeros(0, 4), 100 * torch.eye(4), cfg)
     assert isinstance(e, VSIMMState) and e.mu.shape == (0, 3)
@@ -1049,6 +1054,65 @@ def test_follow_section_topology_and_road_end():
     assert ahead.tolist() == [1, 2, 1] and w[2].tolist() == [0.0, -1.0]
 
 
+def test_crossed_node_two_segments_between_the_same_nodes():
+    # segment 0 runs A -> B, segment 1 B -> A (A = node 0 at x = 0, B = node 1 at x = 100):
+    # they share both ends; the node crossed is the one ahead of the velocity on the old segment
+    net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0]], [[100.0, 0.0], [0.0, 0.0]]])
+    assert net.segment_nodes.tolist() == [[0, 1], [1, 0]]
+    old, new = torch.tensor([0, 0, 1, 1, 1, -1]), torch.tensor([1, 1, 0, 0, 1, 0])
+    v = torch.tensor([[5.0, 0], [-5.0, 0], [5.0, 0], [-5.0, 0], [5.0, 0], [5.0, 0]])
+    assert crossed_node(net, old, new, v).tolist() == [1, 0, 1, 0, -1, -1]
+
+
+def test_vsimm_update_crossed_node_uses_the_mixed_velocity():
+    # the two segments of the test above; mode 1's own velocity is +5 m/s (backwards on
+    # segment 1) but its mixed estimate (24.34) follows mode 2 (mu 0.98, -5 m/s): the
+    # prediction of both moving modes locates segment 0 (a tie, lowest index); junction_node
+    # is the node ahead of the mixed velocity (A, the node junction_transition rotates about),
+    # not of the mode's own velocity (B: the result before the fix)
+    from hocnet.tracking.imm import imm_mix, imm_mixing_probabilities
+
+    net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0]], [[100.0, 0.0], [0.0, 0.0]]])
+    cfg = VSIMMConfig()
+    P0 = torch.diag(torch.tensor([25.0, 1.0, 25.0, 1.0], dtype=torch.float64))
+    s = vsimm_init(net, torch.tensor([[50.0, -5.0, 0.0, 0.0]]), P0, cfg)
+    x = s.x.clone()
+    x[0, 1, 1] = 5.0
+    mu = torch.tensor([[0.01, 0.01, 0.98]], dtype=torch.float64)
+    s = s._replace(x=x, segment=torch.tensor([[-1, 1, 1]]), mu=mu)
+    pred = vsimm_predict(s, net, cfg, s.t + 1.0)
+    assert pred.segment[0, 1:].tolist() == [0, 0]
+    new, _ = vsimm_update(s, pred, pred.x[:, 2, [0, 2]], VideoSensor(10.0), net, cfg)
+    _, omega = imm_mixing_probabilities(mu, torch.tensor(cfg.trans, dtype=torch.float64))
+    x0, _ = imm_mix(s.x, s.P, omega)
+    assert float(x0[0, 1, 1]) < 0 < float(s.x[0, 1, 1])
+    ahead, _ = node_ahead(net, s.segment[0, 1:], x0[0, 1:, [1, 3]])
+    assert ahead.tolist() == [0, 0]
+    assert new.junction_node[0].tolist() == [-1, 0, 0]
+
+
+def test_crossed_node_validates_inputs():
+    net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
+    v = torch.zeros(2, 2)
+    i = torch.tensor([0, 1])
+    with pytest.raises(ValueError, match="`old`: expected segment indices in \\[-1, 1\\]"):
+        crossed_node(net, torch.tensor([0, 2]), i, v)
+    with pytest.raises(ValueError, match=r"`new`: expected a \(\.\.\.\) integer"):
+        crossed_node(net, i, torch.tensor([0.0, 1.0]), v)
+    with pytest.raises(ValueError, match="`new`: expected shape \\(2,\\)"):
+        crossed_node(net, i, torch.tensor([0]), v)
+    with pytest.raises(ValueError, match="`velocity`: expected shape \\(2, 2\\)"):
+        crossed_node(net, i, i, torch.zeros(2))
+    with pytest.raises(ValueError, match="`velocity`: expected finite"):
+        crossed_node(net, i, i, v * math.nan)
+    with pytest.raises(TypeError, match="`velocity`"):
+        crossed_node(net, i, i, "fast")
+    with pytest.raises(TypeError, match="`old`"):
+        crossed_node(net, ["a", "b"], i, v)
+    e = torch.zeros(0, dtype=torch.int64)
+    assert crossed_node(net, e, e, torch.zeros(0, 2)).shape == (0,)
+
+
 def test_junction_transition_validates_inputs():
     net = RoadNetwork([[[0.0, 0.0], [100.0, 0.0], [100.0, 500.0]]])
     x = torch.zeros(1, 1, 4)
@@ -1204,7 +1268,7 @@ def test_oosm_junction_step_from_the_state(name):
     # hand reference: the target 12 m/s, J crossed at 33.3 s, so at tau = 31 s it is 28 m
     # before J on the arm it came from; the retrodiction of every moving mode (from the state
     # at 40 s, 80 m past J) lies on that arm within 5 m
-    net, came, _ = _junction_net(name)
+    net, came, leave = _junction_net(name)
     true_tau = _J + came * 28.0
     pos, s, _ = _retro_across(name, "state")
     assert (s.junction_node[0, 1:] >= 0).all()  # the moving modes crossed J in the last step
@@ -1219,6 +1283,14 @@ def test_oosm_junction_step_from_the_state(name):
     # at the bend kept by one mode (40 m)
     pos_locate, _, _ = _retro_across(name, "locate")
     assert max(np.linalg.norm(p - true_tau) for p in pos_locate) > 25.0
+    # a report time after the crossing (tau = 36 s: 32 m along the arm it left on) is ahead
+    # of J: not rotated back, the same as without the step (measured 0.04-0.05 m from the
+    # truth; 45 m off, on the old arm, without the `behind` condition of _junction_inverse)
+    pos36, _, _ = _retro_across(name, "state", tau=36.0)
+    off36, _, _ = _retro_across(name, "off", tau=36.0)
+    np.testing.assert_allclose(pos36, off36, rtol=0, atol=1e-9)
+    for p in pos36:
+        assert np.linalg.norm(p - (_J + leave * 32.0)) < 1.0
 
 
 @pytest.mark.parametrize("name", list(_JUNCTIONS))
