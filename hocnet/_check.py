@@ -232,7 +232,8 @@ def as_cube(
     if h < 1 or w < 1:
         raise ValueError(f"`{name}`: expected non-empty frames, got shape {tuple(value.shape)}")
     if t < min_frames:
-        raise ValueError(f"`{name}`: expected at least {min_frames} frames (T), got {t}")
+        frames = "frame" if min_frames == 1 else "frames"
+        raise ValueError(f"`{name}`: expected at least {min_frames} {frames} (T), got {t}")
     check_finite(name, cube)
     if binary:
         if cube.dtype != torch.bool:

@@ -16,18 +16,19 @@ index. Detections are ``(N, 4)`` float64 tensors with columns ``frame, x, y, sco
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
-import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import torch
 import torch.nn.functional as F
 
 from hocnet._check import as_cube, check_int, check_number
+from hocnet.data.io import _atomic_write
 
 __all__ = [
     "DETECTION_COLUMNS",
@@ -422,17 +423,17 @@ def write_detections(
     def number(v: float) -> str:
         return str(int(v)) if float(v).is_integer() and abs(v) < 2**53 else repr(float(v))
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            writer = csv.writer(fh, lineterminator="\n")
-            writer.writerow(DETECTION_COLUMNS)
-            for f, x, y, s in det.tolist():
-                writer.writerow([number(f), number(x), number(y), repr(float(s))])
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    def write(handle: IO[bytes]) -> None:
+        text = io.StringIO(newline="")
+        writer = csv.writer(text, lineterminator="\n")
+        writer.writerow(DETECTION_COLUMNS)
+        for f, x, y, s in det.tolist():
+            writer.writerow([number(f), number(x), number(y), repr(float(s))])
+        handle.write(text.getvalue().encode())
+
+    # atomic, and created with mode 0o666 minus the umask like every other output (new user:
+    # a tempfile.mkstemp file kept its 0600 mode after the rename)
+    _atomic_write(target, write)
     return target
 
 

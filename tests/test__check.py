@@ -49,3 +49,9 @@ class TestAsCubeIntegers:
     def test_binary_uint64(self):
         cube, _ = as_cube("cube", np.ones((2, 3, 3), dtype=np.uint64), binary=True)
         assert cube.dtype == torch.bool and bool(cube.all())
+
+
+def test_min_frames_message_is_singular_for_one_frame():
+    # new-user finding: "expected at least 1 frames"
+    with pytest.raises(ValueError, match=r"at least 1 frame \(T\), got 0"):
+        as_cube("cube", torch.zeros(0, 4, 4, dtype=torch.bool), binary=True)

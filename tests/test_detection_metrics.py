@@ -198,6 +198,17 @@ class TestDetectionsCsv:
         write_detections(path, torch.zeros(0, 4), overwrite=True)
         assert read_detections(path).shape == (0, 4)
 
+    def test_file_mode_follows_the_umask(self, tmp_path):
+        # new-user finding: a tempfile.mkstemp file kept mode 0600 after the rename
+        import os
+
+        old = os.umask(0o022)
+        try:
+            path = write_detections(tmp_path / "detections.csv", torch.zeros(0, 4))
+        finally:
+            os.umask(old)
+        assert path.stat().st_mode & 0o777 == 0o644
+
     def test_read_errors(self, tmp_path):
         bad_header = tmp_path / "a.csv"
         bad_header.write_text("frame,x,y\n0,1,2\n")

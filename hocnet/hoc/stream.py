@@ -585,6 +585,8 @@ class StreamingDetector:
             raise ValueError(
                 f"`scan`: expected one scan of shape (H, W), got shape {tuple(scan.shape)}"
             )
+        if min(scan.shape) < 1:
+            raise ValueError(f"`scan`: expected a non-empty scan, got shape {tuple(scan.shape)}")
         cube, _ = as_cube("scan", scan[None], binary=True)
         frame = cube[0, 0].cpu()
         shape = (int(frame.shape[0]), int(frame.shape[1]))

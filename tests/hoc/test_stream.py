@@ -806,3 +806,10 @@ def test_stride_larger_than_window_warns():
     with _warnings.catch_warnings():
         _warnings.simplefilter("error", UserWarning)
         StreamingDetector(window=10, stride=10)  # adjacent windows: every scan in one
+
+
+def test_push_of_an_empty_scan_reports_the_shape_given():
+    # new-user finding: (0, 60) was reported as the (1, 0, 60) the validation built
+    det = StreamingDetector(window=5, order=1)
+    with pytest.raises(ValueError, match=r"`scan`: expected a non-empty scan, got shape \(0, 60\)"):
+        det.push(torch.zeros(0, 60, dtype=torch.bool))
