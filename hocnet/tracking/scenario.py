@@ -34,7 +34,9 @@ Our readings and choices where the chapter is silent or the OCR lost the text:
   :data:`VIDEO_CLASSES` are the six types of Fig. 24.3 plus a tracked armoured vehicle and a
   helicopter (8 classes, as the text says). :data:`VIDEO_TO_GMTI` maps each video class to its
   GMTI class; a wheeled vehicle covers six video classes, as the chapter says of its GMTI class
-  in 24.6.3 (where it writes "tracked"; all ten targets are wheeled vehicles).
+  in 24.6.3 (where it writes "tracked"; all ten targets are wheeled vehicles). Consequence, not
+  measured side by side: every target's GMTI declaration is right with the wheeled-vehicle
+  diagonal 0.7 of eq. 24.49, not the 0.8 of the tracked class the chapter names there.
 - Off-diagonal terms of the GMTI confusion matrix: the error mass ``1 - C[i, i]`` is spread
   uniformly over the other classes, which is the chapter's simulation procedure (a uniform ``u``;
   if ``u > P`` a *wrong* type is declared) with the wrong type drawn uniformly. A report carries
