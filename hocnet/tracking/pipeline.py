@@ -522,6 +522,11 @@ def report_scans(reports: Sequence[Report], gmti: GMTISensor) -> list[Scan]:
 
     GMTI covariances are recomputed by ``gmti.covariance`` (the filter's model).
 
+    Raises:
+        ValueError: a report's sensor is not ``"gmti"``, ``"video"`` or ``"ugs-N"``, or its ``z``
+            is not of shape ``(3,)`` (GMTI) or ``(2,)`` (video, UGS); every report is checked
+            before any scan is built, and the message names the report (``reports[i]``).
+
     Examples:
         >>> from hocnet.tracking.scenario import pd_scenario
         >>> sc = pd_scenario(seed=0, duration=60.0)
@@ -529,7 +534,25 @@ def report_scans(reports: Sequence[Report], gmti: GMTISensor) -> list[Scan]:
         >>> n = sum(len(s.reports) for s in scans)
         >>> scans[0].kind, scans[0].z.shape[1], n == len(sc.reports)
         ('gmti', 3, True)
+        >>> import dataclasses
+        >>> bad = dataclasses.replace(sc.reports[0], sensor="sonar")
+        >>> report_scans([bad], GMTISensor(sc.gmti.position))
+        Traceback (most recent call last):
+        ...
+        ValueError: `reports[0].sensor`: expected 'gmti', 'video' or 'ugs-N', got 'sonar'
     """
+    for i, r in enumerate(reports):
+        kind = r.kind if isinstance(r.sensor, str) else None
+        if kind not in ("gmti", "video", "ugs"):
+            raise ValueError(
+                f"`reports[{i}].sensor`: expected 'gmti', 'video' or 'ugs-N', got {r.sensor!r}"
+            )
+        want = (3,) if kind == "gmti" else (2,)
+        if np.shape(r.z) != want:
+            raise ValueError(
+                f"`reports[{i}].z`: expected shape {want} for a {kind!r} report, "
+                f"got shape {np.shape(r.z)}"
+            )
     groups: list[list[Report]] = []
     for r in reports:
         if groups and (

@@ -99,7 +99,7 @@ from typing import Any
 
 import numpy as np
 
-from hocnet._check import check_number, check_seed
+from hocnet._check import check_choice, check_number, check_seed
 
 __all__ = [
     "GMTI_CLASSES",
@@ -623,7 +623,8 @@ class Report:
         R: measurement covariance ``(3, 3)`` or ``(2, 2)``.
         sensor_position: ``(3,)`` sensor position ``(x, y, z)`` in m at ``time``.
         frame: class frame of the declaration, ``"gmti"`` (:data:`GMTI_CLASSES`) or ``"video"``
-            (:data:`VIDEO_CLASSES`, also used by the UGS).
+            (:data:`VIDEO_CLASSES`, also used by the UGS); any other value raises ``ValueError``
+            at construction.
         declared: declared class index in that frame.
         p_declared: ``P{c}``, the probability that the declaration is right (eq. 24.22).
         target_id: the originating target, ``None`` for a false alarm (for evaluation only);
@@ -643,6 +644,14 @@ class Report:
     p_declared: float
     target_id: int | None
     unresolved: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        """Check ``frame``: any other value would be read as the video frame by :meth:`bba`.
+
+        Raises:
+            ValueError: ``frame`` is not ``"gmti"`` or ``"video"``.
+        """
+        check_choice("frame", self.frame, ("gmti", "video"))
 
     @property
     def kind(self) -> str:

@@ -83,6 +83,20 @@ class TestZadeh:
         assert out[frozenset("T")] == pytest.approx(0.028, abs=1e-12)
         assert pcr5_sources(m1, m2).tolist() == pytest.approx(pcr5(m1, m2).tolist(), abs=1e-15)
 
+    def test_against_evidencelib(self):
+        """Zadeh's example through evidencelib: PCR5 (two-source and s-source forms), Dempster."""
+        m1, m2 = zadeh()
+        atoms = ["M", "C", "T"]
+        frame = Frame.dst(atoms)
+        e1, e2 = to_evidencelib(frame, m1, atoms), to_evidencelib(frame, m2, atoms)
+        expected = from_evidencelib(frame, e1.pcr5(e2), atoms)
+        np.testing.assert_allclose(expected[[1, 2, 4]], [0.486, 0.486, 0.028], atol=1e-12)
+        np.testing.assert_allclose(pcr5(m1, m2).numpy(), expected, atol=1e-12)
+        np.testing.assert_allclose(pcr5_sources(m1, m2).numpy(), expected, atol=1e-12)
+        np.testing.assert_allclose(
+            dempster(m1, m2).numpy(), from_evidencelib(frame, e1.dempster(e2), atoms), atol=1e-12
+        )
+
 
 class TestAgainstEvidencelib:
     @pytest.mark.parametrize("n", [2, 3, 4])

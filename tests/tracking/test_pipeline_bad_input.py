@@ -14,10 +14,17 @@ import math
 import pytest
 import torch
 
-from hocnet.tracking.pipeline import PDTrackerConfig, Scan, _pd_tracker, run_pd_tracker
+from hocnet.tracking.mht import MHT
+from hocnet.tracking.pipeline import (
+    PDTrackerConfig,
+    Scan,
+    _pd_tracker,
+    report_scans,
+    run_pd_tracker,
+)
 from hocnet.tracking.road import RoadNetwork
 from hocnet.tracking.scenario import pd_scenario
-from hocnet.tracking.sensors import VideoSensor
+from hocnet.tracking.sensors import GMTISensor, VideoSensor
 from hocnet.tracking.vsimm import (
     VSIMMConfig,
     vsimm_init,
@@ -274,3 +281,57 @@ def test_vsimm_functions_name_a_sensor_that_is_not_a_model(sensor):
     if isinstance(sensor, str):
         with pytest.raises(TypeError, match=rf"got str '{sensor}' \(a name: build the model"):
             vsimm_step(s, net, cfg, 20.0, z, sensor)
+
+
+# --------------------------------------------------------------------------- relabelled reports
+@pytest.fixture(scope="module")
+def with_video():
+    """300 s: the first video reports arrive after 120 s (the runs below stop before any scan)."""
+    sc = pd_scenario(seed=2400, duration=300.0)
+    assert {r.kind for r in sc.reports} == {"gmti", "video"}
+    return sc
+
+
+def _relabelled(sc, kind, sensor):
+    """``sc`` with its last ``kind`` report relabelled as ``sensor`` (kinematics unchanged)."""
+    i = max(k for k, r in enumerate(sc.reports) if r.kind == kind)
+    reports = list(sc.reports)
+    reports[i] = dataclasses.replace(reports[i], sensor=sensor)
+    return i, dataclasses.replace(sc, reports=reports)
+
+
+@pytest.mark.parametrize("kind", ["gmti", "video"])
+def test_report_with_unknown_sensor_is_refused_before_any_scan(with_video, kind, monkeypatch):
+    """A GMTI (3-D z: was a torch RuntimeError) or video report relabelled "sonar", placed last:
+    refused up front, naming the report, before the tracker steps a single scan."""
+    i, sc = _relabelled(with_video, kind, "sonar")
+    assert i > len(sc.reports) // 2  # late in the feed: the check does not wait for it
+    stepped = []
+    monkeypatch.setattr(MHT, "step", lambda self, *a, **k: stepped.append(a))
+    msg = rf"`reports\[{i}\]\.sensor`: expected 'gmti', 'video' or 'ugs-N', got 'sonar'"
+    with pytest.raises(ValueError, match=msg):
+        run_pd_tracker(sc, type_tracking=True)
+    assert stepped == []
+    with pytest.raises(ValueError, match=msg):
+        report_scans(sc.reports, GMTISensor(sc.gmti.position))
+
+
+@pytest.mark.parametrize(
+    ("kind", "sensor", "want", "got"), [("gmti", "video", 2, 3), ("video", "gmti", 3, 2)]
+)
+def test_report_with_a_known_sensor_and_the_wrong_z_shape_is_refused(
+    with_video, kind, sensor, want, got
+):
+    i, sc = _relabelled(with_video, kind, sensor)
+    msg = (
+        rf"`reports\[{i}\]\.z`: expected shape \({want},\) for a '{sensor}' report, "
+        rf"got shape \({got},\)"
+    )
+    with pytest.raises(ValueError, match=msg):
+        run_pd_tracker(sc, type_tracking=False)
+
+
+def test_clean_reports_pass_the_check(with_video):
+    scans = report_scans(with_video.reports, GMTISensor(with_video.gmti.position))
+    assert sum(len(s.reports) for s in scans) == len(with_video.reports)
+    assert {s.kind for s in scans} >= {"gmti", "video"}

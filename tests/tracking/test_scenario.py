@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -498,6 +499,16 @@ class TestReport:
             assert r.z.shape == (d,) and r.R.shape == (d, d)
             np.testing.assert_allclose(r.R, r.R.T)
             assert (np.linalg.eigvalsh(r.R) > 0).all()
+
+    @pytest.mark.parametrize("frame", ["sar", "GMTI", "", None])
+    def test_unknown_frame_is_refused(self, runs, frame):
+        """Was silently read as the video frame by ``bba``."""
+        r = runs[0].reports[0]
+        msg = r"`frame`: expected one of 'gmti', 'video', got "
+        with pytest.raises(ValueError, match=msg + repr(frame)):
+            dataclasses.replace(r, frame=frame)
+        for ok in ("gmti", "video"):
+            assert dataclasses.replace(r, frame=ok, declared=0).frame == ok
 
 
 class TestPlot:
