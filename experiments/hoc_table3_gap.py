@@ -332,52 +332,24 @@ def _detect(cube: torch.Tensor, **kw: Any) -> Any:
 # ----------------------------------------------------------------------------- measurements
 
 
-def table3_rows(
-    densities: Sequence[float], seeds: Sequence[int], readings: Sequence[str], progress: bool
+def _scene_rows(
+    preset: str,
+    config_of: Any,
+    densities: Sequence[float],
+    seeds: Sequence[int],
+    readings: Sequence[str],
+    progress: bool,
 ) -> list[dict]:
-    """One row per (density, seed, reading) on ``table3-paper``."""
-    rows = []
-    jobs = [(d, s) for d in densities for s in seeds]
-    for d, s in C.progress(jobs, enabled=progress, desc=f"{NAME} table3"):
-        scene = paper_scene("table3-paper", d, seed=s)
-        target = scene.target_mask
-        n_clutter = int((scene.cube & ~target).sum())
-        for name in readings:
-            res = _detect(scene.cube, **READINGS[name][0])
-            count, tracks = classify(scene.cube, target, scene.tracks, res)
-            kept = int((res.cleaned & ~target).sum())
-            rows.append(
-                {
-                    "density": d,
-                    "seed": s,
-                    "config": table3_configuration(s),
-                    "reading": name,
-                    "clutter_in": n_clutter,
-                    "clutter_kept": kept,
-                    "rejection": 100 * (n_clutter - kept) / n_clutter,
-                    "lost": int((target & ~res.cleaned).sum()),
-                    "a": count["a"],
-                    "b": count["b"],
-                    "c": count["c"],
-                    **{f"b:{how}": count[f"b:{how}"] for how in OTHER_KINDS},
-                    "tracks": tracks,
-                }
-            )
-    return rows
+    """One row per (density, seed, reading) on ``paper_scene(preset)``, kept clutter classified.
 
-
-def table2_rows(
-    densities: Sequence[float], seeds: Sequence[int], readings: Sequence[str], progress: bool
-) -> list[dict]:
-    """One row per (density, seed, reading) on the Table II scenes (``paper_scene("table2")``).
-
-    Each row also holds the classification of the kept clutter points (:func:`classify`) and
-    the clutter points of the MHOC image (``mhoc_clutter``), as :func:`table3_rows`.
+    Each row holds the rejection, the target points lost, the classification of the kept clutter
+    points (:func:`classify`) and the clutter points of the MHOC image (``mhoc_clutter``);
+    ``config_of(seed)`` names the scene's configuration.
     """
     rows = []
     jobs = [(d, s) for d in densities for s in seeds]
-    for d, s in C.progress(jobs, enabled=progress, desc=f"{NAME} table2"):
-        scene = paper_scene("table2", d, seed=s)
+    for d, s in C.progress(jobs, enabled=progress, desc=f"{NAME} {preset}"):
+        scene = paper_scene(preset, d, seed=s)
         target = scene.target_mask
         n_clutter = int((scene.cube & ~target).sum())
         for name in readings:
@@ -388,7 +360,7 @@ def table2_rows(
                 {
                     "density": d,
                     "seed": s,
-                    "config": "two tracks",
+                    "config": config_of(s),
                     "reading": name,
                     "clutter_in": n_clutter,
                     "clutter_kept": kept,
@@ -403,6 +375,23 @@ def table2_rows(
                 }
             )
     return rows
+
+
+def table3_rows(
+    densities: Sequence[float], seeds: Sequence[int], readings: Sequence[str], progress: bool
+) -> list[dict]:
+    """One row per (density, seed, reading) on ``table3-paper`` (:func:`_scene_rows`)."""
+    return _scene_rows("table3-paper", table3_configuration, densities, seeds, readings, progress)
+
+
+def table2_rows(
+    densities: Sequence[float], seeds: Sequence[int], readings: Sequence[str], progress: bool
+) -> list[dict]:
+    """One row per (density, seed, reading) on the Table II scenes (``paper_scene("table2")``).
+
+    The same rows as :func:`table3_rows` (:func:`_scene_rows`), configuration "two tracks".
+    """
+    return _scene_rows("table2", lambda s: "two tracks", densities, seeds, readings, progress)
 
 
 def hard_rows(
